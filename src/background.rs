@@ -1,0 +1,1 @@
+//! Background images composited behind the volume. (Being written: issue 4.)

@@ -1,0 +1,45 @@
+//! Command-line interface: one file per subcommand, each with its clap `Args` and a `run`.
+
+mod clip_score;
+mod convert;
+mod info;
+mod optimize;
+mod render;
+mod volume_args;
+
+pub use volume_args::VolumeArgs;
+
+use clap::{Parser, Subcommand};
+
+/// Turn a sentence into a volume-rendering transfer function for ParaView and VisIt.
+#[derive(Parser, Debug)]
+#[command(name = "t2tf", version, about, propagate_version = true)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Print a volume's dimensions, spacing, origin, type, value range and histogram.
+    Info(info::InfoArgs),
+    /// Convert a transfer function between ParaView JSON, ParaView XML and VisIt .ct.
+    Convert(convert::ConvertArgs),
+    /// Render a volume with a transfer function to a PNG.
+    Render(render::RenderArgs),
+    /// Print the CLIP similarity of an image to captions.
+    ClipScore(clip_score::ClipScoreArgs),
+    /// Optimize a transfer function so renderings match a text prompt.
+    Optimize(optimize::OptimizeArgs),
+}
+
+/// Run the parsed command.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Info(a) => info::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Render(a) => render::run(a),
+        Command::ClipScore(a) => clip_score::run(a),
+        Command::Optimize(a) => optimize::run(a),
+    }
+}

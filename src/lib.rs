@@ -1,0 +1,16 @@
+//! t2tf: text to transfer function.
+//!
+//! The pipeline (see ARCHITECTURE.md) flows one way through these modules:
+//! `volume` → `tf` → `camera`/`background` → `render` → `clip` → `optimize` → `formats`.
+//! `cli` is the thin layer the binary calls into.
+
+pub mod background;
+pub mod camera;
+pub mod cli;
+pub mod clip;
+pub mod formats;
+pub mod image;
+pub mod optimize;
+pub mod render;
+pub mod tf;
+pub mod volume;

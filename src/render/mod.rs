@@ -1,0 +1,2 @@
+//! Differentiable emission-absorption volume renderer: forward and analytic backward.
+//! (Being written: issue 4.)

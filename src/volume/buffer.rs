@@ -1,0 +1,224 @@
+//! A decoded array in its file's own scalar type and byte order.
+//!
+//! Readers hand over the bytes as they are; values are decoded on the fly in the two passes of
+//! [`super::Volume::from_buffer`], so a volume costs the file's bytes plus one f32 copy.
+
+use std::fmt;
+use std::str::FromStr;
+
+/// The scalar types VTK and the Open SciVis naming use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ScalarType {
+    U8,
+    I8,
+    U16,
+    I16,
+    U32,
+    I32,
+    U64,
+    I64,
+    F32,
+    F64,
+}
+
+impl ScalarType {
+    pub const ALL: [ScalarType; 10] = [
+        ScalarType::U8,
+        ScalarType::I8,
+        ScalarType::U16,
+        ScalarType::I16,
+        ScalarType::U32,
+        ScalarType::I32,
+        ScalarType::U64,
+        ScalarType::I64,
+        ScalarType::F32,
+        ScalarType::F64,
+    ];
+
+    pub fn size(self) -> usize {
+        match self {
+            ScalarType::U8 | ScalarType::I8 => 1,
+            ScalarType::U16 | ScalarType::I16 => 2,
+            ScalarType::U32 | ScalarType::I32 | ScalarType::F32 => 4,
+            ScalarType::U64 | ScalarType::I64 | ScalarType::F64 => 8,
+        }
+    }
+
+    /// The Open SciVis file-name spelling (`uint8`, `float32`, ...).
+    pub fn scivis_name(self) -> &'static str {
+        match self {
+            ScalarType::U8 => "uint8",
+            ScalarType::I8 => "int8",
+            ScalarType::U16 => "uint16",
+            ScalarType::I16 => "int16",
+            ScalarType::U32 => "uint32",
+            ScalarType::I32 => "int32",
+            ScalarType::U64 => "uint64",
+            ScalarType::I64 => "int64",
+            ScalarType::F32 => "float32",
+            ScalarType::F64 => "float64",
+        }
+    }
+
+    /// The VTK XML `type` attribute spelling (`UInt8`, `Float32`, ...).
+    pub fn vtk_xml_name(self) -> &'static str {
+        match self {
+            ScalarType::U8 => "UInt8",
+            ScalarType::I8 => "Int8",
+            ScalarType::U16 => "UInt16",
+            ScalarType::I16 => "Int16",
+            ScalarType::U32 => "UInt32",
+            ScalarType::I32 => "Int32",
+            ScalarType::U64 => "UInt64",
+            ScalarType::I64 => "Int64",
+            ScalarType::F32 => "Float32",
+            ScalarType::F64 => "Float64",
+        }
+    }
+
+    /// ParaView ImageReader's `DataScalarType` enumeration value spelling.
+    pub fn paraview_name(self) -> &'static str {
+        match self {
+            ScalarType::U8 => "unsigned char",
+            ScalarType::I8 => "char",
+            ScalarType::U16 => "unsigned short",
+            ScalarType::I16 => "short",
+            ScalarType::U32 => "unsigned int",
+            ScalarType::I32 => "int",
+            ScalarType::U64 => "unsigned long long",
+            ScalarType::I64 => "long long",
+            ScalarType::F32 => "float",
+            ScalarType::F64 => "double",
+        }
+    }
+}
+
+impl fmt::Display for ScalarType {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.scivis_name())
+    }
+}
+
+impl FromStr for ScalarType {
+    type Err = String;
+
+    /// Accepts the SciVis names (`uint8`), VTK XML names (`UInt8`) and C-ish aliases.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let t = match s.to_ascii_lowercase().as_str() {
+            "uint8" | "u8" | "uchar" | "unsigned_char" => ScalarType::U8,
+            "int8" | "i8" | "char" | "signed_char" => ScalarType::I8,
+            "uint16" | "u16" | "ushort" | "unsigned_short" => ScalarType::U16,
+            "int16" | "i16" | "short" => ScalarType::I16,
+            "uint32" | "u32" | "uint" | "unsigned_int" => ScalarType::U32,
+            "int32" | "i32" | "int" => ScalarType::I32,
+            "uint64" | "u64" | "unsigned_long" | "unsigned_long_long" => ScalarType::U64,
+            "int64" | "i64" | "long" | "long_long" | "idtype" | "vtkidtype" => ScalarType::I64,
+            "float32" | "f32" | "float" => ScalarType::F32,
+            "float64" | "f64" | "double" => ScalarType::F64,
+            _ => {
+                return Err(format!(
+                    "unknown scalar type '{s}' (expected one of uint8, int8, uint16, int16, \
+                     uint32, int32, uint64, int64, float32, float64)"
+                ))
+            }
+        };
+        Ok(t)
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum ByteOrder {
+    #[default]
+    Little,
+    Big,
+}
+
+impl FromStr for ByteOrder {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "little" | "le" | "littleendian" => Ok(ByteOrder::Little),
+            "big" | "be" | "bigendian" => Ok(ByteOrder::Big),
+            _ => Err(format!("unknown byte order '{s}' (expected little or big)")),
+        }
+    }
+}
+
+/// Raw bytes of `len()` scalars of one type and byte order.
+#[derive(Clone, Debug)]
+pub struct TypedBuffer {
+    /// How the bytes are stored.
+    storage: ScalarType,
+    byte_order: ByteOrder,
+    bytes: Vec<u8>,
+    /// The type the file declared (differs from `storage` for parsed text).
+    declared: ScalarType,
+}
+
+impl TypedBuffer {
+    /// `bytes.len()` must be a multiple of the type's size; extra bytes are an error upstream.
+    pub fn new(scalar_type: ScalarType, byte_order: ByteOrder, bytes: Vec<u8>) -> Self {
+        TypedBuffer {
+            storage: scalar_type,
+            byte_order,
+            bytes,
+            declared: scalar_type,
+        }
+    }
+
+    /// For text formats: parsed values stored as little-endian f64.
+    pub fn from_f64(values: Vec<f64>) -> Self {
+        let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        Self::new(ScalarType::F64, ByteOrder::Little, bytes)
+    }
+
+    /// Like [`TypedBuffer::from_f64`] but keeps the scalar type the file declared.
+    pub fn from_f64_as(values: Vec<f64>, declared: ScalarType) -> Self {
+        TypedBuffer {
+            declared,
+            ..Self::from_f64(values)
+        }
+    }
+
+    /// The scalar type the file declared.
+    pub fn scalar_type(&self) -> ScalarType {
+        self.declared
+    }
+
+    pub fn len(&self) -> usize {
+        self.bytes.len() / self.storage.size()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Call `f` with every value as f64, in order.
+    pub fn for_each(&self, mut f: impl FnMut(f64)) {
+        macro_rules! each {
+            ($t:ty) => {{
+                const N: usize = std::mem::size_of::<$t>();
+                for c in self.bytes.chunks_exact(N) {
+                    let a: [u8; N] = c.try_into().expect("chunk of N bytes");
+                    let v = match self.byte_order {
+                        ByteOrder::Little => <$t>::from_le_bytes(a),
+                        ByteOrder::Big => <$t>::from_be_bytes(a),
+                    };
+                    f(v as f64);
+                }
+            }};
+        }
+        match self.storage {
+            ScalarType::U8 => each!(u8),
+            ScalarType::I8 => each!(i8),
+            ScalarType::U16 => each!(u16),
+            ScalarType::I16 => each!(i16),
+            ScalarType::U32 => each!(u32),
+            ScalarType::I32 => each!(i32),
+            ScalarType::U64 => each!(u64),
+            ScalarType::I64 => each!(i64),
+            ScalarType::F32 => each!(f32),
+            ScalarType::F64 => each!(f64),
+        }
+    }
+}

@@ -1,0 +1,291 @@
+//! Volumes: reading `.raw`, `.vti` and legacy `.vtk` files into one normalized [`Volume`].
+//!
+//! Readers (`raw`, `vti`, `legacy`) decode a file into a [`TypedBuffer`] (the file's own scalar
+//! type and byte order, untouched) plus [`Geometry`]; [`Volume::from_buffer`] then makes the one
+//! f32 copy the rest of the program uses: values normalized to [0, 1] by the finite min/max
+//! (DESIGN.md, "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty),
+//! the histogram, and the mip pyramid with per-brick value ranges for empty-space skipping.
+
+mod buffer;
+mod pyramid;
+
+pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
+pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
+
+use std::path::{Path, PathBuf};
+
+/// Number of histogram bins over the normalized value range.
+pub const HISTOGRAM_BINS: usize = 256;
+
+/// Where a volume came from, with what a ParaView or VisIt script needs to open the same file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VolumeSource {
+    pub path: PathBuf,
+    pub format: SourceFormat,
+}
+
+/// The file format and the reader settings that decode it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SourceFormat {
+    /// Headerless raw array, x fastest.
+    Raw {
+        scalar_type: ScalarType,
+        byte_order: ByteOrder,
+    },
+    /// VTK XML ImageData; `array` is the point-data array that was read.
+    Vti { array: String },
+    /// Legacy VTK STRUCTURED_POINTS; `array` is the scalars' name.
+    LegacyVtk { array: String },
+}
+
+/// Grid geometry in VTK ImageData terms: point (i, j, k) sits at `origin + (i, j, k) * spacing`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Geometry {
+    pub dims: [usize; 3],
+    pub spacing: [f64; 3],
+    pub origin: [f64; 3],
+}
+
+impl Geometry {
+    pub fn voxel_count(&self) -> usize {
+        self.dims.iter().product()
+    }
+
+    /// World-space extent of the box: `(dims - 1) * spacing` per axis.
+    pub fn extent(&self) -> [f64; 3] {
+        std::array::from_fn(|a| (self.dims[a].saturating_sub(1)) as f64 * self.spacing[a])
+    }
+
+    /// The box's longest side `L`: one unit of normalized length (DESIGN.md density units).
+    /// A degenerate box (every side zero) counts as 1 so densities stay finite.
+    pub fn longest_side(&self) -> f64 {
+        let l = self.extent().into_iter().fold(0.0, f64::max);
+        if l > 0.0 {
+            l
+        } else {
+            1.0
+        }
+    }
+
+    pub fn center(&self) -> [f64; 3] {
+        let e = self.extent();
+        std::array::from_fn(|a| self.origin[a] + 0.5 * e[a])
+    }
+
+    /// Half the box diagonal: the radius the camera distance is measured in.
+    pub fn bounding_radius(&self) -> f64 {
+        let e = self.extent();
+        let r = 0.5 * (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt();
+        if r > 0.0 {
+            r
+        } else {
+            0.5
+        }
+    }
+}
+
+/// Why a volume could not be made. Readers wrap these with the file's path.
+#[derive(Debug, thiserror::Error)]
+pub enum VolumeError {
+    #[error("{path}: {message}")]
+    File { path: PathBuf, message: String },
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+impl VolumeError {
+    pub fn file(path: &Path, message: impl Into<String>) -> Self {
+        VolumeError::File {
+            path: path.to_path_buf(),
+            message: message.into(),
+        }
+    }
+}
+
+/// A scalar volume ready to render: normalized samples, statistics and the mip pyramid.
+#[derive(Clone, Debug)]
+pub struct Volume {
+    pub geometry: Geometry,
+    /// The scalar type of the file the values came from.
+    pub scalar_type: ScalarType,
+    /// Finite min and max of the original values (data units). Equal for a constant volume.
+    pub range: [f64; 2],
+    /// The data range that maps to [0, 1]: `range`, widened to `range ± 0.5` for a constant
+    /// volume so that every exported TF still has a non-empty x range.
+    pub norm_range: [f64; 2],
+    /// Count of NaN/Inf voxels (stored as NaN in the normalized data: empty space).
+    pub non_finite: usize,
+    /// Counts of normalized values in `HISTOGRAM_BINS` equal bins over [0, 1].
+    pub histogram: Vec<u64>,
+    /// Mip pyramid; `levels[0]` holds the full-resolution normalized samples.
+    pub levels: Vec<Level>,
+    /// The file this volume was read from, if any.
+    pub source: Option<VolumeSource>,
+}
+
+impl Volume {
+    /// Normalize a decoded buffer into a volume. `origin` names the data in errors.
+    pub fn from_buffer(
+        name: &Path,
+        geometry: Geometry,
+        buffer: &TypedBuffer,
+    ) -> Result<Volume, VolumeError> {
+        let n = geometry.voxel_count();
+        if geometry.dims.contains(&0) {
+            return Err(VolumeError::file(
+                name,
+                format!("dimensions {:?} contain a zero", geometry.dims),
+            ));
+        }
+        if buffer.len() != n {
+            return Err(VolumeError::file(
+                name,
+                format!(
+                    "holds {} values but dimensions {}x{}x{} need {n}",
+                    buffer.len(),
+                    geometry.dims[0],
+                    geometry.dims[1],
+                    geometry.dims[2]
+                ),
+            ));
+        }
+        for a in 0..3 {
+            let s = geometry.spacing[a];
+            if !(s.is_finite() && s > 0.0 && geometry.origin[a].is_finite()) {
+                return Err(VolumeError::file(
+                    name,
+                    format!(
+                        "spacing {:?} and origin {:?} must be finite, spacing positive",
+                        geometry.spacing, geometry.origin
+                    ),
+                ));
+            }
+        }
+
+        // Pass 1: finite range in f64 (f64 inputs beyond f32's range stay exact here).
+        let (mut lo, mut hi, mut non_finite) = (f64::INFINITY, f64::NEG_INFINITY, 0usize);
+        buffer.for_each(|v| {
+            if v.is_finite() {
+                lo = lo.min(v);
+                hi = hi.max(v);
+            } else {
+                non_finite += 1;
+            }
+        });
+        if non_finite == n {
+            return Err(VolumeError::file(
+                name,
+                "every value is NaN or infinite: nothing to render",
+            ));
+        }
+        let norm_range = if hi > lo {
+            [lo, hi]
+        } else {
+            [lo - 0.5, lo + 0.5]
+        };
+
+        // Pass 2: the one f32 copy, normalized; non-finite voxels become NaN.
+        let scale = 1.0 / (norm_range[1] - norm_range[0]);
+        let mut data = Vec::with_capacity(n);
+        let mut histogram = vec![0u64; HISTOGRAM_BINS];
+        buffer.for_each(|v| {
+            if v.is_finite() {
+                let t = ((v - norm_range[0]) * scale).clamp(0.0, 1.0);
+                let bin = ((t * HISTOGRAM_BINS as f64) as usize).min(HISTOGRAM_BINS - 1);
+                histogram[bin] += 1;
+                data.push(t as f32);
+            } else {
+                data.push(f32::NAN);
+            }
+        });
+
+        let levels = pyramid::build(geometry, data);
+        Ok(Volume {
+            geometry,
+            scalar_type: buffer.scalar_type(),
+            range: [lo, hi],
+            norm_range,
+            non_finite,
+            histogram,
+            levels,
+            source: None,
+        })
+    }
+
+    /// Full-resolution normalized samples, x fastest (NaN = empty).
+    pub fn data(&self) -> &[f32] {
+        &self.levels[0].data
+    }
+
+    pub fn dims(&self) -> [usize; 3] {
+        self.geometry.dims
+    }
+
+    /// Map a normalized value in [0, 1] back to data units.
+    pub fn denormalize(&self, t: f64) -> f64 {
+        self.norm_range[0] + t * (self.norm_range[1] - self.norm_range[0])
+    }
+
+    /// Bytes held by the normalized data and the pyramid.
+    pub fn memory_bytes(&self) -> usize {
+        self.levels.iter().map(Level::memory_bytes).sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn geom(dims: [usize; 3]) -> Geometry {
+        Geometry {
+            dims,
+            spacing: [1.0; 3],
+            origin: [0.0; 3],
+        }
+    }
+
+    #[test]
+    fn normalizes_by_finite_range_and_keeps_nan_empty() {
+        let values = vec![2.0f64, 4.0, f64::NAN, 6.0, f64::INFINITY, 3.0, 5.0, 4.0];
+        let buf = TypedBuffer::from_f64(values);
+        let v = Volume::from_buffer(Path::new("t"), geom([2, 2, 2]), &buf).unwrap();
+        assert_eq!(v.range, [2.0, 6.0]);
+        assert_eq!(v.non_finite, 2);
+        assert_eq!(v.data()[0], 0.0);
+        assert_eq!(v.data()[1], 0.5);
+        assert!(v.data()[2].is_nan());
+        assert_eq!(v.data()[3], 1.0);
+        assert_eq!(v.histogram.iter().sum::<u64>(), 6);
+    }
+
+    #[test]
+    fn constant_volume_maps_to_middle() {
+        let buf = TypedBuffer::from_f64(vec![7.0; 8]);
+        let v = Volume::from_buffer(Path::new("t"), geom([2, 2, 2]), &buf).unwrap();
+        assert_eq!(v.range, [7.0, 7.0]);
+        assert_eq!(v.norm_range, [6.5, 7.5]);
+        assert!(v.data().iter().all(|&x| x == 0.5));
+    }
+
+    #[test]
+    fn huge_f64_range_stays_finite() {
+        let buf = TypedBuffer::from_f64(vec![-1e300, 1e300, 0.0, 5.0]);
+        let v = Volume::from_buffer(Path::new("t"), geom([4, 1, 1]), &buf).unwrap();
+        assert!(v.data().iter().all(|x| x.is_finite()));
+        assert_eq!(v.data()[1], 1.0);
+    }
+
+    #[test]
+    fn rejects_all_nan_zero_dims_and_size_mismatch() {
+        let nan = TypedBuffer::from_f64(vec![f64::NAN; 8]);
+        let e = Volume::from_buffer(Path::new("x.raw"), geom([2, 2, 2]), &nan).unwrap_err();
+        assert!(e.to_string().starts_with("x.raw: every value"), "{e}");
+        let buf = TypedBuffer::from_f64(vec![1.0; 8]);
+        assert!(Volume::from_buffer(Path::new("t"), geom([2, 0, 2]), &buf).is_err());
+        assert!(Volume::from_buffer(Path::new("t"), geom([2, 2, 3]), &buf).is_err());
+    }
+}

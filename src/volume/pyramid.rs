@@ -1,0 +1,270 @@
+//! Mip pyramid (2× reductions) and per-brick value ranges.
+//!
+//! Every level spans the same world box as level 0: an axis of `d` points becomes `ceil(d/2)`
+//! points with the spacing stretched so that `(d' - 1) * spacing'` equals `(d - 1) * spacing`.
+//! Axes of 1 or 2 points are not reduced. Values are filtered with a tent of the reduction's
+//! width; NaN (empty) samples are left out of the filter, and a point is NaN only when all of
+//! its contributors are.
+//!
+//! Bricks partition the *cells* of a level into blocks of `BRICK_CELLS`³; a brick's min/max
+//! covers every point its cells touch, so any trilinear sample inside the brick lies within
+//! [min, max] and a TF that is zero on that interval makes the whole brick empty.
+
+use super::Geometry;
+
+/// Cells per brick side.
+pub const BRICK_CELLS: usize = 8;
+
+/// Stop reducing once every axis has at most this many points.
+const MIN_LEVEL_POINTS: usize = 8;
+
+/// One level of the pyramid.
+#[derive(Clone, Debug)]
+pub struct Level {
+    /// Points per axis.
+    pub dims: [usize; 3],
+    /// World spacing at this level (origin is the volume's).
+    pub spacing: [f64; 3],
+    /// Normalized samples, x fastest; NaN = empty.
+    pub data: Vec<f32>,
+    pub bricks: BrickGrid,
+}
+
+impl Level {
+    pub fn memory_bytes(&self) -> usize {
+        4 * (self.data.len() + self.bricks.min.len() + self.bricks.max.len())
+    }
+
+    #[inline]
+    pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
+        i + self.dims[0] * (j + self.dims[1] * k)
+    }
+}
+
+/// Min/max of the normalized value per brick of `BRICK_CELLS`³ cells.
+#[derive(Clone, Debug)]
+pub struct BrickGrid {
+    /// Bricks per axis.
+    pub counts: [usize; 3],
+    /// Per brick, x fastest. An all-NaN brick has min = +inf, max = -inf.
+    pub min: Vec<f32>,
+    pub max: Vec<f32>,
+}
+
+impl BrickGrid {
+    fn build(dims: [usize; 3], data: &[f32]) -> BrickGrid {
+        let cells = dims.map(|d| d.saturating_sub(1).max(1));
+        let counts = cells.map(|c| c.div_ceil(BRICK_CELLS));
+        let total = counts.iter().product();
+        let (mut min, mut max) = (vec![f32::INFINITY; total], vec![f32::NEG_INFINITY; total]);
+        // Each point belongs to every brick whose cell range touches it (shared faces).
+        let bricks_of = |p: usize, a: usize| {
+            let hi = (p / BRICK_CELLS).min(counts[a] - 1);
+            let lo = if p % BRICK_CELLS == 0 && p > 0 {
+                hi.saturating_sub(1)
+            } else {
+                hi
+            };
+            lo..=hi
+        };
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                let row = &data[dims[0] * (j + dims[1] * k)..][..dims[0]];
+                for (i, &v) in row.iter().enumerate() {
+                    if v.is_nan() {
+                        continue;
+                    }
+                    for bk in bricks_of(k, 2) {
+                        for bj in bricks_of(j, 1) {
+                            for bi in bricks_of(i, 0) {
+                                let b = bi + counts[0] * (bj + counts[1] * bk);
+                                min[b] = min[b].min(v);
+                                max[b] = max[b].max(v);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        BrickGrid { counts, min, max }
+    }
+
+    #[inline]
+    pub fn index(&self, bi: usize, bj: usize, bk: usize) -> usize {
+        bi + self.counts[0] * (bj + self.counts[1] * bk)
+    }
+}
+
+/// Build all levels, level 0 taking ownership of `data`.
+pub(super) fn build(geometry: Geometry, data: Vec<f32>) -> Vec<Level> {
+    let mut levels = vec![Level {
+        dims: geometry.dims,
+        spacing: geometry.spacing,
+        bricks: BrickGrid::build(geometry.dims, &data),
+        data,
+    }];
+    loop {
+        let prev = levels.last().expect("level 0 exists");
+        if prev.dims.iter().all(|&d| d <= MIN_LEVEL_POINTS) {
+            break;
+        }
+        let dims = prev.dims.map(|d| if d <= 2 { d } else { d.div_ceil(2) });
+        let spacing = std::array::from_fn(|a| {
+            if dims[a] == prev.dims[a] {
+                prev.spacing[a]
+            } else {
+                prev.spacing[a] * (prev.dims[a] - 1) as f64 / (dims[a] - 1) as f64
+            }
+        });
+        let mut cur = prev.data.clone();
+        let mut cur_dims = prev.dims;
+        for axis in 0..3 {
+            cur = reduce_axis(&cur, cur_dims, axis, dims[axis]);
+            cur_dims[axis] = dims[axis];
+        }
+        levels.push(Level {
+            dims,
+            spacing,
+            bricks: BrickGrid::build(dims, &cur),
+            data: cur,
+        });
+    }
+    levels
+}
+
+/// Resample one axis from `dims[axis]` to `n` points with a tent filter of the reduction width.
+fn reduce_axis(src: &[f32], dims: [usize; 3], axis: usize, n: usize) -> Vec<f32> {
+    let d = dims[axis];
+    if n == d {
+        return src.to_vec();
+    }
+    let ratio = (d - 1) as f64 / (n - 1) as f64;
+    // Taps per output point: (source index, weight), precomputed once per axis.
+    let taps: Vec<Vec<(usize, f32)>> = (0..n)
+        .map(|j| {
+            let x = j as f64 * ratio;
+            let lo = (x - ratio).ceil().max(0.0) as usize;
+            let hi = ((x + ratio).floor() as usize).min(d - 1);
+            (lo..=hi)
+                .filter_map(|i| {
+                    let w = 1.0 - (i as f64 - x).abs() / ratio;
+                    (w > 0.0).then_some((i, w as f32))
+                })
+                .collect()
+        })
+        .collect();
+    let stride = match axis {
+        0 => 1,
+        1 => dims[0],
+        _ => dims[0] * dims[1],
+    };
+    let mut out_dims = dims;
+    out_dims[axis] = n;
+    let out_stride = match axis {
+        0 => 1,
+        1 => out_dims[0],
+        _ => out_dims[0] * out_dims[1],
+    };
+    let mut out = vec![0.0f32; out_dims.iter().product()];
+    // Iterate over all lines along `axis`.
+    let (outer, inner) = match axis {
+        0 => (dims[1] * dims[2], 1),
+        1 => (dims[2], dims[0]),
+        _ => (1, dims[0] * dims[1]),
+    };
+    for o in 0..outer {
+        for i in 0..inner {
+            let (src_base, dst_base) = match axis {
+                0 => (o * dims[0], o * n),
+                1 => (o * dims[0] * dims[1] + i, o * dims[0] * n + i),
+                _ => (i, i),
+            };
+            for (j, tj) in taps.iter().enumerate() {
+                let (mut acc, mut wsum) = (0.0f32, 0.0f32);
+                for &(s, w) in tj {
+                    let v = src[src_base + s * stride];
+                    if !v.is_nan() {
+                        acc += w * v;
+                        wsum += w;
+                    }
+                }
+                out[dst_base + j * out_stride] = if wsum > 0.0 { acc / wsum } else { f32::NAN };
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn geom(dims: [usize; 3]) -> Geometry {
+        Geometry {
+            dims,
+            spacing: [1.0, 2.0, 0.5],
+            origin: [0.0; 3],
+        }
+    }
+
+    #[test]
+    fn levels_keep_the_world_box_and_values_in_range() {
+        let dims = [33, 20, 9];
+        let n: usize = dims.iter().product();
+        let data: Vec<f32> = (0..n).map(|i| (i % 97) as f32 / 96.0).collect();
+        let levels = build(geom(dims), data);
+        assert!(levels.len() >= 3);
+        for l in &levels {
+            for a in 0..3 {
+                let ext = (l.dims[a] - 1) as f64 * l.spacing[a];
+                let ext0 = (dims[a] - 1) as f64 * geom(dims).spacing[a];
+                assert!((ext - ext0).abs() < 1e-9, "{:?}", l.dims);
+            }
+            assert!(l.data.iter().all(|v| (0.0..=1.0).contains(v)));
+        }
+        assert_eq!(levels[1].dims, [17, 10, 5]);
+    }
+
+    #[test]
+    fn linear_ramp_survives_reduction() {
+        let dims = [17, 3, 3];
+        let data: Vec<f32> = (0..dims.iter().product::<usize>())
+            .map(|i| (i % 17) as f32 / 16.0)
+            .collect();
+        let levels = build(geom(dims), data);
+        let l1 = &levels[1];
+        assert_eq!(l1.dims[0], 9);
+        for i in 1..8 {
+            // Interior points of a linear ramp are reproduced exactly by a symmetric tent.
+            assert!((l1.data[l1.index(i, 1, 1)] - i as f32 / 8.0).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn bricks_bound_every_point_they_touch() {
+        let dims = [20, 11, 9];
+        let n: usize = dims.iter().product();
+        let mut data: Vec<f32> = (0..n).map(|i| ((i * 7919) % 1000) as f32 / 999.0).collect();
+        data[5] = f32::NAN;
+        let g = BrickGrid::build(dims, &data);
+        assert_eq!(g.counts, [3, 2, 1]);
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    let v = data[i + dims[0] * (j + dims[1] * k)];
+                    if v.is_nan() {
+                        continue;
+                    }
+                    // The brick of every cell that has this point as a corner.
+                    for (ci, cj, ck) in [(i, j, k), (i.wrapping_sub(1), j, k)] {
+                        if ci >= dims[0] - 1 || cj >= dims[1] - 1 || ck >= dims[2] - 1 {
+                            continue;
+                        }
+                        let b = g.index(ci / BRICK_CELLS, cj / BRICK_CELLS, ck / BRICK_CELLS);
+                        assert!(g.min[b] <= v && v <= g.max[b]);
+                    }
+                }
+            }
+        }
+    }
+}
