@@ -7,10 +7,15 @@
 //! the histogram, and the mip pyramid with per-brick value ranges for empty-space skipping.
 
 mod buffer;
+mod legacy;
 mod pyramid;
+mod raw;
+mod read;
+mod vti;
 
 pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
+pub use read::{decode, load, Decoded, ReadOptions};
 
 use std::path::{Path, PathBuf};
 

@@ -1,0 +1,422 @@
+//! Legacy VTK `.vtk` files, `DATASET STRUCTURED_POINTS`, ASCII or BINARY (big-endian).
+//!
+//! Layout (VTK's "File Formats" document, versions 2.0 … 5.1): four header lines, then keyword
+//! sections. Point data arrays are `SCALARS name type [ncomp]` (+ optional `LOOKUP_TABLE`),
+//! `COLOR_SCALARS name ncomp` (what VTK's writer uses for uint8 scalars: ASCII values are
+//! value/255 floats, BINARY values are unsigned chars), and `FIELD` arrays
+//! (`name ncomp ntuples type`). Sections we do not render (CELL_DATA, VECTORS, NORMALS,
+//! TENSORS, TEXTURE_COORDINATES, LOOKUP_TABLE, METADATA) are parsed only to skip them.
+
+use std::path::Path;
+
+use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer, VolumeError};
+
+/// Which data section the arrays being read belong to.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Section {
+    /// Dataset-level FIELD data (before POINT_DATA/CELL_DATA).
+    Dataset,
+    Point,
+    Cell,
+}
+
+/// An array found in the point data: its values, or why it cannot be rendered.
+struct Found {
+    name: String,
+    values: Result<TypedBuffer, String>,
+}
+
+/// A cursor over the file's bytes: header lines are text, binary data follows a newline.
+struct Cursor<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Cursor<'a> {
+    /// The next line (without its newline), `None` at end of file.
+    fn raw_line(&mut self) -> Option<&'a str> {
+        if self.pos >= self.bytes.len() {
+            return None;
+        }
+        let rest = &self.bytes[self.pos..];
+        let end = rest.iter().position(|&b| b == b'\n').unwrap_or(rest.len());
+        self.pos += (end + 1).min(rest.len());
+        // Header lines are ASCII; anything else cannot be a keyword and is reported as such.
+        Some(std::str::from_utf8(&rest[..end]).unwrap_or("<binary bytes>").trim())
+    }
+
+    /// The next non-blank line.
+    fn line(&mut self) -> Option<&'a str> {
+        loop {
+            match self.raw_line() {
+                Some("") => continue,
+                other => return other,
+            }
+        }
+    }
+
+    /// The next whitespace-separated ASCII token.
+    fn token(&mut self) -> Option<&'a str> {
+        let rest = &self.bytes[self.pos.min(self.bytes.len())..];
+        let start = rest.iter().position(|b| !b.is_ascii_whitespace())?;
+        let len = rest[start..]
+            .iter()
+            .position(|b| b.is_ascii_whitespace())
+            .unwrap_or(rest.len() - start);
+        self.pos += start + len;
+        std::str::from_utf8(&rest[start..start + len]).ok()
+    }
+
+    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
+        let end = self.pos.checked_add(n)?;
+        let s = self.bytes.get(self.pos..end)?;
+        self.pos = end;
+        Some(s)
+    }
+}
+
+/// Legacy type names (VTK's `vtkDataReader`) to scalar types; `None` for types we cannot read.
+fn legacy_type(name: &str) -> Option<ScalarType> {
+    Some(match name.to_ascii_lowercase().as_str() {
+        "unsigned_char" => ScalarType::U8,
+        "char" | "signed_char" => ScalarType::I8,
+        "unsigned_short" => ScalarType::U16,
+        "short" => ScalarType::I16,
+        "unsigned_int" => ScalarType::U32,
+        "int" => ScalarType::I32,
+        // VTK writes `long` as 64 bits in binary files on LP64 systems (and reads it so).
+        "unsigned_long" | "vtktypeuint64" | "unsigned_long_long" => ScalarType::U64,
+        "long" | "vtktypeint64" | "long_long" => ScalarType::I64,
+        // vtkDataWriter converts vtkIdType to 32-bit int for legacy files.
+        "vtkidtype" => ScalarType::I32,
+        "float" => ScalarType::F32,
+        "double" => ScalarType::F64,
+        _ => return None,
+    })
+}
+
+/// Parse the legacy file `bytes`; `want` names the point-data array to read.
+pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, VolumeError> {
+    let err = |m: String| VolumeError::file(path, m);
+    let mut c = Cursor { bytes, pos: 0 };
+
+    let first = c.raw_line().unwrap_or("");
+    if !first.starts_with("# vtk DataFile Version") {
+        return Err(err(
+            "not a legacy VTK file: the first line is not '# vtk DataFile Version x.x'".into(),
+        ));
+    }
+    let _title = c.raw_line();
+    let ascii = match c.line().map(str::to_ascii_uppercase).as_deref() {
+        Some("ASCII") => true,
+        Some("BINARY") => false,
+        other => {
+            return Err(err(format!(
+                "line 3 must be ASCII or BINARY, found '{}'",
+                other.unwrap_or("end of file")
+            )))
+        }
+    };
+
+    let mut dims: Option<[usize; 3]> = None;
+    let mut spacing = [1.0f64; 3];
+    let mut origin = [0.0f64; 3];
+    let mut dataset_seen = false;
+    let mut section = Section::Dataset;
+    let mut count = 0usize; // tuples in the current section
+    let mut names: Vec<String> = Vec::new();
+    let mut chosen: Option<Found> = None;
+    // Without --array: the first SCALARS/COLOR_SCALARS (VTK's active scalars) wins; a FIELD
+    // array is kept as the fallback.
+    let mut fallback: Option<Found> = None;
+
+    while let Some(line) = c.line() {
+        let mut words = line.split_ascii_whitespace();
+        let key = words.next().unwrap_or("").to_ascii_uppercase();
+        let args: Vec<&str> = words.collect();
+        let arg = |i: usize| -> Result<&str, VolumeError> {
+            args.get(i)
+                .copied()
+                .ok_or_else(|| err(format!("'{line}' is missing a field")))
+        };
+        let num = |i: usize| -> Result<usize, VolumeError> {
+            let a = arg(i)?;
+            a.parse()
+                .map_err(|_| err(format!("'{a}' in '{line}' is not a count")))
+        };
+        let vec3 = || -> Result<[f64; 3], VolumeError> {
+            let mut v = [0.0; 3];
+            for (a, slot) in v.iter_mut().enumerate() {
+                let s = arg(a)?;
+                *slot = s
+                    .parse()
+                    .map_err(|_| err(format!("'{s}' in '{line}' is not a number")))?;
+            }
+            Ok(v)
+        };
+        match key.as_str() {
+            "DATASET" => {
+                let kind = arg(0)?.to_ascii_uppercase();
+                if kind != "STRUCTURED_POINTS" {
+                    return Err(err(format!(
+                        "DATASET {kind} is not supported: only STRUCTURED_POINTS (image data)"
+                    )));
+                }
+                dataset_seen = true;
+            }
+            "DIMENSIONS" => dims = Some([num(0)?, num(1)?, num(2)?]),
+            "SPACING" | "ASPECT_RATIO" => spacing = vec3()?,
+            "ORIGIN" => origin = vec3()?,
+            "POINT_DATA" | "CELL_DATA" => {
+                let d = dims.ok_or_else(|| err(format!("{key} comes before DIMENSIONS")))?;
+                count = num(0)?;
+                section = if key == "POINT_DATA" {
+                    let n = d[0] * d[1] * d[2];
+                    if count != n {
+                        return Err(err(format!(
+                            "POINT_DATA {count} does not match DIMENSIONS {}x{}x{} ({n} points)",
+                            d[0], d[1], d[2]
+                        )));
+                    }
+                    Section::Point
+                } else {
+                    Section::Cell
+                };
+            }
+            "SCALARS" | "COLOR_SCALARS" => {
+                let name = arg(0)?.to_string();
+                let color = key == "COLOR_SCALARS";
+                let (ty, ncomp) = if color {
+                    (Some(ScalarType::U8), num(1)?)
+                } else {
+                    (legacy_type(arg(1)?), if args.len() > 2 { num(2)? } else { 1 })
+                };
+                // The optional LOOKUP_TABLE line belongs to SCALARS.
+                if !color {
+                    let save = c.pos;
+                    match c.line() {
+                        Some(l) if l.to_ascii_uppercase().starts_with("LOOKUP_TABLE") => {}
+                        _ => c.pos = save,
+                    }
+                }
+                let values = read_array(&mut c, ascii, ty, count, ncomp, color)
+                    .map_err(|m| err(format!("{key} {name}: {m}")))?;
+                if section == Section::Point {
+                    let f = found(&name, arg(1).unwrap_or("?"), ncomp, values);
+                    names.push(name.clone());
+                    if pick(want, &name, true, &mut chosen, &mut fallback, f) {
+                        break;
+                    }
+                }
+            }
+            "FIELD" => {
+                let n_arrays = num(1)?;
+                for _ in 0..n_arrays {
+                    let head = c
+                        .line()
+                        .ok_or_else(|| err("FIELD ends before its arrays".into()))?;
+                    let f: Vec<&str> = head.split_ascii_whitespace().collect();
+                    if f.first() == Some(&"NULL_ARRAY") {
+                        continue;
+                    }
+                    if f.len() < 4 {
+                        return Err(err(format!(
+                            "FIELD array line '{head}' needs 'name ncomp ntuples type'"
+                        )));
+                    }
+                    let parse = |s: &str| {
+                        s.parse::<usize>()
+                            .map_err(|_| err(format!("'{s}' in '{head}' is not a count")))
+                    };
+                    let (ncomp, ntuples) = (parse(f[1])?, parse(f[2])?);
+                    let values =
+                        read_array(&mut c, ascii, legacy_type(f[3]), ntuples, ncomp, false)
+                            .map_err(|m| err(format!("FIELD array {}: {m}", f[0])))?;
+                    if section == Section::Point && ntuples == count {
+                        let fnd = found(f[0], f[3], ncomp, values);
+                        names.push(f[0].to_string());
+                        if pick(want, f[0], false, &mut chosen, &mut fallback, fnd) {
+                            break;
+                        }
+                    }
+                }
+                if chosen.is_some() {
+                    break;
+                }
+            }
+            "VECTORS" | "NORMALS" | "TENSORS" | "TENSORS6" | "TEXTURE_COORDINATES" => {
+                let (ncomp, ty) = match key.as_str() {
+                    "TEXTURE_COORDINATES" => (num(1)?, arg(2)?),
+                    "TENSORS" => (9, arg(1)?),
+                    "TENSORS6" => (6, arg(1)?),
+                    _ => (3, arg(1)?),
+                };
+                let name = arg(0)?.to_string();
+                read_array(&mut c, ascii, legacy_type(ty), count, ncomp, false)
+                    .map_err(|m| err(format!("{key} {name}: {m}")))?;
+                if section == Section::Point {
+                    if want == Some(name.as_str()) {
+                        return Err(err(format!(
+                            "array '{name}' is {key} with {ncomp} components: only \
+                             single-component scalars can be rendered"
+                        )));
+                    }
+                    names.push(name);
+                }
+            }
+            "LOOKUP_TABLE" => {
+                // A colour table of `size` RGBA entries (floats in ASCII, bytes in BINARY).
+                let size = num(1)?;
+                read_array(&mut c, ascii, Some(ScalarType::U8), size, 4, true)
+                    .map_err(|m| err(format!("LOOKUP_TABLE: {m}")))?;
+            }
+            "METADATA" => {
+                // Version 5.1 metadata blocks end at a blank line.
+                while let Some(l) = c.raw_line() {
+                    if l.is_empty() {
+                        break;
+                    }
+                }
+            }
+            _ => {
+                return Err(err(format!(
+                    "unexpected line '{}' (near byte {})",
+                    truncate(line),
+                    c.pos
+                )))
+            }
+        }
+    }
+
+    if !dataset_seen {
+        return Err(err("no 'DATASET STRUCTURED_POINTS' line".into()));
+    }
+    let dims = dims.ok_or_else(|| err("no DIMENSIONS line".into()))?;
+    let f = chosen.or(fallback).ok_or_else(|| match want {
+        Some(w) => err(format!(
+            "no point-data array named '{w}' (point-data arrays: {})",
+            list(&names)
+        )),
+        None => err("no point data (POINT_DATA with SCALARS) to render".into()),
+    })?;
+    let buffer = f.values.map_err(|m| err(format!("array '{}': {m}", f.name)))?;
+    Ok(Decoded {
+        geometry: Geometry {
+            dims,
+            spacing,
+            origin,
+        },
+        buffer,
+        format: SourceFormat::LegacyVtk { array: f.name },
+    })
+}
+
+/// Wrap a read array, turning a multi-component or unreadable one into a deferred error (it
+/// matters only if this array is the one chosen).
+fn found(
+    name: &str,
+    type_name: &str,
+    ncomp: usize,
+    values: Option<TypedBuffer>,
+) -> Found {
+    let values = match values {
+        _ if ncomp != 1 => Err(format!(
+            "has {ncomp} components: only single-component scalars can be rendered"
+        )),
+        Some(v) => Ok(v),
+        None => Err(format!("its type '{type_name}' is not a numeric type this reader supports")),
+    };
+    Found {
+        name: name.to_string(),
+        values,
+    }
+}
+
+/// Apply the selection rule; `true` when the search is over.
+fn pick(
+    want: Option<&str>,
+    name: &str,
+    active: bool,
+    chosen: &mut Option<Found>,
+    fallback: &mut Option<Found>,
+    f: Found,
+) -> bool {
+    match want {
+        Some(w) if w == name => {
+            *chosen = Some(f);
+            true
+        }
+        Some(_) => false,
+        None if active => {
+            *chosen = Some(f);
+            true
+        }
+        None => {
+            if fallback.is_none() {
+                *fallback = Some(f);
+            }
+            false
+        }
+    }
+}
+
+/// Read `tuples * ncomp` values. `Ok(None)`: skipped because the type is unsupported (only
+/// possible in ASCII, where the values can still be stepped over).
+fn read_array(
+    c: &mut Cursor<'_>,
+    ascii: bool,
+    ty: Option<ScalarType>,
+    tuples: usize,
+    ncomp: usize,
+    color: bool,
+) -> Result<Option<TypedBuffer>, String> {
+    let n = tuples
+        .checked_mul(ncomp)
+        .ok_or_else(|| "value count overflows".to_string())?;
+    if ascii {
+        let mut values = Vec::with_capacity(n.min(1 << 24));
+        for i in 0..n {
+            let tok = c
+                .token()
+                .ok_or_else(|| format!("file ends after {i} of {n} values (truncated?)"))?;
+            let v: f64 = tok
+                .parse()
+                .map_err(|_| format!("value {i} '{}' is not a number", truncate(tok)))?;
+            // COLOR_SCALARS text holds byte/255; VTK's reader turns it back into bytes the
+            // same way, so data units match what ParaView shows.
+            values.push(if color {
+                (v * 255.0).round().clamp(0.0, 255.0)
+            } else {
+                v
+            });
+        }
+        Ok(ty.map(|t| TypedBuffer::from_f64_as(values, t)))
+    } else {
+        let Some(t) = ty else {
+            return Err("binary data of an unsupported type cannot be skipped".into());
+        };
+        let len = n
+            .checked_mul(t.size())
+            .ok_or_else(|| "byte count overflows".to_string())?;
+        let available = c.bytes.len().saturating_sub(c.pos);
+        let data = c.take(len).ok_or_else(|| {
+            format!("needs {len} bytes of binary data but the file has {available} left (truncated?)")
+        })?;
+        // Legacy binary files are big-endian by definition.
+        Ok(Some(TypedBuffer::new(t, ByteOrder::Big, data.to_vec())))
+    }
+}
+
+fn list(names: &[String]) -> String {
+    if names.is_empty() {
+        "none".into()
+    } else {
+        names.join(", ")
+    }
+}
+
+/// Keep error messages on one short line.
+fn truncate(s: &str) -> String {
+    let s: String = s.chars().take(60).collect();
+    s.replace(['\n', '\r'], " ")
+}

@@ -1,0 +1,130 @@
+//! Opening a volume file: checks on the path, dispatch by extension, then normalization.
+
+use std::path::Path;
+
+use super::{
+    legacy, raw, vti, ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume,
+    VolumeError, VolumeSource,
+};
+
+/// Reader settings from the command line. Every field is optional: `None` means "what the
+/// file says" (or the `.raw` defaults: little-endian, spacing 1, origin 0).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ReadOptions {
+    /// `.raw` only: points per axis (overrides the file name).
+    pub dims: Option<[usize; 3]>,
+    /// `.raw` only: scalar type (overrides the file name).
+    pub dtype: Option<ScalarType>,
+    /// Spacing for `.raw`; for `.vti`/`.vtk` it replaces the file's spacing.
+    pub spacing: Option<[f64; 3]>,
+    /// `.raw` only: byte order of the values (default little-endian).
+    pub byte_order: Option<ByteOrder>,
+    /// `.vti`/`.vtk` only: the point-data array to read (default: the active scalars, else
+    /// the first array).
+    pub array: Option<String>,
+}
+
+/// A decoded file before normalization: geometry, values in the file's own type, and how a
+/// ParaView/VisIt script reopens it.
+#[derive(Clone, Debug)]
+pub struct Decoded {
+    pub geometry: Geometry,
+    pub buffer: TypedBuffer,
+    pub format: SourceFormat,
+}
+
+/// Read and normalize the volume at `path`; sets `Volume::source`.
+pub fn load(path: &Path, opts: &ReadOptions) -> Result<Volume, VolumeError> {
+    let decoded = decode(path, opts)?;
+    let mut volume = Volume::from_buffer(path, decoded.geometry, &decoded.buffer)?;
+    volume.source = Some(VolumeSource {
+        path: path.to_path_buf(),
+        format: decoded.format,
+    });
+    Ok(volume)
+}
+
+/// Which reader handles `path`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    Raw,
+    Vti,
+    Legacy,
+}
+
+/// Read the file at `path` into its typed values and geometry, without normalizing.
+pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
+    let meta = std::fs::metadata(path).map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => VolumeError::file(path, "no such file"),
+        _ => VolumeError::Io {
+            path: path.to_path_buf(),
+            source: e,
+        },
+    })?;
+    if meta.is_dir() {
+        return Err(VolumeError::file(
+            path,
+            "is a directory, not a volume file (.raw, .vti or .vtk)",
+        ));
+    }
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default();
+    let kind = match ext.as_str() {
+        "raw" => Kind::Raw,
+        "vti" => Kind::Vti,
+        "vtk" => Kind::Legacy,
+        // Headerless data under any other name, when the flags say how to read it.
+        _ if opts.dims.is_some() && opts.dtype.is_some() => Kind::Raw,
+        "" => {
+            return Err(VolumeError::file(
+                path,
+                "no file extension: expected .raw, .vti or .vtk \
+                 (or give --dims and --dtype to read headerless raw data)",
+            ))
+        }
+        other => {
+            return Err(VolumeError::file(
+                path,
+                format!(
+                    "unknown extension '.{other}': expected .raw, .vti or .vtk \
+                     (or give --dims and --dtype to read headerless raw data)"
+                ),
+            ))
+        }
+    };
+    if kind != Kind::Raw {
+        let raw_only = [
+            (opts.dims.is_some(), "--dims"),
+            (opts.dtype.is_some(), "--dtype"),
+            (opts.byte_order.is_some(), "--byte-order"),
+        ];
+        if let Some((_, flag)) = raw_only.iter().find(|(given, _)| *given) {
+            return Err(VolumeError::file(
+                path,
+                format!("{flag} applies to .raw files only; this file describes itself"),
+            ));
+        }
+    } else if opts.array.is_some() {
+        return Err(VolumeError::file(
+            path,
+            "--array applies to .vti and .vtk files; a .raw file holds one array",
+        ));
+    }
+
+    let bytes = std::fs::read(path).map_err(|e| VolumeError::Io {
+        path: path.to_path_buf(),
+        source: e,
+    })?;
+    let mut decoded = match kind {
+        Kind::Raw => raw::decode(path, bytes, opts)?,
+        Kind::Vti => vti::decode(path, &bytes, opts.array.as_deref())?,
+        Kind::Legacy => legacy::decode(path, &bytes, opts.array.as_deref())?,
+    };
+    if let Some(spacing) = opts.spacing {
+        decoded.geometry.spacing = spacing;
+    }
+    Ok(decoded)
+}
