@@ -1,9 +1,224 @@
-//! `t2tf info` (being written).
+//! `t2tf info`: what a volume file holds, as our renderer will see it.
 
-/// Placeholder arguments until the command lands.
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Result;
+use serde_json::json;
+
+use super::VolumeArgs;
+use crate::volume::{ByteOrder, SourceFormat, Volume, HISTOGRAM_BINS};
+
+/// Width of the longest histogram bar, in characters.
+const BAR_WIDTH: usize = 40;
+
 #[derive(clap::Args, Debug)]
-pub struct InfoArgs {}
+#[command(after_help = "Example:\n  \
+    t2tf info ../shared/data/volumes/aneurism_256x256x256_uint8.raw\n  \
+    t2tf info scan.bin --dims 512,512,128 --dtype int16 --byte-order big --json")]
+pub struct InfoArgs {
+    /// Volume file: .raw (NAME_XxYxZ_DTYPE.raw or with --dims/--dtype), .vti or .vtk
+    pub volume: PathBuf,
+    #[command(flatten)]
+    pub read: VolumeArgs,
+    /// Histogram rows (1-256)
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..=256))]
+    pub bins: u16,
+    /// Histogram bars proportional to counts (default: to log(1 + count), since most volumes
+    /// are dominated by empty space)
+    #[arg(long)]
+    pub linear: bool,
+    /// Print one JSON object instead of text
+    #[arg(long)]
+    pub json: bool,
+}
 
-pub fn run(_args: InfoArgs) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+pub fn run(args: InfoArgs) -> Result<()> {
+    let start = Instant::now();
+    let volume = args.read.load(&args.volume)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let file_bytes = std::fs::metadata(&args.volume).map(|m| m.len()).unwrap_or(0);
+    let rows = histogram_rows(&volume, args.bins as usize);
+    let text = if args.json {
+        json_report(&args, &volume, file_bytes, &rows, seconds)
+    } else {
+        text_report(&args, &volume, file_bytes, &rows, seconds)
+    };
+    print!("{text}");
+    Ok(())
+}
+
+/// One histogram row: the data-unit interval [lo, hi) and its voxel count.
+struct Row {
+    lo: f64,
+    hi: f64,
+    count: u64,
+}
+
+/// Merge the volume's 256 normalized bins into `rows` rows (as even as integer division
+/// allows), labelled in data units.
+fn histogram_rows(v: &Volume, rows: usize) -> Vec<Row> {
+    let rows = rows.clamp(1, HISTOGRAM_BINS);
+    (0..rows)
+        .map(|r| {
+            let (a, b) = (r * HISTOGRAM_BINS / rows, (r + 1) * HISTOGRAM_BINS / rows);
+            Row {
+                lo: v.denormalize(a as f64 / HISTOGRAM_BINS as f64),
+                hi: v.denormalize(b as f64 / HISTOGRAM_BINS as f64),
+                count: v.histogram[a..b].iter().sum(),
+            }
+        })
+        .collect()
+}
+
+fn format_name(v: &Volume) -> String {
+    match v.source.as_ref().map(|s| &s.format) {
+        Some(SourceFormat::Raw { byte_order, .. }) => format!(
+            "raw, {}-endian",
+            match byte_order {
+                ByteOrder::Little => "little",
+                ByteOrder::Big => "big",
+            }
+        ),
+        Some(SourceFormat::Vti { array }) => format!("VTK XML image data, array '{array}'"),
+        Some(SourceFormat::LegacyVtk { array }) => {
+            format!("legacy VTK structured points, array '{array}'")
+        }
+        None => "in memory".into(),
+    }
+}
+
+/// Bytes in B, KiB or MiB.
+fn mib(bytes: u64) -> String {
+    match bytes {
+        0..1024 => format!("{bytes} B"),
+        1024..1_048_576 => format!("{:.1} KiB", bytes as f64 / 1024.0),
+        _ => format!("{:.1} MiB", bytes as f64 / 1_048_576.0),
+    }
+}
+
+/// Three numbers, shortest round-trip form.
+fn triple(v: [f64; 3]) -> String {
+    format!("{} {} {}", v[0], v[1], v[2])
+}
+
+fn text_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f64) -> String {
+    let g = &v.geometry;
+    let [x, y, z] = g.dims;
+    let n = g.voxel_count();
+    let level0 = v.levels[0].memory_bytes() as u64;
+    let pyramid = v.memory_bytes() as u64 - level0;
+    let mut s = String::new();
+    let _ = writeln!(s, "file        {}", a.volume.display());
+    let _ = writeln!(s, "format      {}", format_name(v));
+    let _ = writeln!(s, "dims        {x} x {y} x {z} ({n} points)");
+    let _ = writeln!(s, "spacing     {}", triple(g.spacing));
+    let _ = writeln!(s, "origin      {}", triple(g.origin));
+    let _ = writeln!(s, "box size    {}", triple(g.extent()));
+    let _ = writeln!(s, "dtype       {}", v.scalar_type);
+    let _ = writeln!(s, "range       {} .. {}", v.range[0], v.range[1]);
+    let _ = writeln!(
+        s,
+        "non-finite  {} NaN/Inf voxels (rendered as empty)",
+        v.non_finite
+    );
+    let _ = writeln!(
+        s,
+        "memory      file {}, values {}; ours: f32 {} + pyramid {}",
+        mib(file_bytes),
+        mib((n * v.scalar_type.size()) as u64),
+        mib(level0),
+        mib(pyramid)
+    );
+    let dims: Vec<String> = v
+        .levels
+        .iter()
+        .map(|l| format!("{}x{}x{}", l.dims[0], l.dims[1], l.dims[2]))
+        .collect();
+    let _ = writeln!(s, "pyramid     {} level(s): {}", v.levels.len(), dims.join(", "));
+    let _ = writeln!(s, "read time   {:.3} s", secs);
+    let _ = writeln!(
+        s,
+        "histogram   {} rows over the range, bars {}",
+        rows.len(),
+        if a.linear {
+            "linear in count"
+        } else {
+            "linear in log(1 + count)"
+        }
+    );
+    let weight = |c: u64| {
+        if a.linear {
+            c as f64
+        } else {
+            (c as f64).ln_1p()
+        }
+    };
+    let top = rows.iter().map(|r| weight(r.count)).fold(0.0, f64::max);
+    let label = |x: f64| format!("{x:.4}");
+    let width = rows
+        .iter()
+        .map(|r| label(r.lo).len().max(label(r.hi).len()))
+        .max()
+        .unwrap_or(1);
+    for r in rows {
+        let len = if top > 0.0 {
+            (weight(r.count) / top * BAR_WIDTH as f64).round() as usize
+        } else {
+            0
+        };
+        // A non-empty bin always shows at least one mark.
+        let len = if r.count > 0 { len.max(1) } else { 0 };
+        let _ = writeln!(
+            s,
+            "  {:>width$} .. {:>width$} |{:<BAR_WIDTH$}| {}",
+            label(r.lo),
+            label(r.hi),
+            "#".repeat(len),
+            r.count
+        );
+    }
+    s
+}
+
+fn json_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f64) -> String {
+    let g = &v.geometry;
+    let level0 = v.levels[0].memory_bytes();
+    let (format, array, byte_order) = match v.source.as_ref().map(|s| &s.format) {
+        Some(SourceFormat::Raw { byte_order, .. }) => (
+            "raw",
+            None,
+            Some(match byte_order {
+                ByteOrder::Little => "little",
+                ByteOrder::Big => "big",
+            }),
+        ),
+        Some(SourceFormat::Vti { array }) => ("vti", Some(array.as_str()), None),
+        Some(SourceFormat::LegacyVtk { array }) => ("vtk", Some(array.as_str()), None),
+        None => ("memory", None, None),
+    };
+    let report = json!({
+        "file": a.volume.to_string_lossy(),
+        "format": format,
+        "array": array,
+        "byte_order": byte_order,
+        "dims": g.dims,
+        "spacing": g.spacing,
+        "origin": g.origin,
+        "dtype": v.scalar_type.scivis_name(),
+        "range": v.range,
+        "non_finite": v.non_finite,
+        "memory": {
+            "file_bytes": file_bytes,
+            "value_bytes": g.voxel_count() * v.scalar_type.size(),
+            "f32_bytes": level0,
+            "pyramid_bytes": v.memory_bytes() - level0,
+        },
+        "pyramid": v.levels.iter().map(|l| l.dims).collect::<Vec<_>>(),
+        "read_seconds": secs,
+        "histogram": rows.iter().map(|r| json!({"lo": r.lo, "hi": r.hi, "count": r.count}))
+            .collect::<Vec<_>>(),
+    });
+    format!("{report:#}\n")
 }

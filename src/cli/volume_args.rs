@@ -1,5 +1,99 @@
-//! Flags shared by every command that reads a volume (being written: issue 3).
+//! Flags shared by every command that reads a volume (`#[command(flatten)]` them).
 
-/// How to read a volume file.
+use std::path::Path;
+use std::str::FromStr;
+
+use crate::volume::{self, ByteOrder, ReadOptions, ScalarType, Volume};
+
+/// How to read a volume file. `.vti` and `.vtk` files describe themselves; a `.raw` file
+/// named `NAME_XxYxZ_DTYPE.raw` does too, other raw files need `--dims` and `--dtype`.
 #[derive(clap::Args, Debug, Clone, Default)]
-pub struct VolumeArgs {}
+pub struct VolumeArgs {
+    /// Raw files: points per axis, x fastest (overrides the file name)
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_dims)]
+    pub dims: Option<[usize; 3]>,
+    /// Raw files: scalar type: uint8, int8, uint16, int16, uint32, int32, float32, float64
+    /// (also uint64, int64)
+    #[arg(long, value_name = "TYPE", value_parser = ScalarType::from_str)]
+    pub dtype: Option<ScalarType>,
+    /// Grid spacing per axis (raw files: default 1,1,1; other files: replaces theirs)
+    #[arg(long, value_name = "A,B,C", value_parser = parse_spacing)]
+    pub spacing: Option<[f64; 3]>,
+    /// Raw files: byte order of the values (default little)
+    #[arg(long, value_name = "little|big", value_parser = ByteOrder::from_str)]
+    pub byte_order: Option<ByteOrder>,
+    /// .vti/.vtk files: the point-data array to read (default: the active scalars, else the
+    /// first array)
+    #[arg(long, value_name = "NAME")]
+    pub array: Option<String>,
+}
+
+impl VolumeArgs {
+    pub fn read_options(&self) -> ReadOptions {
+        ReadOptions {
+            dims: self.dims,
+            dtype: self.dtype,
+            spacing: self.spacing,
+            byte_order: self.byte_order,
+            array: self.array.clone(),
+        }
+    }
+
+    /// Read and normalize the volume at `path` with these flags.
+    pub fn load(&self, path: &Path) -> anyhow::Result<Volume> {
+        Ok(volume::load(path, &self.read_options())?)
+    }
+}
+
+/// Three comma-separated values, e.g. "256,256,99".
+fn parse_triple<T: FromStr>(s: &str, what: &str) -> Result<[T; 3], String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(format!(
+            "expected three comma-separated {what} like 1,2,3, got '{s}'"
+        ));
+    }
+    let mut out = Vec::with_capacity(3);
+    for p in parts {
+        out.push(
+            p.parse::<T>()
+                .map_err(|_| format!("'{p}' in '{s}' is not {what}"))?,
+        );
+    }
+    out.try_into()
+        .map_err(|_| format!("expected three {what}, got '{s}'"))
+}
+
+fn parse_dims(s: &str) -> Result<[usize; 3], String> {
+    let d = parse_triple::<usize>(s, "whole numbers")?;
+    if d.contains(&0) {
+        return Err(format!("dimensions '{s}' contain a zero"));
+    }
+    Ok(d)
+}
+
+fn parse_spacing(s: &str) -> Result<[f64; 3], String> {
+    let v = parse_triple::<f64>(s, "numbers")?;
+    if v.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
+        return Err(format!("spacing '{s}' must be positive finite numbers"));
+    }
+    Ok(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_triples_with_clear_errors() {
+        assert_eq!(parse_dims("256, 256,99").unwrap(), [256, 256, 99]);
+        assert!(parse_dims("1,2").unwrap_err().contains("three"));
+        assert!(parse_dims("1,x,3").unwrap_err().contains("'x'"));
+        assert!(parse_dims("1,0,3").unwrap_err().contains("zero"));
+        assert!(parse_dims("1,-2,3").is_err());
+        assert_eq!(parse_spacing("0.5,1,2e0").unwrap(), [0.5, 1.0, 2.0]);
+        assert!(parse_spacing("1,0,1").is_err());
+        assert!(parse_spacing("1,nan,1").is_err());
+        assert!(parse_spacing("1,inf,1").is_err());
+    }
+}
