@@ -41,7 +41,12 @@ fn fails(args: &[&str], file: &str, needle: &str) {
 
 #[test]
 fn prints_geometry_range_and_histogram() {
-    let out = stdout(&t2tf(&["info", &fixture("ascii_float32.vti"), "--bins", "8"]));
+    let out = stdout(&t2tf(&[
+        "info",
+        &fixture("ascii_float32.vti"),
+        "--bins",
+        "8",
+    ]));
     assert!(out.contains("dims        7 x 6 x 5 (210 points)"), "{out}");
     assert!(out.contains("spacing     0.5 0.25 2"), "{out}");
     assert!(out.contains("origin      0 2 5.5"), "{out}");
@@ -63,7 +68,15 @@ fn prints_geometry_range_and_histogram() {
 fn json_output_and_raw_flags() {
     let bin = fixture("unnamed.bin");
     let out = stdout(&t2tf(&[
-        "info", &bin, "--dims", "5,4,3", "--dtype", "int16", "--spacing", "0.5,0.25,2", "--json",
+        "info",
+        &bin,
+        "--dims",
+        "5,4,3",
+        "--dtype",
+        "int16",
+        "--spacing",
+        "0.5,0.25,2",
+        "--json",
     ]));
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["dims"], serde_json::json!([5, 4, 3]));
@@ -89,7 +102,13 @@ fn json_output_and_raw_flags() {
     assert_eq!(v["byte_order"], "big");
 
     let arrays = fixture("arrays.vti");
-    let out = stdout(&t2tf(&["info", &arrays, "--array", "temperature", "--json"]));
+    let out = stdout(&t2tf(&[
+        "info",
+        &arrays,
+        "--array",
+        "temperature",
+        "--json",
+    ]));
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["array"], "temperature");
     assert_eq!(v["dtype"], "int16");
@@ -114,20 +133,34 @@ fn bad_input_is_one_line_naming_the_file() {
     fails(&["info", &short], &short, "needs 128 bytes");
     let dtype = put("t_4x4x4_float16.raw", &[0; 128]);
     fails(&["info", &dtype], &dtype, "unknown scalar type 'float16'");
-    let xml = put("bad.vti", b"<VTKFile type=\"ImageData\"><ImageData></Piece></VTKFile>");
+    let xml = put(
+        "bad.vti",
+        b"<VTKFile type=\"ImageData\"><ImageData></Piece></VTKFile>",
+    );
     fails(&["info", &xml], &xml, "malformed XML");
-    let nan = put("nan_2x1x1_float64.raw", &[f64::NAN.to_le_bytes(), f64::INFINITY.to_le_bytes()].concat());
+    let nan = put(
+        "nan_2x1x1_float64.raw",
+        &[f64::NAN.to_le_bytes(), f64::INFINITY.to_le_bytes()].concat(),
+    );
     fails(&["info", &nan], &nan, "NaN");
     let dir = d.path().display().to_string();
     fails(&["info", &dir], &dir, "is a directory");
     let missing = d.path().join("nope.vti").display().to_string();
     fails(&["info", &missing], &missing, "no such file");
     let arrays = fixture("arrays.vti");
-    fails(&["info", &arrays, "--array", "nope"], &arrays, "no point-data array named 'nope'");
+    fails(
+        &["info", &arrays, "--array", "nope"],
+        &arrays,
+        "no point-data array named 'nope'",
+    );
     let ext = put("v.mhd", b"ObjectType = Image\n");
     fails(&["info", &ext], &ext, "unknown extension");
     let bin = fixture("unnamed.bin");
-    fails(&["info", &bin, "--dims", "5,4,3", "--dtype", "int32"], &bin, "needs 240 bytes");
+    fails(
+        &["info", &bin, "--dims", "5,4,3", "--dtype", "int32"],
+        &bin,
+        "needs 240 bytes",
+    );
 
     // Flag syntax errors come from clap: non-zero exit, naming the flag value.
     let o = t2tf(&["info", &bin, "--dims", "5,4", "--dtype", "int16"]);

@@ -44,7 +44,11 @@ fn truncated_copy(dir: &Path, name: &str, keep: usize) -> PathBuf {
 fn raw_errors() {
     let d = tempfile::tempdir().unwrap();
     let p = write(d.path(), "cube_4x4x4_uint16.raw", &[0u8; 100]);
-    expect_err(&p, &none(), "file holds 100 bytes but 4x4x4 uint16 needs 128 bytes");
+    expect_err(
+        &p,
+        &none(),
+        "file holds 100 bytes but 4x4x4 uint16 needs 128 bytes",
+    );
     let p = write(d.path(), "cube_4x4x4_uint9.raw", &[0u8; 64]);
     expect_err(&p, &none(), "unknown scalar type 'uint9'");
     let p = write(d.path(), "cube.raw", &[0u8; 64]);
@@ -65,14 +69,22 @@ fn raw_errors() {
         array: Some("x".into()),
         ..none()
     };
-    expect_err(&fixture("ramp_7x6x5_uint16.raw"), &arr, "--array applies to .vti");
+    expect_err(
+        &fixture("ramp_7x6x5_uint16.raw"),
+        &arr,
+        "--array applies to .vti",
+    );
 }
 
 #[test]
 fn path_errors() {
     let d = tempfile::tempdir().unwrap();
     expect_err(d.path(), &none(), "is a directory");
-    expect_err(&d.path().join("missing_4x4x4_uint8.raw"), &none(), "no such file");
+    expect_err(
+        &d.path().join("missing_4x4x4_uint8.raw"),
+        &none(),
+        "no such file",
+    );
     let p = write(d.path(), "volume.nrrd", b"NRRD0004\n");
     expect_err(&p, &none(), "unknown extension '.nrrd'");
     let p = write(d.path(), "volume", b"");
@@ -81,7 +93,11 @@ fn path_errors() {
         dims: Some([5, 4, 3]),
         ..none()
     };
-    expect_err(&fixture("ascii_float32.vti"), &dims, "--dims applies to .raw");
+    expect_err(
+        &fixture("ascii_float32.vti"),
+        &dims,
+        "--dims applies to .raw",
+    );
 }
 
 #[test]
@@ -103,13 +119,25 @@ fn vti_errors() {
     let ok = r#"<DataArray type="Float32" Name="a" format="ascii">1 2 3 4 5 6 7 8</DataArray>"#;
     assert!(volume::load(&write(d.path(), "ok.vti", doc(ok).as_bytes()), &none()).is_ok());
 
-    let p = write(d.path(), "bad.vti", doc(&ok.replace("</DataArray>", "</Data>")).as_bytes());
+    let p = write(
+        d.path(),
+        "bad.vti",
+        doc(&ok.replace("</DataArray>", "</Data>")).as_bytes(),
+    );
     expect_err(&p, &none(), "malformed XML");
     let p = write(d.path(), "few.vti", doc(&ok.replace(" 8<", "<")).as_bytes());
     expect_err(&p, &none(), "holds 7 values but the extent needs 8");
-    let p = write(d.path(), "nan.vti", doc(&ok.replace("1 2", "x 2")).as_bytes());
+    let p = write(
+        d.path(),
+        "nan.vti",
+        doc(&ok.replace("1 2", "x 2")).as_bytes(),
+    );
     expect_err(&p, &none(), "'x' is not a number");
-    let p = write(d.path(), "type.vti", doc(&ok.replace("Float32", "String")).as_bytes());
+    let p = write(
+        d.path(),
+        "type.vti",
+        doc(&ok.replace("Float32", "String")).as_bytes(),
+    );
     expect_err(&p, &none(), "type 'String'");
     let p = write(d.path(), "empty.vti", doc("").as_bytes());
     expect_err(&p, &none(), "no point-data arrays");
@@ -149,19 +177,46 @@ fn legacy_errors() {
     let p = truncated_copy(d.path(), "legacy_ascii_float32.vtk", 600);
     expect_err(&p, &none(), "truncated");
     let good = std::fs::read_to_string(fixture("legacy_ascii_two.vtk")).unwrap();
-    let p = write(d.path(), "poly.vtk", good.replace("STRUCTURED_POINTS", "POLYDATA").as_bytes());
+    let p = write(
+        d.path(),
+        "poly.vtk",
+        good.replace("STRUCTURED_POINTS", "POLYDATA").as_bytes(),
+    );
     expect_err(&p, &none(), "DATASET POLYDATA is not supported");
-    let p = write(d.path(), "zero.vtk", good.replace("DIMENSIONS 5 4 3", "DIMENSIONS 5 0 3").as_bytes());
-    expect_err(&p, &none(), "POINT_DATA 60 does not match");
-    let p = write(d.path(), "type.vtk", good.replace("values short", "values quad").as_bytes());
+    let p = write(
+        d.path(),
+        "zero.vtk",
+        good.replace("DIMENSIONS 5 4 3", "DIMENSIONS 5 0 3")
+            .as_bytes(),
+    );
+    expect_err(&p, &none(), "'DIMENSIONS 5 0 3' contains a zero");
+    let p = write(
+        d.path(),
+        "type.vtk",
+        good.replace("values short", "values quad").as_bytes(),
+    );
     expect_err(&p, &none(), "type 'quad'");
+    let p = write(
+        d.path(),
+        "count.vtk",
+        good.replace("POINT_DATA 60", "POINT_DATA 61").as_bytes(),
+    );
+    expect_err(
+        &p,
+        &none(),
+        "POINT_DATA 61 does not match DIMENSIONS 5x4x3 (60 points)",
+    );
     let p = write(d.path(), "junk.vtk", b"hello\n");
     expect_err(&p, &none(), "not a legacy VTK file");
     let pick = ReadOptions {
         array: Some("nope".into()),
         ..none()
     };
-    expect_err(&fixture("legacy_ascii_two.vtk"), &pick, "(point-data arrays: values, other)");
+    expect_err(
+        &fixture("legacy_ascii_two.vtk"),
+        &pick,
+        "(point-data arrays: values, other)",
+    );
 }
 
 /// Every prefix of every fixture, and every fixture with one byte changed, loads or fails
@@ -182,13 +237,16 @@ fn cut_or_corrupted_fixtures_never_panic() {
             std::fs::write(&p, data).unwrap();
             if let Err(err) = volume::load(&p, &none()) {
                 let s = err.to_string();
-                assert!(!s.contains('\n') && s.starts_with(&p.display().to_string()), "{s}");
+                assert!(
+                    !s.contains('\n') && s.starts_with(&p.display().to_string()),
+                    "{s}"
+                );
             }
         };
-        for cut in (0..bytes.len()).step_by(7) {
+        for cut in (0..bytes.len()).step_by(11) {
             check(&bytes[..cut]);
         }
-        for at in (0..bytes.len()).step_by(13) {
+        for at in (0..bytes.len()).step_by(17) {
             let mut b = bytes.clone();
             b[at] = b[at].wrapping_add(0x5b);
             check(&b);

@@ -18,7 +18,9 @@ fn triple<T: Copy>(v: &Value, f: impl Fn(&Value) -> Option<T>) -> [T; 3] {
 fn options(entry: &Value) -> ReadOptions {
     let o = &entry["options"];
     ReadOptions {
-        dims: o.get("dims").map(|d| triple(d, |x| x.as_u64().map(|u| u as usize))),
+        dims: o
+            .get("dims")
+            .map(|d| triple(d, |x| x.as_u64().map(|u| u as usize))),
         dtype: o.get("dtype").map(|t| t.as_str().unwrap().parse().unwrap()),
         spacing: o.get("spacing").map(|s| triple(s, Value::as_f64)),
         byte_order: o
@@ -82,7 +84,10 @@ fn every_fixture_matches_its_formula_voxel_by_voxel() {
         let v = volume::load(&path, &opts).unwrap();
         let n = dims[0] * dims[1] * dims[2];
         let corner = |i: usize, j: usize, k: usize| scale * (i + 10 * j + 100 * k) as f64 + offset;
-        let (a, b) = (corner(0, 0, 0), corner(dims[0] - 1, dims[1] - 1, dims[2] - 1));
+        let (a, b) = (
+            corner(0, 0, 0),
+            corner(dims[0] - 1, dims[1] - 1, dims[2] - 1),
+        );
         assert_eq!(v.range, [a.min(b), a.max(b)], "{file}");
         assert_eq!(v.data().len(), n);
         assert_eq!(v.non_finite, 0);

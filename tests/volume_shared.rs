@@ -63,7 +63,11 @@ fn every_shared_volume_matches_provenance() {
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .filter(|n| n.ends_with(".raw"))
         .collect();
-    assert_eq!(entries.len(), on_disk.len(), "PROVENANCE.md lists every file");
+    assert_eq!(
+        entries.len(),
+        on_disk.len(),
+        "PROVENANCE.md lists every file"
+    );
     assert!(entries.len() >= 7);
     // Every section but cthead's states its range: the parser must have found them.
     assert!(entries.iter().filter(|e| e.range.is_some()).count() >= 6);

@@ -38,7 +38,9 @@ pub fn run(args: InfoArgs) -> Result<()> {
     let start = Instant::now();
     let volume = args.read.load(&args.volume)?;
     let seconds = start.elapsed().as_secs_f64();
-    let file_bytes = std::fs::metadata(&args.volume).map(|m| m.len()).unwrap_or(0);
+    let file_bytes = std::fs::metadata(&args.volume)
+        .map(|m| m.len())
+        .unwrap_or(0);
     let rows = histogram_rows(&volume, args.bins as usize);
     let text = if args.json {
         json_report(&args, &volume, file_bytes, &rows, seconds)
@@ -136,7 +138,12 @@ fn text_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f6
         .iter()
         .map(|l| format!("{}x{}x{}", l.dims[0], l.dims[1], l.dims[2]))
         .collect();
-    let _ = writeln!(s, "pyramid     {} level(s): {}", v.levels.len(), dims.join(", "));
+    let _ = writeln!(
+        s,
+        "pyramid     {} level(s): {}",
+        v.levels.len(),
+        dims.join(", ")
+    );
     let _ = writeln!(s, "read time   {:.3} s", secs);
     let _ = writeln!(
         s,

@@ -42,7 +42,11 @@ impl<'a> Cursor<'a> {
         let end = rest.iter().position(|&b| b == b'\n').unwrap_or(rest.len());
         self.pos += (end + 1).min(rest.len());
         // Header lines are ASCII; anything else cannot be a keyword and is reported as such.
-        Some(std::str::from_utf8(&rest[..end]).unwrap_or("<binary bytes>").trim())
+        Some(
+            std::str::from_utf8(&rest[..end])
+                .unwrap_or("<binary bytes>")
+                .trim(),
+        )
     }
 
     /// The next non-blank line.
@@ -164,14 +168,23 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
                 }
                 dataset_seen = true;
             }
-            "DIMENSIONS" => dims = Some([num(0)?, num(1)?, num(2)?]),
+            "DIMENSIONS" => {
+                let d = [num(0)?, num(1)?, num(2)?];
+                if d.contains(&0) {
+                    return Err(err(format!("'{line}' contains a zero")));
+                }
+                dims = Some(d);
+            }
             "SPACING" | "ASPECT_RATIO" => spacing = vec3()?,
             "ORIGIN" => origin = vec3()?,
             "POINT_DATA" | "CELL_DATA" => {
                 let d = dims.ok_or_else(|| err(format!("{key} comes before DIMENSIONS")))?;
                 count = num(0)?;
                 section = if key == "POINT_DATA" {
-                    let n = d[0] * d[1] * d[2];
+                    let n = d
+                        .iter()
+                        .try_fold(1usize, |a, &x| a.checked_mul(x))
+                        .ok_or_else(|| err(format!("DIMENSIONS {d:?} are too large")))?;
                     if count != n {
                         return Err(err(format!(
                             "POINT_DATA {count} does not match DIMENSIONS {}x{}x{} ({n} points)",
@@ -189,7 +202,10 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
                 let (ty, ncomp) = if color {
                     (Some(ScalarType::U8), num(1)?)
                 } else {
-                    (legacy_type(arg(1)?), if args.len() > 2 { num(2)? } else { 1 })
+                    (
+                        legacy_type(arg(1)?),
+                        if args.len() > 2 { num(2)? } else { 1 },
+                    )
                 };
                 // The optional LOOKUP_TABLE line belongs to SCALARS.
                 if !color {
@@ -299,7 +315,9 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
         )),
         None => err("no point data (POINT_DATA with SCALARS) to render".into()),
     })?;
-    let buffer = f.values.map_err(|m| err(format!("array '{}': {m}", f.name)))?;
+    let buffer = f
+        .values
+        .map_err(|m| err(format!("array '{}': {m}", f.name)))?;
     Ok(Decoded {
         geometry: Geometry {
             dims,
@@ -313,18 +331,15 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
 
 /// Wrap a read array, turning a multi-component or unreadable one into a deferred error (it
 /// matters only if this array is the one chosen).
-fn found(
-    name: &str,
-    type_name: &str,
-    ncomp: usize,
-    values: Option<TypedBuffer>,
-) -> Found {
+fn found(name: &str, type_name: &str, ncomp: usize, values: Option<TypedBuffer>) -> Found {
     let values = match values {
         _ if ncomp != 1 => Err(format!(
             "has {ncomp} components: only single-component scalars can be rendered"
         )),
         Some(v) => Ok(v),
-        None => Err(format!("its type '{type_name}' is not a numeric type this reader supports")),
+        None => Err(format!(
+            "its type '{type_name}' is not a numeric type this reader supports"
+        )),
     };
     Found {
         name: name.to_string(),
@@ -400,7 +415,9 @@ fn read_array(
             .ok_or_else(|| "byte count overflows".to_string())?;
         let available = c.bytes.len().saturating_sub(c.pos);
         let data = c.take(len).ok_or_else(|| {
-            format!("needs {len} bytes of binary data but the file has {available} left (truncated?)")
+            format!(
+                "needs {len} bytes of binary data but the file has {available} left (truncated?)"
+            )
         })?;
         // Legacy binary files are big-endian by definition.
         Ok(Some(TypedBuffer::new(t, ByteOrder::Big, data.to_vec())))

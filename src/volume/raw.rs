@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
-use super::{ByteOrder, Decoded, Geometry, ReadOptions, ScalarType, SourceFormat, TypedBuffer};
 use super::VolumeError;
+use super::{ByteOrder, Decoded, Geometry, ReadOptions, ScalarType, SourceFormat, TypedBuffer};
 
 /// Dims and scalar type from an Open SciVis file name, if it follows the pattern.
 /// `Ok(None)`: the name has no `_XxYxZ_TYPE` tail; `Err`: it has one with a bad part.
@@ -14,7 +14,11 @@ pub fn parse_name(stem: &str) -> Result<Option<([usize; 3], ScalarType)>, String
         return Ok(None);
     };
     let fields: Vec<&str> = dims.split('x').collect();
-    if fields.len() != 3 || fields.iter().any(|f| f.is_empty() || !f.bytes().all(|b| b.is_ascii_digit())) {
+    if fields.len() != 3
+        || fields
+            .iter()
+            .any(|f| f.is_empty() || !f.bytes().all(|b| b.is_ascii_digit()))
+    {
         return Ok(None);
     }
     let mut d = [0usize; 3];
@@ -52,7 +56,10 @@ pub fn decode(path: &Path, bytes: Vec<u8>, opts: &ReadOptions) -> Result<Decoded
     if dims.contains(&0) {
         return Err(VolumeError::file(
             path,
-            format!("dimensions {}x{}x{} contain a zero", dims[0], dims[1], dims[2]),
+            format!(
+                "dimensions {}x{}x{} contain a zero",
+                dims[0], dims[1], dims[2]
+            ),
         ));
     }
     let need = dims

@@ -2,12 +2,19 @@
 //! and `appended` (raw or base64), each uncompressed or compressed with zlib, LZ4 or LZMA, with
 //! UInt32 or UInt64 block headers, little- or big-endian.
 //!
-//! Why not `vtkio` (0.7.0-rc2, the only version with the XML reader): it fails on appended raw
-//! data ("unknown variant `raw`"), which is what VTK writes by default, and an array it cannot
-//! decode is silently dropped (the import returns Ok with no point data), so a user would get a
-//! wrong array or none with no error; its origin and spacing are f32 and `Direction` is ignored.
-//! We checked the first claim ourselves against a fixture VTK 9 wrote (see the project notes);
-//! the others come from the project's crate survey.
+//! Why not `vtkio` (0.7.0-rc2, the only version with the XML reader): checked by hand on this
+//! repository's fixtures (vtkio built with its `xml`, `flate2` and `lz4` features):
+//! - `appended_raw_uint16.vti` (appended raw, VTK's default data mode) fails with
+//!   "unknown variant `raw`, expected `base64`";
+//! - `binary_float64_lzma.vti` (a compression it was not built for) imports as Ok with an
+//!   empty point-data list: the array is dropped silently, so a caller cannot tell a bad file
+//!   from an empty one;
+//! - its legacy parser fails on `legacy_binary_uint16.vtk` ("Parse error: Tag":
+//!   `unsigned_short` is unknown to 0.7) and keeps ASCII COLOR_SCALARS as the /255 floats.
+//!
+//! Per the project's crate notes it also keeps origin and spacing as f32 and ignores
+//! `Direction` (not re-checked here). One reader here covers every case with exact f64
+//! geometry and an error for anything it cannot read.
 //!
 //! Binary layout (VTK's `vtkXMLWriter`): an uncompressed array is `[nbytes]` then the bytes; a
 //! compressed one is `[nblocks, blocksize, lastblocksize, csize_0 … csize_{n-1}]` then the
@@ -90,12 +97,9 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
     let mut open_array: Option<usize> = None;
 
     loop {
-        let event = reader.read_event().map_err(|e| {
-            format!(
-                "malformed XML near byte {}: {e}",
-                reader.error_position()
-            )
-        })?;
+        let event = reader
+            .read_event()
+            .map_err(|e| format!("malformed XML near byte {}: {e}", reader.error_position()))?;
         match event {
             Event::Start(ref e) | Event::Empty(ref e) => {
                 let is_start = matches!(event, Event::Start(_));
@@ -161,13 +165,14 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
                     "CellData" => in_cell = is_start,
                     "DataArray" if in_point => {
                         let name = a("Name")?.unwrap_or_else(|| format!("array{}", arrays.len()));
-                        let type_name = a("type")?.ok_or_else(|| {
-                            format!("DataArray '{name}' has no type attribute")
-                        })?;
+                        let type_name = a("type")?
+                            .ok_or_else(|| format!("DataArray '{name}' has no type attribute"))?;
                         let components = match a("NumberOfComponents")? {
                             None => 1,
                             Some(c) => c.trim().parse().map_err(|_| {
-                                format!("DataArray '{name}': NumberOfComponents '{c}' is not a count")
+                                format!(
+                                    "DataArray '{name}': NumberOfComponents '{c}' is not a count"
+                                )
                             })?,
                         };
                         let format = a("format")?.unwrap_or_else(|| "ascii".into());
@@ -235,9 +240,12 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
     for a in 0..3 {
         let (lo, hi) = (extent[2 * a], extent[2 * a + 1]);
         if hi < lo {
-            return Err(format!("extent {extent:?} is empty along axis {a} (zero dimensions)"));
+            return Err(format!(
+                "extent {extent:?} is empty along axis {a} (zero dimensions)"
+            ));
         }
-        dims[a] = usize::try_from(hi - lo + 1).map_err(|_| format!("extent {extent:?} too large"))?;
+        dims[a] =
+            usize::try_from(hi - lo + 1).map_err(|_| format!("extent {extent:?} too large"))?;
         // Point (i, j, k) of the extent sits at origin + (i, j, k) * spacing; index 0 of our
         // grid is the extent's first point.
         origin[a] += lo as f64 * spacing[a];
@@ -249,7 +257,11 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
 
     // The array: --array, else the active scalars, else the first point-data array.
     let names = || {
-        let mut s = arrays.iter().map(|a| a.name.as_str()).collect::<Vec<_>>().join(", ");
+        let mut s = arrays
+            .iter()
+            .map(|a| a.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ");
         if s.is_empty() {
             s = "none".into();
         }
@@ -260,7 +272,10 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
             if cell_names.iter().any(|c| c == w) {
                 format!("array '{w}' is cell data; only point data can be volume rendered")
             } else {
-                format!("no point-data array named '{w}' (point-data arrays: {})", names())
+                format!(
+                    "no point-data array named '{w}' (point-data arrays: {})",
+                    names()
+                )
             }
         })?,
         None => active
@@ -369,12 +384,18 @@ fn read_array(
                     return Err(format!("holds more than the {n} values its extent needs"));
                 }
                 let v: f64 = tok.parse().map_err(|_| {
-                    format!("value {i} '{}' is not a number", tok.chars().take(40).collect::<String>())
+                    format!(
+                        "value {i} '{}' is not a number",
+                        tok.chars().take(40).collect::<String>()
+                    )
                 })?;
                 values.push(v);
             }
             if values.len() != n {
-                return Err(format!("holds {} values but the extent needs {n}", values.len()));
+                return Err(format!(
+                    "holds {} values but the extent needs {n}",
+                    values.len()
+                ));
             }
             Ok(TypedBuffer::from_f64_as(values, ty))
         }
@@ -385,7 +406,9 @@ fn read_array(
         }
         "appended" => {
             let app = appended.ok_or("format is appended but the file has no <AppendedData>")?;
-            let offset = decl.offset.ok_or("appended array has no offset attribute")?;
+            let offset = decl
+                .offset
+                .ok_or("appended array has no offset attribute")?;
             let start = app.data.get(offset..).ok_or_else(|| {
                 format!(
                     "offset {offset} is past the end of the appended data ({} bytes; truncated?)",
@@ -399,14 +422,20 @@ fn read_array(
             };
             Ok(TypedBuffer::new(ty, layout.order, data))
         }
-        f => Err(format!("unknown format '{f}' (expected ascii, binary or appended)")),
+        f => Err(format!(
+            "unknown format '{f}' (expected ascii, binary or appended)"
+        )),
     }
 }
 
 /// Decode base64 text that may be several padded streams back to back (VTK encodes the
 /// header and the data of a compressed array separately). Whitespace is ignored.
 fn base64_streams(text: &[u8]) -> Result<Vec<u8>, String> {
-    let clean: Vec<u8> = text.iter().copied().filter(|b| !b.is_ascii_whitespace()).collect();
+    let clean: Vec<u8> = text
+        .iter()
+        .copied()
+        .filter(|b| !b.is_ascii_whitespace())
+        .collect();
     if clean.len() % 4 != 0 {
         return Err(format!(
             "base64 data has {} characters, not a multiple of 4 (truncated?)",
@@ -486,9 +515,9 @@ fn unpack(stream: &[u8], layout: Layout, nbytes: usize) -> Result<Vec<u8>, Strin
     let mut pos = (3 + nblocks) * h;
     let mut out = vec![0u8; total];
     for (b, &csize) in sizes.iter().enumerate() {
-        let input = stream
-            .get(pos..pos.saturating_add(csize))
-            .ok_or_else(|| format!("compressed block {b} of {nblocks} is cut short (truncated?)"))?;
+        let input = stream.get(pos..pos.saturating_add(csize)).ok_or_else(|| {
+            format!("compressed block {b} of {nblocks} is cut short (truncated?)")
+        })?;
         pos += csize;
         let start = b * block;
         let dst = &mut out[start..(start + block).min(total)];
@@ -502,7 +531,7 @@ fn unpack(stream: &[u8], layout: Layout, nbytes: usize) -> Result<Vec<u8>, Strin
 fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), String> {
     let want = dst.len();
     let got = match c {
-        Compressor::None => unreachable!("uncompressed data has no blocks"),
+        Compressor::None => return Err("uncompressed data has no blocks".into()),
         Compressor::Zlib => {
             let mut z = flate2::Decompress::new(true);
             let status = z
@@ -554,7 +583,8 @@ fn numbers<T: std::str::FromStr, const N: usize>(s: &str, what: &str) -> Result<
         .map(|x| x.parse::<T>())
         .collect::<Result<_, _>>()
         .map_err(|_| format!("{what} '{s}' is not {N} numbers"))?;
-    v.try_into().map_err(|_| format!("{what} '{s}' is not {N} numbers"))
+    v.try_into()
+        .map_err(|_| format!("{what} '{s}' is not {N} numbers"))
 }
 
 /// First occurrence of `needle` in `hay`.
@@ -589,7 +619,10 @@ mod tests {
         assert_eq!(header_int(&s, 0, l(ByteOrder::Little, 4)).unwrap(), 1);
         assert_eq!(header_int(&s, 0, l(ByteOrder::Big, 4)).unwrap(), 1 << 24);
         assert_eq!(header_int(&s, 4, l(ByteOrder::Big, 4)).unwrap(), 2);
-        assert_eq!(header_int(&s, 0, l(ByteOrder::Big, 8)).unwrap(), (1 << 56) + 2);
+        assert_eq!(
+            header_int(&s, 0, l(ByteOrder::Big, 8)).unwrap(),
+            (1 << 56) + 2
+        );
         assert!(header_int(&s, 4, l(ByteOrder::Little, 8)).is_err());
     }
 }
