@@ -116,12 +116,17 @@ pub(super) fn build(geometry: Geometry, data: Vec<f32>) -> Vec<Level> {
                 prev.spacing[a] * (prev.dims[a] - 1) as f64 / (dims[a] - 1) as f64
             }
         });
-        let mut cur = prev.data.clone();
+        // Borrow the previous level instead of cloning it: a clone of level 0 would be a
+        // second full-size f32 copy at the peak.
+        let mut cur = std::borrow::Cow::Borrowed(prev.data.as_slice());
         let mut cur_dims = prev.dims;
         for axis in 0..3 {
-            cur = reduce_axis(&cur, cur_dims, axis, dims[axis]);
-            cur_dims[axis] = dims[axis];
+            if dims[axis] != cur_dims[axis] {
+                cur = reduce_axis(&cur, cur_dims, axis, dims[axis]).into();
+                cur_dims[axis] = dims[axis];
+            }
         }
+        let cur = cur.into_owned();
         levels.push(Level {
             dims,
             spacing,
