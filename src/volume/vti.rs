@@ -4,7 +4,8 @@
 //!
 //! Why not `vtkio` (0.7.0-rc2, the only version with the XML reader): checked by hand on this
 //! repository's fixtures (vtkio built with its `xml`, `flate2` and `lz4` features):
-//! - `appended_raw_uint16.vti` (appended raw, VTK's default data mode) fails with
+//! - `appended_raw_uint16.vti` (appended raw: what ParaView saves unless "Encode Appended
+//!   Data" is ticked; VTK 9.7's writer itself defaults to appended base64 + zlib) fails with
 //!   "unknown variant `raw`, expected `base64`";
 //! - `binary_float64_lzma.vti` (a compression it was not built for) imports as Ok with an
 //!   empty point-data list: the array is dropped silently, so a caller cannot tell a bad file
