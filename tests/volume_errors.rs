@@ -217,6 +217,19 @@ fn legacy_errors() {
         &pick,
         "(point-data arrays: values, other)",
     );
+    for mode in ["ascii", "binary"] {
+        let f = fixture(&format!("legacy_sections_{mode}.vtk"));
+        let pick = |n: &str| ReadOptions {
+            array: Some(n.into()),
+            ..none()
+        };
+        expect_err(
+            &f,
+            &pick("cell_scalars"),
+            "array 'cell_scalars' is cell data",
+        );
+        expect_err(&f, &pick("pair"), "array 'pair': has 2 components");
+    }
 }
 
 /// Every prefix of every fixture, and every fixture with one byte changed, loads or fails

@@ -129,6 +129,7 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
     let mut section = Section::Dataset;
     let mut count = 0usize; // tuples in the current section
     let mut names: Vec<String> = Vec::new();
+    let mut cell_names: Vec<String> = Vec::new();
     let mut chosen: Option<Found> = None;
     // Without --array: the first SCALARS/COLOR_SCALARS (VTK's active scalars) wins; a FIELD
     // array is kept as the fallback.
@@ -223,6 +224,8 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
                     if pick(want, &name, true, &mut chosen, &mut fallback, f) {
                         break;
                     }
+                } else if section == Section::Cell {
+                    cell_names.push(name);
                 }
             }
             "FIELD" => {
@@ -254,6 +257,8 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
                         if pick(want, f[0], false, &mut chosen, &mut fallback, fnd) {
                             break;
                         }
+                    } else if section == Section::Cell {
+                        cell_names.push(f[0].to_string());
                     }
                 }
                 if chosen.is_some() {
@@ -278,6 +283,8 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
                         )));
                     }
                     names.push(name);
+                } else if section == Section::Cell {
+                    cell_names.push(name);
                 }
             }
             "LOOKUP_TABLE" => {
@@ -309,6 +316,9 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
     }
     let dims = dims.ok_or_else(|| err("no DIMENSIONS line".into()))?;
     let f = chosen.or(fallback).ok_or_else(|| match want {
+        Some(w) if cell_names.iter().any(|c| c == w) => err(format!(
+            "array '{w}' is cell data; only point data can be volume rendered"
+        )),
         Some(w) => err(format!(
             "no point-data array named '{w}' (point-data arrays: {})",
             list(&names)
