@@ -153,6 +153,16 @@ fn bad_input_is_one_line_naming_the_file() {
         &arrays,
         "no point-data array named 'nope'",
     );
+    // An OS error (a file used as a directory): printed once, on the same line.
+    let under_file = format!("{}/x_2x2x2_uint8.raw", fixture("unnamed.bin"));
+    fails(&["info", &under_file], &under_file, "Not a directory");
+    let o = t2tf(&["info", &under_file]);
+    assert_eq!(
+        String::from_utf8_lossy(&o.stderr)
+            .matches("Not a directory")
+            .count(),
+        1
+    );
     let ext = put("v.mhd", b"ObjectType = Image\n");
     fails(&["info", &ext], &ext, "unknown extension");
     let bin = fixture("unnamed.bin");

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use t2tf::volume::{self, ReadOptions, ScalarType};
+use t2tf::volume::{self, ReadOptions, ScalarType, Volume};
 
 fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -232,7 +232,7 @@ fn legacy_errors() {
     }
 }
 
-/// Every prefix of every fixture, and every fixture with one byte changed, loads or fails
+/// Every prefix of every fixture, and every fixture with any one byte changed, loads or fails
 /// cleanly: no panic, and any error is one line naming the file.
 #[test]
 fn cut_or_corrupted_fixtures_never_panic() {
@@ -247,8 +247,11 @@ fn cut_or_corrupted_fixtures_never_panic() {
         let bytes = std::fs::read(fixture(name)).unwrap();
         let p = d.path().join(name);
         let check = |data: &[u8]| {
-            std::fs::write(&p, data).unwrap();
-            if let Err(err) = volume::load(&p, &none()) {
+            // In memory (the file system would dominate the run time); same code path as
+            // `load` after the file is read.
+            let r = volume::decode_bytes(&p, data.to_vec(), &none())
+                .and_then(|x| Volume::from_buffer(&p, x.geometry, &x.buffer));
+            if let Err(err) = r {
                 let s = err.to_string();
                 assert!(
                     !s.contains('\n') && s.starts_with(&p.display().to_string()),
@@ -256,13 +259,17 @@ fn cut_or_corrupted_fixtures_never_panic() {
                 );
             }
         };
-        for cut in (0..bytes.len()).step_by(11) {
+        for cut in 0..bytes.len() {
             check(&bytes[..cut]);
         }
-        for at in (0..bytes.len()).step_by(17) {
-            let mut b = bytes.clone();
-            b[at] = b[at].wrapping_add(0x5b);
-            check(&b);
+        // Shift a byte (breaks text, headers, compressed streams) or make it a '9' (bigger
+        // counts, extents and offsets).
+        for at in 0..bytes.len() {
+            for changed in [bytes[at].wrapping_add(0x5b), b'9'] {
+                let mut b = bytes.clone();
+                b[at] = changed;
+                check(&b);
+            }
         }
     }
 }

@@ -15,7 +15,7 @@ mod vti;
 
 pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
-pub use read::{decode, load, Decoded, ReadOptions};
+pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
 
 use std::path::{Path, PathBuf};
 
@@ -94,19 +94,34 @@ impl Geometry {
 pub enum VolumeError {
     #[error("{path}: {message}")]
     File { path: PathBuf, message: String },
-    #[error("{path}: {source}")]
+    /// The file could not be read. The io error is part of the message rather than a
+    /// `source`, so the CLI's `{:#}` cause chain prints it once, on one line.
+    #[error("{path}: {error}")]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
 impl VolumeError {
+    /// An error about `path`. The message is kept to one line of bounded length, since parser
+    /// errors may quote the file's own text (newlines included).
     pub fn file(path: &Path, message: impl Into<String>) -> Self {
+        const MAX_CHARS: usize = 300;
+        let message: String = message.into();
+        let mut one_line = message
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty())
+            .collect::<Vec<_>>()
+            .join(" ");
+        if let Some((cut, _)) = one_line.char_indices().nth(MAX_CHARS) {
+            one_line.truncate(cut);
+            one_line.push('…');
+        }
         VolumeError::File {
             path: path.to_path_buf(),
-            message: message.into(),
+            message: one_line,
         }
     }
 }
@@ -282,6 +297,14 @@ mod tests {
         let v = Volume::from_buffer(Path::new("t"), geom([4, 1, 1]), &buf).unwrap();
         assert!(v.data().iter().all(|x| x.is_finite()));
         assert_eq!(v.data()[1], 1.0);
+    }
+
+    #[test]
+    fn file_errors_are_one_bounded_line() {
+        let e = VolumeError::file(Path::new("a.vti"), "found `</x\n   </y>`\r\n");
+        assert_eq!(e.to_string(), "a.vti: found `</x </y>`");
+        let long = VolumeError::file(Path::new("a"), "é".repeat(1000)).to_string();
+        assert_eq!(long.chars().count(), "a: ".len() + 300 + 1);
     }
 
     #[test]

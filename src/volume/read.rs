@@ -58,7 +58,7 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
         std::io::ErrorKind::NotFound => VolumeError::file(path, "no such file"),
         _ => VolumeError::Io {
             path: path.to_path_buf(),
-            source: e,
+            error: e,
         },
     })?;
     if meta.is_dir() {
@@ -67,6 +67,20 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
             "is a directory, not a volume file (.raw, .vti or .vtk)",
         ));
     }
+    let bytes = std::fs::read(path).map_err(|e| VolumeError::Io {
+        path: path.to_path_buf(),
+        error: e,
+    })?;
+    decode_bytes(path, bytes, opts)
+}
+
+/// Decode the contents of a file named `path` (the name picks the reader, the `.raw` dims and
+/// type, and is quoted in errors) without touching the file system.
+pub fn decode_bytes(
+    path: &Path,
+    bytes: Vec<u8>,
+    opts: &ReadOptions,
+) -> Result<Decoded, VolumeError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -114,10 +128,6 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
         ));
     }
 
-    let bytes = std::fs::read(path).map_err(|e| VolumeError::Io {
-        path: path.to_path_buf(),
-        source: e,
-    })?;
     let mut decoded = match kind {
         Kind::Raw => raw::decode(path, bytes, opts)?,
         Kind::Vti => vti::decode(path, &bytes, opts.array.as_deref())?,
