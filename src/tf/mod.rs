@@ -6,14 +6,17 @@
 //! exporters map them to data units with `Volume::denormalize`.
 
 mod lut;
-// mod opacity;
+mod opacity;
 mod params;
-// mod simplify;
+mod simplify;
 
 pub use lut::ControlPointsGrad;
-// pub use opacity::{default_unit_distance, opacity_to_sigma, sigma_to_opacity};
+pub use opacity::{default_unit_distance, opacity_to_sigma, sigma_to_opacity};
 pub use params::{TfParams, TfParamsGrad, SPACING_FLOOR};
-// pub use simplify::{dense_curves, simplify_polyline, DenseCurves, DENSE_SAMPLES, EXPORT_TOLERANCE};
+pub use simplify::{
+    dense_curves, interpolate, simplified_curves, simplify_polyline, DenseCurves, SimplifiedCurves,
+    DENSE_SAMPLES, EXPORT_TOLERANCE, JUMP_WIDTH,
+};
 
 /// Largest density: σ = 255 · (tanh(p) + 1) / 2 (paper, Appendix A).
 pub const SIGMA_MAX: f64 = 255.0;
