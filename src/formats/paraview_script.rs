@@ -131,7 +131,7 @@ def open_volume(path):"#
                 ByteOrder::Little => "LittleEndian",
                 ByteOrder::Big => "BigEndian",
             };
-            let ext = g.dims.map(|d| (d - 1) as f64);
+            let ext = g.dims.map(|d| d.saturating_sub(1));
             let _ = writeln!(
                 w,
                 r#"    reader = pvs.ImageReader(FileNames=[path])
