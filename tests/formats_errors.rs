@@ -11,7 +11,10 @@ fn error_of(name: &str, text: &str) -> String {
     let p = d.path().join(name);
     std::fs::write(&p, text).unwrap();
     let e = read_tf(&p).expect_err(text).to_string();
-    assert!(e.starts_with(&p.display().to_string()), "error does not name the file: {e}");
+    assert!(
+        e.starts_with(&p.display().to_string()),
+        "error does not name the file: {e}"
+    );
     assert!(!e.contains('\n'), "not one line: {e}");
     e
 }
@@ -25,10 +28,22 @@ fn expect(name: &str, text: &str, needle: &str) {
 fn bad_json_presets() {
     expect("a.json", "{not json", "is not valid JSON");
     expect("a.json", "42", "expected an array of objects");
-    expect("a.json", "[{\"Name\":\"x\"}]", "no preset with \"RGBPoints\"");
+    expect(
+        "a.json",
+        "[{\"Name\":\"x\"}]",
+        "no preset with \"RGBPoints\"",
+    );
     expect("a.json", "[{\"RGBPoints\":[0,0,0]}]", "has 3 numbers");
-    expect("a.json", "[{\"RGBPoints\":[0,0,0,\"red\"]}]", "\"RGBPoints\"[3] is not a number");
-    expect("a.json", "[{\"RGBPoints\":[1,0,0,0, 0,1,1,1]}]", "below the previous point");
+    expect(
+        "a.json",
+        "[{\"RGBPoints\":[0,0,0,\"red\"]}]",
+        "\"RGBPoints\"[3] is not a number",
+    );
+    expect(
+        "a.json",
+        "[{\"RGBPoints\":[1,0,0,0, 0,1,1,1]}]",
+        "below the previous point",
+    );
     expect("a.json", "[{\"RGBPoints\":[0,0,0,2]}]", "is not in [0, 1]");
     expect(
         "a.json",
@@ -40,17 +55,41 @@ fn bad_json_presets() {
         "[{\"RGBPoints\":[0,0,0,0],\"Points\":[0,1,0.5,0.3]}]",
         "sharpness 0.3 is not supported",
     );
-    expect("a.json", "[{\"ColorSpace\":\"Lab\",\"RGBPoints\":[0,0,0,0]}]", "colour space");
+    expect(
+        "a.json",
+        "[{\"ColorSpace\":\"Lab\",\"RGBPoints\":[0,0,0,0]}]",
+        "colour space",
+    );
 }
 
 #[test]
 fn bad_xml_and_ct() {
-    expect("a.xml", "<ColorMaps><ColorMap name='x'><Point x='0' r='1' g='0'/>", "has no \"b\"");
-    expect("a.xml", "<ColorMaps><ColorMap name='x'><Point x='z' r='1' g='0' b='0'/>", "not a finite number");
+    expect(
+        "a.xml",
+        "<ColorMaps><ColorMap name='x'><Point x='0' r='1' g='0'/>",
+        "has no \"b\"",
+    );
+    expect(
+        "a.xml",
+        "<ColorMaps><ColorMap name='x'><Point x='z' r='1' g='0' b='0'/>",
+        "not a finite number",
+    );
     expect("a.xml", "<ColorMaps></ColorMaps>", "has no <ColorMap>");
-    expect("a.xml", "<ColorMaps><ColorMap name='x'></ColorMap></ColorMaps>", "no <Point>");
-    expect("a.xml", "<ColorMaps><ColorMap name='x' <", "is not valid XML");
-    expect("a.ct", "<Object name=\"Other\"/>", "is not a VisIt colour table");
+    expect(
+        "a.xml",
+        "<ColorMaps><ColorMap name='x'></ColorMap></ColorMaps>",
+        "no <Point>",
+    );
+    expect(
+        "a.xml",
+        "<ColorMaps><ColorMap name='x' <",
+        "is not valid XML",
+    );
+    expect(
+        "a.ct",
+        "<Object name=\"Other\"/>",
+        "is not a VisIt colour table",
+    );
     expect(
         "a.ct",
         "<Object name=\"ColorTable\"><Object name=\"ColorControlPointList\"><Object name=\"ColorControlPoint\">\
@@ -69,7 +108,9 @@ fn bad_xml_and_ct() {
 #[test]
 fn unreadable_paths() {
     let d = tempfile::tempdir().unwrap();
-    let e = read_tf(&d.path().join("missing.json")).unwrap_err().to_string();
+    let e = read_tf(&d.path().join("missing.json"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("missing.json"), "{e}");
     let dir = d.path().join("dir.json");
     std::fs::create_dir(&dir).unwrap();
@@ -91,11 +132,22 @@ fn colour_only_file_cannot_be_rendered() {
         spacing: [1.0; 3],
         origin: [0.0; 3],
     };
-    let v = Volume::from_buffer(Path::new("v"), g, &TypedBuffer::from_f64(vec![0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0])).unwrap();
+    let v = Volume::from_buffer(
+        Path::new("v"),
+        g,
+        &TypedBuffer::from_f64(vec![0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0]),
+    )
+    .unwrap();
     let e = format!("{:#}", load_tf(&p, &v, None).unwrap_err());
     assert!(e.contains("has no opacity points"), "{e}");
-    std::fs::write(&p, "[{\"RGBPoints\":[0,0,0,0, 1,1,1,1],\"Points\":[0,0,0.5,0, 1,1,0.5,0]}]")
-        .unwrap();
+    std::fs::write(
+        &p,
+        "[{\"RGBPoints\":[0,0,0,0, 1,1,1,1],\"Points\":[0,0,0.5,0, 1,1,0.5,0]}]",
+    )
+    .unwrap();
     let e = format!("{:#}", load_tf(&p, &v, Some(-1.0)).unwrap_err());
-    assert!(e.contains("c.json") && e.contains("unit distance -1 is not positive"), "{e}");
+    assert!(
+        e.contains("c.json") && e.contains("unit distance -1 is not positive"),
+        "{e}"
+    );
 }

@@ -3,8 +3,8 @@
 use std::path::{Path, PathBuf};
 
 use t2tf::formats::{
-    from_paraview_json, load_tf, read_tf, to_paraview_json, to_paraview_xml, to_visit_ct,
-    write_tf, ExportTf,
+    from_paraview_json, load_tf, read_tf, to_paraview_json, to_paraview_xml, to_visit_ct, write_tf,
+    ExportTf,
 };
 use t2tf::tf::{interpolate, sigma_to_opacity, ControlPoints, EXPORT_TOLERANCE};
 use t2tf::volume::{Geometry, TypedBuffer, Volume};
@@ -13,7 +13,9 @@ use t2tf::volume::{Geometry, TypedBuffer, Volume};
 fn volume() -> Volume {
     let dims = [16, 12, 10];
     let n = dims.iter().product::<usize>();
-    let values: Vec<f64> = (0..n).map(|i| -3.0 + 43.0 * (i as f64 / (n - 1) as f64)).collect();
+    let values: Vec<f64> = (0..n)
+        .map(|i| -3.0 + 43.0 * (i as f64 / (n - 1) as f64))
+        .collect();
     let g = Geometry {
         dims,
         spacing: [1.0, 2.0, 0.5],
@@ -80,7 +82,10 @@ fn export_follows_design_conventions() {
         let t = j as f64 / 5000.0;
         let want = sigma_to_opacity(cp.eval(t)[0], 3.5 / 3.0, l);
         let got = interpolate(&o, v.denormalize(t))[0];
-        assert!((got - want).abs() <= EXPORT_TOLERANCE, "t={t}: {got} vs {want}");
+        assert!(
+            (got - want).abs() <= EXPORT_TOLERANCE,
+            "t={t}: {got} vs {want}"
+        );
     }
     // The name carries a content hash; a different TF gets a different one.
     assert!(tf.name.starts_with("smooth-") && tf.name.len() == "smooth-".len() + 8);
@@ -163,9 +168,15 @@ fn load_tf_reproduces_what_paraview_shows() {
             let t = j as f64 / 10_000.0;
             let (a, b) = (cp.eval(t), back.eval(t));
             let (oa, ob) = (sigma_to_opacity(a[0], u, l), sigma_to_opacity(b[0], u, l));
-            assert!((oa - ob).abs() <= 1.5 * EXPORT_TOLERANCE, "{ext} t={t}: {oa} {ob}");
+            assert!(
+                (oa - ob).abs() <= 1.5 * EXPORT_TOLERANCE,
+                "{ext} t={t}: {oa} {ob}"
+            );
             for c in 1..4 {
-                assert!((a[c] - b[c]).abs() <= EXPORT_TOLERANCE, "{ext} colour t={t}");
+                assert!(
+                    (a[c] - b[c]).abs() <= EXPORT_TOLERANCE,
+                    "{ext} colour t={t}"
+                );
             }
         }
     }
@@ -180,7 +191,9 @@ fn load_tf_reproduces_what_paraview_shows() {
 }
 
 fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/paraview").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/paraview")
+        .join(name)
 }
 
 #[test]
@@ -196,13 +209,18 @@ fn reads_preset_written_by_paraview() {
             (40.25, [1.0, 1.0, 1.0])
         ]
     );
-    assert_eq!(tf.opacity_points, vec![(-2.5, 0.0), (3.0, 0.125), (40.25, 0.75)]);
+    assert_eq!(
+        tf.opacity_points,
+        vec![(-2.5, 0.0), (3.0, 0.125), (40.25, 0.75)]
+    );
     assert_eq!(tf.unit_distance, None);
 
     // As control points for a volume whose range is the preset's: x normalized, σ from o,
     // and the o-linear segments refined so the σ-linear TF matches them.
     let n = 64;
-    let values: Vec<f64> = (0..n).map(|i| -2.5 + 42.75 * i as f64 / (n - 1) as f64).collect();
+    let values: Vec<f64> = (0..n)
+        .map(|i| -2.5 + 42.75 * i as f64 / (n - 1) as f64)
+        .collect();
     let g = Geometry {
         dims: [n, 1, 1],
         spacing: [0.5, 1.0, 1.0],

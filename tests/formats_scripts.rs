@@ -4,9 +4,13 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use t2tf::formats::{freeform_opacity, paraview_script, visit_script, write_all, ExportTf, ScriptView};
+use t2tf::formats::{
+    freeform_opacity, paraview_script, visit_script, write_all, ExportTf, ScriptView,
+};
 use t2tf::tf::ControlPoints;
-use t2tf::volume::{ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource};
+use t2tf::volume::{
+    ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,
+};
 
 fn volume(format: SourceFormat) -> Volume {
     let g = Geometry {
@@ -14,7 +18,9 @@ fn volume(format: SourceFormat) -> Volume {
         spacing: [0.5, 1.0, 2.0],
         origin: [-1.0, 2.0, 3.5],
     };
-    let values: Vec<f64> = (0..g.voxel_count()).map(|i| (i % 17) as f64 * 10.0).collect();
+    let values: Vec<f64> = (0..g.voxel_count())
+        .map(|i| (i % 17) as f64 * 10.0)
+        .collect();
     let mut v = Volume::from_buffer(Path::new("v"), g, &TypedBuffer::from_f64(values)).unwrap();
     v.source = Some(VolumeSource {
         path: PathBuf::from("data/vol_8x6x5_uint16.raw"),
@@ -36,14 +42,22 @@ fn cp() -> ControlPoints {
 
 /// `python3 -m py_compile` the script (syntax only; python3 may be absent, then skip).
 fn compiles(path: &Path) {
-    match Command::new("python3").arg("-m").arg("py_compile").arg(path).output() {
+    match Command::new("python3")
+        .arg("-m")
+        .arg("py_compile")
+        .arg(path)
+        .output()
+    {
         Ok(o) => assert!(
             o.status.success(),
             "{} is not valid Python: {}",
             path.display(),
             String::from_utf8_lossy(&o.stderr)
         ),
-        Err(_) => eprintln!("python3 not found: syntax check of {} skipped", path.display()),
+        Err(_) => eprintln!(
+            "python3 not found: syntax check of {} skipped",
+            path.display()
+        ),
     }
 }
 
@@ -60,7 +74,13 @@ fn write_all_writes_every_output_atomically() {
     names.sort();
     assert_eq!(
         names,
-        ["vol.ct", "vol.json", "vol.xml", "vol_paraview.py", "vol_visit.py"],
+        [
+            "vol.ct",
+            "vol.json",
+            "vol.xml",
+            "vol_paraview.py",
+            "vol_visit.py"
+        ],
         "exactly the outputs, no temporary files left"
     );
     let pv = std::fs::read_to_string(files.paraview_script.as_ref().unwrap()).unwrap();
@@ -117,7 +137,10 @@ fn freeform_opacity_samples_the_opacity_curve() {
     };
     let f = freeform_opacity(&tf);
     assert_eq!(f.len(), 256);
-    assert!(f.iter().enumerate().all(|(i, &v)| v as usize == i), "identity ramp");
+    assert!(
+        f.iter().enumerate().all(|(i, &v)| v as usize == i),
+        "identity ramp"
+    );
 }
 
 #[test]

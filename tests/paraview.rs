@@ -10,7 +10,9 @@ use std::process::Command;
 use t2tf::formats::{to_paraview_json, to_paraview_xml, write_all, ExportTf, ScriptView};
 use t2tf::image::Image;
 use t2tf::tf::ControlPoints;
-use t2tf::volume::{ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource};
+use t2tf::volume::{
+    ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,
+};
 
 /// Whether pvpython and xvfb-run are here; panics if they are required but missing.
 fn paraview_available(test: &str) -> bool {
@@ -25,7 +27,9 @@ fn paraview_available(test: &str) -> bool {
         if std::env::var("T2TF_REQUIRE_PARAVIEW").as_deref() == Ok("1") {
             panic!("{test}: pvpython/xvfb-run not found but T2TF_REQUIRE_PARAVIEW=1");
         }
-        eprintln!("{test}: SKIPPED, pvpython or xvfb-run not found (set T2TF_REQUIRE_PARAVIEW=1 to fail)");
+        eprintln!(
+            "{test}: SKIPPED, pvpython or xvfb-run not found (set T2TF_REQUIRE_PARAVIEW=1 to fail)"
+        );
     }
     found
 }
@@ -43,7 +47,11 @@ fn pvpython(script: &Path, args: &[&str]) -> String {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
-    assert!(out.status.success(), "pvpython {} failed:\n{text}", script.display());
+    assert!(
+        out.status.success(),
+        "pvpython {} failed:\n{text}",
+        script.display()
+    );
     text
 }
 
@@ -131,7 +139,10 @@ fn assert_close(got: &[f64], want: &[f64], what: &str) {
     assert_eq!(got.len(), want.len(), "{what}: {got:?} vs {want:?}");
     for (i, (g, w)) in got.iter().zip(want).enumerate() {
         // ParaView keeps doubles; 1e-12 relative allows only printing-level differences.
-        assert!((g - w).abs() <= 1e-12 * (1.0 + w.abs()), "{what}[{i}]: {g} vs {w}");
+        assert!(
+            (g - w).abs() <= 1e-12 * (1.0 + w.abs()),
+            "{what}[{i}]: {g} vs {w}"
+        );
     }
 }
 
@@ -181,7 +192,11 @@ fn presets_import_and_apply_exactly() {
         .flat_map(|&(x, o)| [x, o, 0.5, 0.0])
         .collect();
     assert_close(&floats(&res["json_rgb"]), &rgb, "JSON preset colours");
-    assert_close(&floats(&res["json_points"]), &opacity, "JSON preset opacity");
+    assert_close(
+        &floats(&res["json_points"]),
+        &opacity,
+        "JSON preset opacity",
+    );
     assert_close(&floats(&res["helper_rgb"]), &rgb, "helper colours");
     assert_close(&floats(&res["helper_points"]), &opacity, "helper opacity");
     assert_eq!(res["helper_unit_distance"].as_f64(), tf.unit_distance);
@@ -221,7 +236,12 @@ fn projected_box(v: &Volume, view: &ScriptView, w: usize, h: usize) -> [f64; 4] 
     let t = (view.view_angle_deg.to_radians() / 2.0).tan();
     let aspect = w as f64 / h as f64;
     let (o, e) = (v.geometry.origin, v.geometry.extent());
-    let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
     for c in 0..8 {
         let p = [
             o[0] + e[0] * (c & 1) as f64,
@@ -254,13 +274,28 @@ fn generated_script_renders_the_volume_in_paraview() {
         view_angle_deg: 45.0,
     };
     let background = [0.1, 0.2, 0.3];
-    let files = write_all(dir.path(), "neghip", &test_tf(), &v, &view, background, None).unwrap();
+    let files = write_all(
+        dir.path(),
+        "neghip",
+        &test_tf(),
+        &v,
+        &view,
+        background,
+        None,
+    )
+    .unwrap();
     let script = files.paraview_script.expect("script written");
     let shot = dir.path().join("shot.png");
     let (w, h) = (200usize, 150usize);
     let log = pvpython(
         &script,
-        &["--screenshot", shot.to_str().unwrap(), "--size", &w.to_string(), &h.to_string()],
+        &[
+            "--screenshot",
+            shot.to_str().unwrap(),
+            "--size",
+            &w.to_string(),
+            &h.to_string(),
+        ],
     );
     let img = Image::load_png(&shot).unwrap_or_else(|e| panic!("{e}\n{log}"));
     assert_eq!((img.width, img.height), (w, h));
@@ -271,7 +306,10 @@ fn generated_script_renders_the_volume_in_paraview() {
     let bg = background.map(|c| c as f32);
     let is_bg = |p: [f32; 3]| (0..3).all(|i| (p[i] - bg[i]).abs() <= 1.5 / 255.0);
     let b = projected_box(&v, &view, w, h);
-    assert!(b[0] > 2.0 && b[1] > 2.0 && b[2] < w as f64 - 2.0 && b[3] < h as f64 - 2.0, "{b:?}");
+    assert!(
+        b[0] > 2.0 && b[1] > 2.0 && b[2] < w as f64 - 2.0 && b[3] < h as f64 - 2.0,
+        "{b:?}"
+    );
     let (mut inside, mut inside_differs, mut outside_differs) = (0, 0, 0);
     for y in 0..h {
         for x in 0..w {
@@ -286,7 +324,10 @@ fn generated_script_renders_the_volume_in_paraview() {
             }
         }
     }
-    assert_eq!(outside_differs, 0, "pixels outside the projected box changed");
+    assert_eq!(
+        outside_differs, 0,
+        "pixels outside the projected box changed"
+    );
     let frac = inside_differs as f64 / inside as f64;
     eprintln!("projected box {b:?}: {inside_differs}/{inside} inside pixels show the volume");
     assert!(frac > 0.3, "only {frac} of the box shows the volume");

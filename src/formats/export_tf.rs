@@ -109,7 +109,11 @@ impl ExportTf {
         let mut out = ExportTf {
             name: self.name.clone(),
             rgb_points: self.rgb_points.iter().map(|&(x, c)| (map(x), c)).collect(),
-            opacity_points: self.opacity_points.iter().map(|&(x, o)| (map(x), o)).collect(),
+            opacity_points: self
+                .opacity_points
+                .iter()
+                .map(|&(x, o)| (map(x), o))
+                .collect(),
             unit_distance: self.unit_distance,
         };
         out.name = out.unique_name();
@@ -127,7 +131,10 @@ impl ExportTf {
             let mut prev = f64::NEG_INFINITY;
             for (i, x) in xs.enumerate() {
                 if !x.is_finite() {
-                    return Err(FormatError::file(path, format!("{what} {i}: x = {x} is not finite")));
+                    return Err(FormatError::file(
+                        path,
+                        format!("{what} {i}: x = {x} is not finite"),
+                    ));
                 }
                 if x < prev {
                     return Err(FormatError::file(
@@ -140,7 +147,10 @@ impl ExportTf {
             Ok(())
         };
         check_x("colour point", &mut self.rgb_points.iter().map(|p| p.0))?;
-        check_x("opacity point", &mut self.opacity_points.iter().map(|p| p.0))?;
+        check_x(
+            "opacity point",
+            &mut self.opacity_points.iter().map(|p| p.0),
+        )?;
         for (i, (_, c)) in self.rgb_points.iter().enumerate() {
             if c.iter().any(|v| !(0.0..=1.0).contains(v)) {
                 return err(format!("colour point {i}: rgb {c:?} is not in [0, 1]"));
@@ -184,7 +194,10 @@ impl ExportTf {
             .or(self.unit_distance)
             .unwrap_or_else(|| default_unit_distance(&volume.geometry));
         if !(u.is_finite() && u > 0.0) {
-            return Err(FormatError::file(path, format!("unit distance {u} is not positive")));
+            return Err(FormatError::file(
+                path,
+                format!("unit distance {u} is not positive"),
+            ));
         }
         let ratio = u / volume.geometry.longest_side();
         let [lo, hi] = volume.norm_range;
@@ -211,7 +224,15 @@ impl ExportTf {
         let sigma_at = |t: f64| opacity_to_sigma(interpolate(&opacity, t)[0], ratio, 1.0);
         let mut refined = vec![xs[0]];
         for w in xs.windows(2) {
-            refine(w[0], w[1], &sigma_at, &|t| interpolate(&opacity, t)[0], ratio, 0, &mut refined);
+            refine(
+                w[0],
+                w[1],
+                &sigma_at,
+                &|t| interpolate(&opacity, t)[0],
+                ratio,
+                0,
+                &mut refined,
+            );
             refined.push(w[1]);
         }
         let cp = ControlPoints {

@@ -146,7 +146,10 @@ pub fn write_all(
     };
     if volume.source.is_some() {
         let p = path("_paraview.py");
-        atomic_write_bytes(&p, paraview_script(&tf, volume, view, background)?.as_bytes())?;
+        atomic_write_bytes(
+            &p,
+            paraview_script(&tf, volume, view, background)?.as_bytes(),
+        )?;
         written.paraview_script = Some(p);
         if let Ok(text) = visit_script(&tf, volume, view, background) {
             let p = path("_visit.py");

@@ -50,7 +50,11 @@ pub fn from_paraview_json(text: &str, path: &Path) -> Result<ExportTf, FormatErr
     let presets: Vec<&Value> = match &root {
         Value::Array(a) => a.iter().collect(),
         Value::Object(_) => vec![&root],
-        _ => return Err(err("is not a ParaView preset (expected an array of objects)".into())),
+        _ => {
+            return Err(err(
+                "is not a ParaView preset (expected an array of objects)".into(),
+            ))
+        }
     };
     let preset = presets
         .into_iter()
@@ -83,7 +87,9 @@ pub fn from_paraview_json(text: &str, path: &Path) -> Result<ExportTf, FormatErr
                 )));
             }
             if !(0.0..1.0).contains(&mid) {
-                return Err(err(format!("opacity point {i}: midpoint {mid} is not in [0, 1)")));
+                return Err(err(format!(
+                    "opacity point {i}: midpoint {mid} is not in [0, 1)"
+                )));
             }
             opacity_points.push((x, o));
             // ParaView's midpoint m puts half the step at fraction m of the segment.

@@ -37,7 +37,10 @@ pub(crate) fn source_path(volume: &Volume) -> Result<(String, &SourceFormat), Fo
     })?;
     let abs = std::path::absolute(&src.path).unwrap_or_else(|_| src.path.clone());
     let text = abs.to_str().ok_or_else(|| {
-        FormatError::file(&src.path, "path is not UTF-8; a Python script cannot name it")
+        FormatError::file(
+            &src.path,
+            "path is not UTF-8; a Python script cannot name it",
+        )
     })?;
     Ok((text.to_string(), &src.format))
 }
@@ -98,7 +101,11 @@ BACKGROUND = {bg}
                 .iter()
                 .flat_map(|&(x, c)| [x, c[0], c[1], c[2]])
         ),
-        opacity = py_list(tf.opacity_points.iter().flat_map(|&(x, o)| [x, o, 0.5, 0.0])),
+        opacity = py_list(
+            tf.opacity_points
+                .iter()
+                .flat_map(|&(x, o)| [x, o, 0.5, 0.0])
+        ),
         pos = py_list(view.position),
         focal = py_list(view.focal_point),
         up = py_list(view.view_up),

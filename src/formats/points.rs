@@ -4,6 +4,10 @@
 use super::ExportTf;
 use crate::tf::{interpolate, simplify_polyline};
 
+/// Colour points (data value, rgb) and opacity points (data value, o).
+pub(crate) type RgbPoints = Vec<(f64, [f64; 3])>;
+pub(crate) type OpacityPoints = Vec<(f64, f64)>;
+
 /// One merged point: data value, rgb, opacity (None when the TF has no opacity).
 pub(crate) struct MergedPoint {
     pub x: f64,
@@ -38,9 +42,7 @@ const COLLINEAR: f64 = 1e-12;
 
 /// Split merged points back into separate colour and opacity curves without the points that
 /// only the merge added.
-pub(crate) fn split(
-    points: &[MergedPoint],
-) -> (Vec<(f64, [f64; 3])>, Vec<(f64, f64)>) {
+pub(crate) fn split(points: &[MergedPoint]) -> (RgbPoints, OpacityPoints) {
     let x: Vec<f64> = points.iter().map(|p| p.x).collect();
     let rgb: Vec<[f64; 3]> = points.iter().map(|p| p.rgb).collect();
     let rgb_points = simplify_polyline(&x, &rgb, COLLINEAR)

@@ -125,17 +125,16 @@ pub fn from_visit_ct(text: &str, path: &Path) -> Result<ExportTf, FormatError> {
                         _ => {}
                     }
                 }
-                "Object" => {
-                    if objects.pop().as_deref() == Some("ColorControlPoint") {
-                        let i = raw.len();
-                        let c = colors
-                            .take()
-                            .ok_or_else(|| err(format!("control point {i} has no colors")))?;
-                        let p = position
-                            .take()
-                            .ok_or_else(|| err(format!("control point {i} has no position")))?;
-                        raw.push((c, p));
-                    }
+                // The guard pops every closing Object; only a control point is kept.
+                "Object" if objects.pop().as_deref() == Some("ColorControlPoint") => {
+                    let i = raw.len();
+                    let c = colors
+                        .take()
+                        .ok_or_else(|| err(format!("control point {i} has no colors")))?;
+                    let p = position
+                        .take()
+                        .ok_or_else(|| err(format!("control point {i} has no position")))?;
+                    raw.push((c, p));
                 }
                 _ => {}
             },
@@ -144,7 +143,9 @@ pub fn from_visit_ct(text: &str, path: &Path) -> Result<ExportTf, FormatError> {
         }
     }
     if !saw_table {
-        return Err(err("is not a VisIt colour table (no <Object name=\"ColorTable\">)".into()));
+        return Err(err(
+            "is not a VisIt colour table (no <Object name=\"ColorTable\">)".into(),
+        ));
     }
     if raw.is_empty() {
         return Err(err("has no ColorControlPoint".into()));

@@ -80,7 +80,11 @@ impl ControlPoints {
     /// `grad.entries.len()` must be `n` (the same `n` given to `to_lut`).
     pub fn lut_backward(&self, n: usize, grad: &LutGrad) -> ControlPointsGrad {
         let n = n.max(2);
-        assert_eq!(grad.entries.len(), n, "LutGrad has the wrong number of entries");
+        assert_eq!(
+            grad.entries.len(),
+            n,
+            "LutGrad has the wrong number of entries"
+        );
         let mut out = ControlPointsGrad::zeros(self.len());
         for_each_span(self, n, |j, _, span| {
             let g = grad.entries[j];
@@ -126,7 +130,9 @@ mod tests {
         ControlPoints {
             x,
             sigma: (0..k).map(|_| rng.random_range(0.0..255.0)).collect(),
-            rgb: (0..k).map(|_| std::array::from_fn(|_| rng.random())).collect(),
+            rgb: (0..k)
+                .map(|_| std::array::from_fn(|_| rng.random()))
+                .collect(),
         }
     }
 
@@ -192,7 +198,10 @@ mod tests {
                 assert!((ds - g.sigma[i]).abs() < 1e-6 * (1.0 + ds.abs()), "σ{i}");
                 for ch in 0..3 {
                     let dc = fd(&|c, h| c.rgb[i][ch] += h, 1e-3);
-                    assert!((dc - g.rgb[i][ch]).abs() < 1e-6 * (1.0 + dc.abs()), "rgb{i}");
+                    assert!(
+                        (dc - g.rgb[i][ch]).abs() < 1e-6 * (1.0 + dc.abs()),
+                        "rgb{i}"
+                    );
                 }
                 if i > 0 && i < k - 1 {
                     let dx = fd(&|c, h| c.x[i] += h, 1e-7);
@@ -214,7 +223,12 @@ mod tests {
             rgb: vec![[0.5; 3]; 5],
         };
         let n = 256;
-        let g = cp.lut_backward(n, &LutGrad { entries: vec![[1.0; 4]; n] });
+        let g = cp.lut_backward(
+            n,
+            &LutGrad {
+                entries: vec![[1.0; 4]; n],
+            },
+        );
         assert!(g.x.iter().chain(&g.sigma).all(|v| v.is_finite()));
         // Every entry's weight lands somewhere: Σ ∂/∂σ_k = n when ∂loss/∂σ_j = 1.
         assert!((g.sigma.iter().sum::<f64>() - n as f64).abs() < 1e-9);

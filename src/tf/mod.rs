@@ -26,7 +26,9 @@ pub const SIGMA_MAX: f64 = 255.0;
 pub enum TfError {
     #[error("a transfer function needs at least 2 control points, got {0}")]
     TooFewPoints(usize),
-    #[error("control point arrays differ in length: {x} positions, {sigma} densities, {rgb} colours")]
+    #[error(
+        "control point arrays differ in length: {x} positions, {sigma} densities, {rgb} colours"
+    )]
     LengthMismatch { x: usize, sigma: usize, rgb: usize },
     #[error("control point {index}: {message}")]
     BadPoint { index: usize, message: String },
@@ -88,9 +90,7 @@ impl ControlPoints {
     /// `k` evenly spaced points (x_i = i / (k − 1)) with the given densities and colours.
     pub fn evenly_spaced(sigma: Vec<f64>, rgb: Vec<[f64; 3]>) -> Result<ControlPoints, TfError> {
         let k = sigma.len();
-        let x = (0..k)
-            .map(|i| i as f64 / (k.max(2) - 1) as f64)
-            .collect();
+        let x = (0..k).map(|i| i as f64 / (k.max(2) - 1) as f64).collect();
         let cp = ControlPoints { x, sigma, rgb };
         cp.validate()?;
         Ok(cp)

@@ -14,7 +14,7 @@ pub fn sigma_to_opacity(sigma: f64, u: f64, l: f64) -> f64 {
 /// Inverse of [`sigma_to_opacity`], clamped to the TF's density range [0, 255]: o = 1 (or a
 /// σ beyond 255, possible in a foreign preset) reads as 255; o ≤ 0 or NaN as 0.
 pub fn opacity_to_sigma(o: f64, u: f64, l: f64) -> f64 {
-    if !(o > 0.0) {
+    if o.is_nan() || o <= 0.0 {
         return 0.0;
     }
     if o >= 1.0 {
@@ -48,7 +48,10 @@ mod tests {
             let o = sigma_to_opacity(sigma, u, l);
             assert!((0.0..1.0).contains(&o));
             let back = opacity_to_sigma(o, u, l);
-            assert!((back - sigma).abs() <= 1e-12 * (1.0 + sigma), "{sigma} -> {back}");
+            assert!(
+                (back - sigma).abs() <= 1e-12 * (1.0 + sigma),
+                "{sigma} -> {back}"
+            );
             // VTK's correction for a sample distance Δ gives our α for a step Δ.
             let delta = 0.37;
             let vtk = 1.0 - (1.0 - o).powf(delta / u);

@@ -92,16 +92,15 @@ impl TfParams {
     pub fn from_control_points(cp: &ControlPoints) -> TfParams {
         let k = cp.len();
         let segments = k.saturating_sub(1).max(1) as f64;
-        let spacing = cp
-            .x
-            .windows(2)
-            .map(|w| {
-                let target = (w[1] - w[0]) * segments - SPACING_FLOOR;
-                // Keep softplus' argument positive: a floor-sized target maps to a spacing
-                // of e^-27 (≈ 2e-12) above the floor.
-                softplus_inv(target.max(2e-12))
-            })
-            .collect();
+        let spacing =
+            cp.x.windows(2)
+                .map(|w| {
+                    let target = (w[1] - w[0]) * segments - SPACING_FLOOR;
+                    // Keep softplus' argument positive: a floor-sized target maps to a spacing
+                    // of e^-27 (≈ 2e-12) above the floor.
+                    softplus_inv(target.max(2e-12))
+                })
+                .collect();
         let density = cp
             .sigma
             .iter()
@@ -300,7 +299,13 @@ mod tests {
         let cp = ControlPoints {
             x: vec![0.0, 0.1, 0.35, 0.9, 1.0],
             sigma: vec![0.0, 12.5, 255.0, 100.0, 3.0],
-            rgb: vec![[0.3, 0.7, 0.5], [0.0, 1.0, 0.2], [0.5; 3], [0.9, 0.1, 0.4], [1.0; 3]],
+            rgb: vec![
+                [0.3, 0.7, 0.5],
+                [0.0, 1.0, 0.2],
+                [0.5; 3],
+                [0.9, 0.1, 0.4],
+                [1.0; 3],
+            ],
         };
         let back = TfParams::from_control_points(&cp).control_points();
         back.validate().unwrap();
@@ -313,7 +318,10 @@ mod tests {
             }
         }
         let even = TfParams::evenly_spaced(5, 10.0, [0.5; 3]).unwrap();
-        assert!(even.spacing.iter().all(|&s| (softplus(s) + SPACING_FLOOR - 1.0).abs() < 1e-12));
+        assert!(even
+            .spacing
+            .iter()
+            .all(|&s| (softplus(s) + SPACING_FLOOR - 1.0).abs() < 1e-12));
     }
 
     #[test]

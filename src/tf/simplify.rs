@@ -73,7 +73,10 @@ pub fn dense_curves(cp: &ControlPoints, ratio: f64, tol: f64) -> DenseCurves {
         let (a, b) = (cp.at(i), cp.at(i + 1));
         for j in 1..m {
             let w = j as f64 / m as f64;
-            push(x0 + w * len, std::array::from_fn(|c| a[c] + w * (b[c] - a[c])));
+            push(
+                x0 + w * len,
+                std::array::from_fn(|c| a[c] + w * (b[c] - a[c])),
+            );
         }
     }
     out
@@ -97,8 +100,8 @@ pub fn simplify_polyline<const C: usize>(x: &[f64], v: &[[f64; C]], tol: f64) ->
         let (mut worst, mut at) = (0.0, 0);
         for m in i + 1..j {
             let w = (x[m] - x[i]) / (x[j] - x[i]);
-            for c in 0..C {
-                let e = (v[i][c] + w * (v[j][c] - v[i][c]) - v[m][c]).abs();
+            for ((a, b), vm) in v[i].iter().zip(&v[j]).zip(&v[m]) {
+                let e = (a + w * (b - a) - vm).abs();
                 if e > worst {
                     worst = e;
                     at = m;
@@ -189,7 +192,12 @@ mod tests {
             let (eo, ec) = max_error(&cp, &s, ratio);
             assert!(eo <= EXPORT_TOLERANCE, "ratio {ratio}: opacity error {eo}");
             assert!(ec <= EXPORT_TOLERANCE, "ratio {ratio}: colour error {ec}");
-            assert!(s.opacity.len() < d.x.len(), "{} !< {}", s.opacity.len(), d.x.len());
+            assert!(
+                s.opacity.len() < d.x.len(),
+                "{} !< {}",
+                s.opacity.len(),
+                d.x.len()
+            );
             // r and g are linear in x: only the blue channel's kinks need points.
             assert!(s.rgb.len() < k, "{} colour points", s.rgb.len());
             assert_eq!(s.opacity[0].0, 0.0);
@@ -202,11 +210,21 @@ mod tests {
         let cp = ControlPoints {
             x: vec![0.0, 0.3, 0.3, 0.3005, 0.7, 1.0],
             sigma: vec![0.0, 0.0, 255.0, 0.0, 255.0, 255.0],
-            rgb: vec![[0.0; 3], [1.0; 3], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.2; 3], [0.9; 3]],
+            rgb: vec![
+                [0.0; 3],
+                [1.0; 3],
+                [0.0, 1.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.2; 3],
+                [0.9; 3],
+            ],
         };
         let ratio = 1.0 / 63.0;
         let s = simplified_curves(&cp, ratio, EXPORT_TOLERANCE);
-        assert!(s.opacity.windows(2).all(|w| w[1].0 > w[0].0), "strictly ascending x");
+        assert!(
+            s.opacity.windows(2).all(|w| w[1].0 > w[0].0),
+            "strictly ascending x"
+        );
         let o: Vec<(f64, [f64; 1])> = s.opacity.iter().map(|&(x, o)| (x, [o])).collect();
         // Away from the jump at 0.3 (which ParaView cannot represent exactly) the curve holds.
         for j in 0..=100_000 {
@@ -215,14 +233,20 @@ mod tests {
                 continue;
             }
             let want = sigma_to_opacity(cp.eval(t)[0], ratio, 1.0);
-            assert!((interpolate(&o, t)[0] - want).abs() <= EXPORT_TOLERANCE, "t={t}");
+            assert!(
+                (interpolate(&o, t)[0] - want).abs() <= EXPORT_TOLERANCE,
+                "t={t}"
+            );
         }
     }
 
     #[test]
     fn douglas_peucker_keeps_only_needed_points() {
         let x: Vec<f64> = (0..11).map(|i| i as f64 / 10.0).collect();
-        let v: Vec<[f64; 1]> = x.iter().map(|&t| [if t <= 0.5 { t } else { 1.0 - t }]).collect();
+        let v: Vec<[f64; 1]> = x
+            .iter()
+            .map(|&t| [if t <= 0.5 { t } else { 1.0 - t }])
+            .collect();
         assert_eq!(simplify_polyline(&x, &v, 1e-9), vec![0, 5, 10]);
     }
 }
