@@ -332,3 +332,51 @@ fn generated_script_renders_the_volume_in_paraview() {
     eprintln!("projected box {b:?}: {inside_differs}/{inside} inside pixels show the volume");
     assert!(frac > 0.3, "only {frac} of the box shows the volume");
 }
+
+/// PSNR in dB between two images of the same size (RGB in [0, 1]).
+fn psnr(a: &Image, b: &Image) -> f64 {
+    let mse = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        / a.data.len() as f64;
+    10.0 * (1.0 / mse.max(1e-20)).log10()
+}
+
+#[test]
+fn unit_distance_does_not_change_the_paraview_image() {
+    // DESIGN.md: with o = 1 − exp(−σu/L) and ScalarOpacityUnitDistance = u, VTK renders
+    // 1 − exp(−σΔ/L) whatever u is. Two exports for u = 0.5 and u = 4 must render alike
+    // (differences: the export tolerance and VTK's 1024-entry opacity table); a wrong
+    // conversion (e.g. o = σu without the exponential) changes the image grossly.
+    if !paraview_available("unit_distance_does_not_change_the_paraview_image") {
+        return;
+    }
+    let v = neghip();
+    let view = ScriptView::front(&v, 2.5);
+    let dir = tempfile::tempdir().unwrap();
+    let mut shots = Vec::new();
+    for (name, u) in [("u05", 0.5), ("u4", 4.0)] {
+        let files = write_all(dir.path(), name, &test_tf(), &v, &view, [0.0; 3], Some(u)).unwrap();
+        let shot = dir.path().join(format!("{name}.png"));
+        pvpython(
+            &files.paraview_script.unwrap(),
+            &[
+                "--screenshot",
+                shot.to_str().unwrap(),
+                "--size",
+                "160",
+                "160",
+            ],
+        );
+        shots.push(Image::load_png(&shot).unwrap());
+    }
+    let p = psnr(&shots[0], &shots[1]);
+    eprintln!("PSNR between u = 0.5 and u = 4 exports: {p:.1} dB");
+    assert!(p > 40.0, "PSNR {p:.1} dB");
+    // The images are not blank (otherwise any PSNR would be high).
+    let lit = shots[0].data.iter().filter(|&&c| c > 0.05).count();
+    assert!(lit > 1000, "{lit} lit channel values");
+}
