@@ -1,9 +1,89 @@
-//! `t2tf convert` (being written).
+//! `t2tf convert`: a transfer function from one file format to another, optionally moved to
+//! a new data range.
 
-/// Placeholder arguments until the command lands.
+use std::path::PathBuf;
+
+use crate::formats::{read_tf, write_tf, TfFormat};
+
+/// Convert a transfer function between ParaView JSON (.json), ParaView XML (.xml) and VisIt
+/// colour tables (.ct); the formats follow the file extensions.
 #[derive(clap::Args, Debug)]
-pub struct ConvertArgs {}
+#[command(after_help = "Examples:\n  \
+    t2tf convert out/neghip.json neghip.ct\n  \
+    t2tf convert preset.json preset_12bit.json --rescale 0,4095\n\n\
+    Colours and opacity convert exactly between .json and .xml; .ct holds 8-bit colours and \
+    alpha. ParaView's XML import reads only the colours; use the .json for opacity.")]
+pub struct ConvertArgs {
+    /// Input transfer function (.json, .xml or .ct).
+    pub input: PathBuf,
+    /// Output file; its extension picks the format (.json, .xml or .ct).
+    pub output: PathBuf,
+    /// Map the TF's data range linearly onto MIN,MAX (data units).
+    #[arg(long, value_name = "MIN,MAX", value_parser = parse_range, allow_hyphen_values = true)]
+    pub rescale: Option<Range>,
+}
 
-pub fn run(_args: ConvertArgs) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+/// A data range given on the command line.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Range {
+    pub min: f64,
+    pub max: f64,
+}
+
+fn parse_range(s: &str) -> Result<Range, String> {
+    let (a, b) = s
+        .split_once(',')
+        .ok_or_else(|| format!("\"{s}\" is not MIN,MAX"))?;
+    let num = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("\"{v}\" is not a finite number"))
+    };
+    let (min, max) = (num(a)?, num(b)?);
+    if min >= max {
+        return Err(format!("MIN ({min}) must be below MAX ({max})"));
+    }
+    Ok(Range { min, max })
+}
+
+pub fn run(args: ConvertArgs) -> anyhow::Result<()> {
+    // Check the output's format before reading, so a typo fails fast.
+    TfFormat::from_path(&args.output)?;
+    let mut tf = read_tf(&args.input)?;
+    if let Some(r) = args.rescale {
+        tf = tf.rescaled(r.min, r.max);
+    }
+    // Errors from here name the output file already.
+    write_tf(&args.output, &tf)?;
+    let [lo, hi] = tf.data_range();
+    println!(
+        "wrote {} ({}: {} colour points, {} opacity points, data range {lo} to {hi})",
+        args.output.display(),
+        tf.name,
+        tf.rgb_points.len(),
+        tf.opacity_points.len()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_ranges() {
+        assert_eq!(
+            parse_range("-1,2.5"),
+            Ok(Range {
+                min: -1.0,
+                max: 2.5
+            })
+        );
+        assert!(parse_range("3,1").unwrap_err().contains("below"));
+        assert!(parse_range("1").is_err());
+        assert!(parse_range("a,1").unwrap_err().contains("\"a\""));
+        assert!(parse_range("0,inf").is_err());
+    }
 }

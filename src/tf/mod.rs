@@ -1,8 +1,38 @@
-//! Transfer functions: control points, the dense lookup table the renderer reads, and (being
-//! written, issue 3) the paper's parameterization and the backward passes between them.
+//! Transfer functions: control points, the dense lookup table the renderer reads, the paper's
+//! parameterization, the backward passes between them, the σ ↔ opacity conversion and the
+//! simplification used for export.
 //!
 //! All positions here are *normalized* scalar values in [0, 1] (the renderer's input);
 //! exporters map them to data units with `Volume::denormalize`.
+
+mod lut;
+mod opacity;
+mod params;
+mod simplify;
+
+pub use lut::ControlPointsGrad;
+pub use opacity::{default_unit_distance, opacity_to_sigma, sigma_to_opacity};
+pub use params::{TfParams, TfParamsGrad, SPACING_FLOOR};
+pub use simplify::{
+    dense_curves, interpolate, simplified_curves, simplify_polyline, DenseCurves, SimplifiedCurves,
+    DENSE_SAMPLES, EXPORT_TOLERANCE, JUMP_WIDTH,
+};
+
+/// Largest density: σ = 255 · (tanh(p) + 1) / 2 (paper, Appendix A).
+pub const SIGMA_MAX: f64 = 255.0;
+
+/// Why a TF could not be built.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum TfError {
+    #[error("a transfer function needs at least 2 control points, got {0}")]
+    TooFewPoints(usize),
+    #[error(
+        "control point arrays differ in length: {x} positions, {sigma} densities, {rgb} colours"
+    )]
+    LengthMismatch { x: usize, sigma: usize, rgb: usize },
+    #[error("control point {index}: {message}")]
+    BadPoint { index: usize, message: String },
+}
 
 /// A piecewise-linear TF: density σ and RGB colour at ascending positions.
 ///
@@ -57,37 +87,76 @@ impl ControlPoints {
         self.x.is_empty()
     }
 
-    /// (σ, r, g, b) at normalized value `t`, linear between points, constant outside.
+    /// `k` evenly spaced points (x_i = i / (k − 1)) with the given densities and colours.
+    pub fn evenly_spaced(sigma: Vec<f64>, rgb: Vec<[f64; 3]>) -> Result<ControlPoints, TfError> {
+        let k = sigma.len();
+        let x = (0..k).map(|i| i as f64 / (k.max(2) - 1) as f64).collect();
+        let cp = ControlPoints { x, sigma, rgb };
+        cp.validate()?;
+        Ok(cp)
+    }
+
+    /// Check the invariants the renderer and exporters rely on: ≥ 2 points, equal lengths,
+    /// finite ascending x from 0 to 1, σ in [0, 255], colours in [0, 1].
+    pub fn validate(&self) -> Result<(), TfError> {
+        let k = self.x.len();
+        if self.sigma.len() != k || self.rgb.len() != k {
+            return Err(TfError::LengthMismatch {
+                x: k,
+                sigma: self.sigma.len(),
+                rgb: self.rgb.len(),
+            });
+        }
+        if k < 2 {
+            return Err(TfError::TooFewPoints(k));
+        }
+        let bad = |index: usize, message: String| Err(TfError::BadPoint { index, message });
+        for i in 0..k {
+            let x = self.x[i];
+            if !x.is_finite() || !(0.0..=1.0).contains(&x) {
+                return bad(i, format!("position {x} is not in [0, 1]"));
+            }
+            if i > 0 && x < self.x[i - 1] {
+                return bad(i, format!("position {x} is below the previous one"));
+            }
+            let s = self.sigma[i];
+            if !(0.0..=SIGMA_MAX).contains(&s) {
+                return bad(i, format!("density {s} is not in [0, {SIGMA_MAX}]"));
+            }
+            if self.rgb[i].iter().any(|c| !(0.0..=1.0).contains(c)) {
+                return bad(i, format!("colour {:?} is not in [0, 1]", self.rgb[i]));
+            }
+        }
+        if self.x[0] != 0.0 || self.x[k - 1] != 1.0 {
+            return bad(0, "the first position must be 0 and the last 1".into());
+        }
+        Ok(())
+    }
+
+    /// (σ, r, g, b) at normalized value `t`, linear between points, constant outside. At a
+    /// repeated position (a jump) the value is the right-hand one.
     pub fn eval(&self, t: f64) -> [f64; 4] {
         let k = self.x.partition_point(|&x| x <= t);
-        let at = |i: usize| {
-            [
-                self.sigma[i],
-                self.rgb[i][0],
-                self.rgb[i][1],
-                self.rgb[i][2],
-            ]
-        };
         if k == 0 {
-            return at(0);
+            return self.at(0);
         }
         if k >= self.len() {
-            return at(self.len() - 1);
+            return self.at(self.len() - 1);
         }
         let (x0, x1) = (self.x[k - 1], self.x[k]);
         let w = if x1 > x0 { (t - x0) / (x1 - x0) } else { 1.0 };
-        let (a, b) = (at(k - 1), at(k));
+        let (a, b) = (self.at(k - 1), self.at(k));
         std::array::from_fn(|c| a[c] + w * (b[c] - a[c]))
     }
 
-    /// Sample the TF into an `n`-entry lookup table.
-    pub fn to_lut(&self, n: usize) -> Lut {
-        let n = n.max(2);
-        Lut {
-            entries: (0..n)
-                .map(|j| self.eval(j as f64 / (n - 1) as f64).map(|v| v as f32))
-                .collect(),
-        }
+    /// (σ, r, g, b) of point `i`.
+    pub(crate) fn at(&self, i: usize) -> [f64; 4] {
+        [
+            self.sigma[i],
+            self.rgb[i][0],
+            self.rgb[i][1],
+            self.rgb[i][2],
+        ]
     }
 }
 
@@ -107,5 +176,21 @@ mod tests {
         assert_eq!(lut.entries[1], [50.0, 0.5, 0.25, 0.0]);
         assert_eq!(lut.entries[2], [100.0, 1.0, 0.5, 0.0]);
         assert_eq!(lut.entries[4], [50.0, 0.0, 0.0, 1.0]);
+    }
+
+    #[test]
+    fn validate_names_the_broken_point() {
+        let mut cp = ControlPoints::evenly_spaced(vec![1.0; 3], vec![[0.5; 3]; 3]).unwrap();
+        assert_eq!(cp.x, vec![0.0, 0.5, 1.0]);
+        cp.sigma[1] = f64::NAN;
+        let e = cp.validate().unwrap_err().to_string();
+        assert!(e.starts_with("control point 1: density NaN"), "{e}");
+        cp.sigma[1] = 1.0;
+        cp.x[1] = 1.5;
+        assert!(cp.validate().is_err());
+        assert_eq!(
+            ControlPoints::evenly_spaced(vec![1.0], vec![[0.5; 3]]).unwrap_err(),
+            TfError::TooFewPoints(1)
+        );
     }
 }

@@ -1,0 +1,177 @@
+//! VisIt colour tables (`.ct`): `<Object name="ColorTable">` → `ColorControlPointList` →
+//! `ColorControlPoint` with `colors` (RGBA, 4 unsigned chars) and `position` in [0, 1].
+//!
+//! The format has no data range and 8-bit colours, so a round trip keeps colours and opacity
+//! to ±0.5/255. We add two fields VisIt's reader skips (it looks its fields up by name):
+//! the data range the positions span and the unit distance, so our reader restores data units.
+
+use std::path::Path;
+
+use quick_xml::events::Event;
+use quick_xml::Reader;
+
+use super::paraview_xml::{attr, number};
+use super::points::{merge, split, MergedPoint};
+use super::{ExportTf, FormatError};
+
+const RANGE_FIELD: &str = "t2tfDataRange";
+const UNIT_DISTANCE_FIELD: &str = "t2tfScalarOpacityUnitDistance";
+
+fn byte(v: f64) -> u8 {
+    (v.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
+/// The table: colours from the TF, alpha from its opacity (255 when it has none).
+pub fn to_visit_ct(tf: &ExportTf) -> String {
+    let [lo, hi] = tf.data_range();
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    let mut s = String::from("<?xml version=\"1.0\"?>\n<Object name=\"ColorTable\">\n");
+    s.push_str("    <Field name=\"Version\" type=\"string\">3.3.0</Field>\n");
+    s.push_str(&format!(
+        "    <Field name=\"{RANGE_FIELD}\" type=\"doubleArray\" length=\"2\">{lo:?} {hi:?} </Field>\n"
+    ));
+    if let Some(u) = tf.unit_distance {
+        s.push_str(&format!(
+            "    <Field name=\"{UNIT_DISTANCE_FIELD}\" type=\"double\">{u:?}</Field>\n"
+        ));
+    }
+    s.push_str("    <Object name=\"ColorControlPointList\">\n");
+    for p in merge(tf) {
+        let a = p.opacity.map_or(255, byte);
+        let [r, g, b] = p.rgb.map(byte);
+        // VisIt stores positions as float: f32 precision is what the format holds.
+        let pos = (((p.x - lo) / span).clamp(0.0, 1.0)) as f32;
+        s.push_str("        <Object name=\"ColorControlPoint\">\n");
+        s.push_str(&format!(
+            "            <Field name=\"colors\" type=\"unsignedCharArray\" length=\"4\">{r} {g} {b} {a} </Field>\n"
+        ));
+        s.push_str(&format!(
+            "            <Field name=\"position\" type=\"float\">{pos:?}</Field>\n"
+        ));
+        s.push_str("        </Object>\n");
+    }
+    s.push_str("    </Object>\n</Object>\n");
+    s
+}
+
+/// Read a `.ct`; positions map onto the stored data range, else onto [0, 1].
+pub fn from_visit_ct(text: &str, path: &Path) -> Result<ExportTf, FormatError> {
+    let err = |m: String| FormatError::file(path, m);
+    let mut reader = Reader::from_str(text);
+    let mut objects: Vec<String> = Vec::new();
+    let mut field: Option<String> = None;
+    let mut field_text = String::new();
+    let mut colors: Option<[f64; 4]> = None;
+    let mut position: Option<f64> = None;
+    let mut raw: Vec<([f64; 4], f64)> = Vec::new();
+    let mut range: Option<[f64; 2]> = None;
+    let mut unit_distance = None;
+    let mut saw_table = false;
+    loop {
+        let event = reader
+            .read_event()
+            .map_err(|e| err(format!("is not valid XML: {e}")))?;
+        match event {
+            Event::Start(e) => match e.name().as_ref() {
+                "Object" => {
+                    let n = attr(&e, "name", path)?.unwrap_or_default();
+                    saw_table |= n == "ColorTable";
+                    objects.push(n);
+                }
+                "Field" => {
+                    field = attr(&e, "name", path)?;
+                    field_text.clear();
+                }
+                _ => {}
+            },
+            Event::Text(t) if field.is_some() => field_text.push_str(&t),
+            Event::End(e) => match e.name().as_ref() {
+                "Field" => {
+                    let name = field.take().unwrap_or_default();
+                    let nums = || -> Result<Vec<f64>, FormatError> {
+                        field_text
+                            .split_whitespace()
+                            .map(|v| number(v, &format!("field \"{name}\""), path))
+                            .collect()
+                    };
+                    match (objects.last().map(String::as_str), name.as_str()) {
+                        (Some("ColorControlPoint"), "colors") => {
+                            let v = nums()?;
+                            if !(v.len() == 3 || v.len() == 4)
+                                || v.iter().any(|c| !(0.0..=255.0).contains(c))
+                            {
+                                return Err(err(format!(
+                                    "control point {}: colors \"{}\" are not 3 or 4 values in 0..255",
+                                    raw.len(),
+                                    field_text.trim()
+                                )));
+                            }
+                            colors = Some([v[0], v[1], v[2], *v.get(3).unwrap_or(&255.0)]);
+                        }
+                        (Some("ColorControlPoint"), "position") => {
+                            let v = nums()?;
+                            position = v.first().copied();
+                        }
+                        (Some("ColorTable"), RANGE_FIELD) => {
+                            let v = nums()?;
+                            if v.len() != 2 || v[1] < v[0] {
+                                return Err(err(format!("\"{RANGE_FIELD}\" is not \"min max\"")));
+                            }
+                            range = Some([v[0], v[1]]);
+                        }
+                        (Some("ColorTable"), UNIT_DISTANCE_FIELD) => {
+                            unit_distance = nums()?.first().copied();
+                        }
+                        _ => {}
+                    }
+                }
+                // The guard pops every closing Object; only a control point is kept.
+                "Object" if objects.pop().as_deref() == Some("ColorControlPoint") => {
+                    let i = raw.len();
+                    let c = colors
+                        .take()
+                        .ok_or_else(|| err(format!("control point {i} has no colors")))?;
+                    let p = position
+                        .take()
+                        .ok_or_else(|| err(format!("control point {i} has no position")))?;
+                    raw.push((c, p));
+                }
+                _ => {}
+            },
+            Event::Eof => break,
+            _ => {}
+        }
+    }
+    if !saw_table {
+        return Err(err(
+            "is not a VisIt colour table (no <Object name=\"ColorTable\">)".into(),
+        ));
+    }
+    if raw.is_empty() {
+        return Err(err("has no ColorControlPoint".into()));
+    }
+    // VisIt sorts control points by position itself; do the same (stable for equal ones).
+    raw.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let [lo, hi] = range.unwrap_or([0.0, 1.0]);
+    let points: Vec<MergedPoint> = raw
+        .iter()
+        .map(|(c, p)| MergedPoint {
+            x: lo + p * (hi - lo),
+            rgb: [c[0] / 255.0, c[1] / 255.0, c[2] / 255.0],
+            opacity: Some(c[3] / 255.0),
+        })
+        .collect();
+    let (rgb_points, opacity_points) = split(&points);
+    let name = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "t2tf".into());
+    let tf = ExportTf {
+        name,
+        rgb_points,
+        opacity_points,
+        unit_distance,
+    };
+    tf.validate(path)?;
+    Ok(tf)
+}

@@ -1,0 +1,382 @@
+//! Our files in real ParaView (`xvfb-run -a pvpython --dr`): presets import and apply with
+//! exactly our points (read back: ParaView's return values lie), the XML's colours, the
+//! preset helper in `paraview/`, and the generated script's screenshot of a real volume.
+//!
+//! Without pvpython these tests say so and pass, unless T2TF_REQUIRE_PARAVIEW=1.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use t2tf::formats::{to_paraview_json, to_paraview_xml, write_all, ExportTf, ScriptView};
+use t2tf::image::Image;
+use t2tf::tf::ControlPoints;
+use t2tf::volume::{
+    ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,
+};
+
+/// Whether pvpython and xvfb-run are here; panics if they are required but missing.
+fn paraview_available(test: &str) -> bool {
+    let found = ["pvpython", "xvfb-run"].iter().all(|exe| {
+        Command::new("sh")
+            .args(["-c", &format!("command -v {exe}")])
+            .output()
+            .map(|o| o.status.success())
+            .unwrap_or(false)
+    });
+    if !found {
+        if std::env::var("T2TF_REQUIRE_PARAVIEW").as_deref() == Ok("1") {
+            panic!("{test}: pvpython/xvfb-run not found but T2TF_REQUIRE_PARAVIEW=1");
+        }
+        eprintln!(
+            "{test}: SKIPPED, pvpython or xvfb-run not found (set T2TF_REQUIRE_PARAVIEW=1 to fail)"
+        );
+    }
+    found
+}
+
+/// Run `xvfb-run -a pvpython --dr SCRIPT ARGS...`, panicking with its output on failure.
+fn pvpython(script: &Path, args: &[&str]) -> String {
+    let out = Command::new("xvfb-run")
+        .args(["-a", "pvpython", "--dr"])
+        .arg(script)
+        .args(args)
+        .output()
+        .expect("run xvfb-run");
+    let text = format!(
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        out.status.success(),
+        "pvpython {} failed:\n{text}",
+        script.display()
+    );
+    text
+}
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// neghip 64³ uint8 from ../shared, read directly (the volume readers are separate work).
+fn neghip() -> Volume {
+    let path = repo().join("../shared/data/volumes/neghip_64x64x64_uint8.raw");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let g = Geometry {
+        dims: [64, 64, 64],
+        spacing: [1.0; 3],
+        origin: [0.0; 3],
+    };
+    let buf = TypedBuffer::new(ScalarType::U8, ByteOrder::Little, bytes);
+    let mut v = Volume::from_buffer(&path, g, &buf).unwrap();
+    v.source = Some(VolumeSource {
+        path,
+        format: SourceFormat::Raw {
+            scalar_type: ScalarType::U8,
+            byte_order: ByteOrder::Little,
+        },
+    });
+    v
+}
+
+fn test_tf() -> ControlPoints {
+    ControlPoints {
+        x: vec![0.0, 0.2, 0.45, 0.7, 1.0],
+        sigma: vec![0.0, 5.0, 60.0, 180.0, 255.0],
+        rgb: vec![
+            [0.1, 0.1, 0.8],
+            [0.2, 0.6, 0.9],
+            [0.9, 0.8, 0.2],
+            [1.0, 0.3, 0.1],
+            [1.0, 1.0, 1.0],
+        ],
+    }
+}
+
+const PRESET_CHECK: &str = r#"
+import json, sys
+import paraview.simple as pvs
+from paraview import servermanager
+json_path, xml_path, json_name, xml_name, helper_dir, out = sys.argv[1:7]
+presets = servermanager.vtkSMTransferFunctionPresets.GetInstance()
+res = {}
+pvs.ImportPresets(json_path)
+pvs.ImportPresets(xml_path)
+res["has_json"] = bool(presets.HasPreset(json_name))
+res["has_xml"] = bool(presets.HasPreset(xml_name))
+res["has_bogus"] = bool(presets.HasPreset(json_name + "-not-there"))
+lut = pvs.GetColorTransferFunction("a")
+pwf = pvs.GetOpacityTransferFunction("a")
+lut.ApplyPreset(json_name, False)
+pwf.ApplyPreset(json_name, False)
+res["json_rgb"] = list(lut.RGBPoints)
+res["json_points"] = list(pwf.Points)
+lut2 = pvs.GetColorTransferFunction("b")
+lut2.ApplyPreset(xml_name, False)
+res["xml_rgb"] = list(lut2.RGBPoints)
+sys.path.insert(0, helper_dir)
+import t2tf_apply_preset
+src = pvs.Wavelet()
+disp = t2tf_apply_preset.apply_preset(json_path, source=src)
+res["helper_rgb"] = list(pvs.GetColorTransferFunction("RTData").RGBPoints)
+res["helper_points"] = list(pvs.GetOpacityTransferFunction("RTData").Points)
+res["helper_unit_distance"] = disp.ScalarOpacityUnitDistance
+res["helper_representation"] = disp.GetProperty("Representation").GetElement(0)
+with open(out, "w") as f:
+    json.dump(res, f)
+"#;
+
+fn floats(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array()
+        .expect("array")
+        .iter()
+        .map(|x| x.as_f64().expect("number"))
+        .collect()
+}
+
+fn assert_close(got: &[f64], want: &[f64], what: &str) {
+    assert_eq!(got.len(), want.len(), "{what}: {got:?} vs {want:?}");
+    for (i, (g, w)) in got.iter().zip(want).enumerate() {
+        // ParaView keeps doubles; 1e-12 relative allows only printing-level differences.
+        assert!(
+            (g - w).abs() <= 1e-12 * (1.0 + w.abs()),
+            "{what}[{i}]: {g} vs {w}"
+        );
+    }
+}
+
+#[test]
+fn presets_import_and_apply_exactly() {
+    if !paraview_available("presets_import_and_apply_exactly") {
+        return;
+    }
+    let v = neghip();
+    let tf = ExportTf::from_control_points("t2tf-test", &test_tf(), &v, None);
+    let dir = tempfile::tempdir().unwrap();
+    let (json, xml) = (dir.path().join("p.json"), dir.path().join("p.xml"));
+    std::fs::write(&json, to_paraview_json(&tf)).unwrap();
+    // The XML carries a different name so the two imports do not collide.
+    let mut xml_tf = tf.clone();
+    xml_tf.name = format!("{}-xml", tf.name);
+    std::fs::write(&xml, to_paraview_xml(&xml_tf)).unwrap();
+    let script = dir.path().join("check.py");
+    std::fs::write(&script, PRESET_CHECK).unwrap();
+    let out = dir.path().join("out.json");
+    let helper = repo().join("paraview");
+    pvpython(
+        &script,
+        &[
+            json.to_str().unwrap(),
+            xml.to_str().unwrap(),
+            &tf.name,
+            &xml_tf.name,
+            helper.to_str().unwrap(),
+            out.to_str().unwrap(),
+        ],
+    );
+    let res: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(res["has_json"], true);
+    assert_eq!(res["has_xml"], true);
+    assert_eq!(res["has_bogus"], false, "HasPreset can say no");
+
+    let rgb: Vec<f64> = tf
+        .rgb_points
+        .iter()
+        .flat_map(|&(x, c)| [x, c[0], c[1], c[2]])
+        .collect();
+    let opacity: Vec<f64> = tf
+        .opacity_points
+        .iter()
+        .flat_map(|&(x, o)| [x, o, 0.5, 0.0])
+        .collect();
+    assert_close(&floats(&res["json_rgb"]), &rgb, "JSON preset colours");
+    assert_close(
+        &floats(&res["json_points"]),
+        &opacity,
+        "JSON preset opacity",
+    );
+    assert_close(&floats(&res["helper_rgb"]), &rgb, "helper colours");
+    assert_close(&floats(&res["helper_points"]), &opacity, "helper opacity");
+    assert_eq!(res["helper_unit_distance"].as_f64(), tf.unit_distance);
+    assert_eq!(res["helper_representation"], "Volume");
+
+    // XML: ParaView keeps only the colours, at the merged positions; compare as curves.
+    let xml_rgb = floats(&res["xml_rgb"]);
+    assert_eq!(xml_rgb.len() % 4, 0);
+    assert!(xml_rgb.len() >= rgb.len());
+    for q in xml_rgb.chunks_exact(4) {
+        let want = t2tf::tf::interpolate(&tf.rgb_points, q[0]);
+        for c in 0..3 {
+            assert!((q[c + 1] - want[c]).abs() < 1e-12, "XML colour at {}", q[0]);
+        }
+    }
+}
+
+/// Pixel rectangle (x0, y0, x1, y1) covering the projected box for a pinhole camera with
+/// vertical field of view `view.view_angle_deg` and a `w`×`h` image.
+fn projected_box(v: &Volume, view: &ScriptView, w: usize, h: usize) -> [f64; 4] {
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let norm = |a: [f64; 3]| {
+        let l = dot(a, a).sqrt();
+        a.map(|x| x / l)
+    };
+    let f = norm(sub(view.focal_point, view.position));
+    let r = norm(cross(f, view.view_up));
+    let u = cross(r, f);
+    let t = (view.view_angle_deg.to_radians() / 2.0).tan();
+    let aspect = w as f64 / h as f64;
+    let (o, e) = (v.geometry.origin, v.geometry.extent());
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for c in 0..8 {
+        let p = [
+            o[0] + e[0] * (c & 1) as f64,
+            o[1] + e[1] * ((c >> 1) & 1) as f64,
+            o[2] + e[2] * ((c >> 2) & 1) as f64,
+        ];
+        let d = sub(p, view.position);
+        let z = dot(d, f);
+        let px = (dot(d, r) / (z * t * aspect) + 1.0) / 2.0 * w as f64;
+        let py = (1.0 - dot(d, u) / (z * t)) / 2.0 * h as f64;
+        b = [b[0].min(px), b[1].min(py), b[2].max(px), b[3].max(py)];
+    }
+    b
+}
+
+#[test]
+fn generated_script_renders_the_volume_in_paraview() {
+    if !paraview_available("generated_script_renders_the_volume_in_paraview") {
+        return;
+    }
+    let v = neghip();
+    let dir = tempfile::tempdir().unwrap();
+    // An oblique view so the box projects to a hexagon-ish region, not the whole frame.
+    let c = v.geometry.center();
+    let r = v.geometry.bounding_radius();
+    let view = ScriptView {
+        position: [c[0] + 2.2 * r, c[1] - 2.2 * r, c[2] + 1.0 * r],
+        focal_point: c,
+        view_up: [0.0, 0.0, 1.0],
+        view_angle_deg: 45.0,
+    };
+    let background = [0.1, 0.2, 0.3];
+    let files = write_all(
+        dir.path(),
+        "neghip",
+        &test_tf(),
+        &v,
+        &view,
+        background,
+        None,
+    )
+    .unwrap();
+    let script = files.paraview_script.expect("script written");
+    let shot = dir.path().join("shot.png");
+    let (w, h) = (200usize, 150usize);
+    let log = pvpython(
+        &script,
+        &[
+            "--screenshot",
+            shot.to_str().unwrap(),
+            "--size",
+            &w.to_string(),
+            &h.to_string(),
+        ],
+    );
+    let img = Image::load_png(&shot).unwrap_or_else(|e| panic!("{e}\n{log}"));
+    assert_eq!((img.width, img.height), (w, h));
+    // For a look by eye: T2TF_PARAVIEW_SHOT=/some/file.png keeps the screenshot.
+    if let Ok(keep) = std::env::var("T2TF_PARAVIEW_SHOT") {
+        std::fs::copy(&shot, keep).unwrap();
+    }
+    let bg = background.map(|c| c as f32);
+    let is_bg = |p: [f32; 3]| (0..3).all(|i| (p[i] - bg[i]).abs() <= 1.5 / 255.0);
+    let b = projected_box(&v, &view, w, h);
+    assert!(
+        b[0] > 2.0 && b[1] > 2.0 && b[2] < w as f64 - 2.0 && b[3] < h as f64 - 2.0,
+        "{b:?}"
+    );
+    let (mut inside, mut inside_differs, mut outside_differs) = (0, 0, 0);
+    for y in 0..h {
+        for x in 0..w {
+            let (cx, cy) = (x as f64 + 0.5, y as f64 + 0.5);
+            let differs = !is_bg(img.pixel(x, y));
+            // A 2-pixel margin absorbs rasterization at the silhouette.
+            if cx < b[0] - 2.0 || cx > b[2] + 2.0 || cy < b[1] - 2.0 || cy > b[3] + 2.0 {
+                outside_differs += differs as usize;
+            } else if cx > b[0] + 2.0 && cx < b[2] - 2.0 && cy > b[1] + 2.0 && cy < b[3] - 2.0 {
+                inside += 1;
+                inside_differs += differs as usize;
+            }
+        }
+    }
+    assert_eq!(
+        outside_differs, 0,
+        "pixels outside the projected box changed"
+    );
+    let frac = inside_differs as f64 / inside as f64;
+    eprintln!("projected box {b:?}: {inside_differs}/{inside} inside pixels show the volume");
+    assert!(frac > 0.3, "only {frac} of the box shows the volume");
+}
+
+/// PSNR in dB between two images of the same size (RGB in [0, 1]).
+fn psnr(a: &Image, b: &Image) -> f64 {
+    let mse = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        / a.data.len() as f64;
+    10.0 * (1.0 / mse.max(1e-20)).log10()
+}
+
+#[test]
+fn unit_distance_does_not_change_the_paraview_image() {
+    // DESIGN.md: with o = 1 − exp(−σu/L) and ScalarOpacityUnitDistance = u, VTK renders
+    // 1 − exp(−σΔ/L) whatever u is. Two exports for u = 0.5 and u = 4 must render alike
+    // (differences: the export tolerance and VTK's 1024-entry opacity table); a wrong
+    // conversion (e.g. o = σu without the exponential) changes the image grossly.
+    if !paraview_available("unit_distance_does_not_change_the_paraview_image") {
+        return;
+    }
+    let v = neghip();
+    let view = ScriptView::front(&v, 2.5);
+    let dir = tempfile::tempdir().unwrap();
+    let mut shots = Vec::new();
+    for (name, u) in [("u05", 0.5), ("u4", 4.0)] {
+        let files = write_all(dir.path(), name, &test_tf(), &v, &view, [0.0; 3], Some(u)).unwrap();
+        let shot = dir.path().join(format!("{name}.png"));
+        pvpython(
+            &files.paraview_script.unwrap(),
+            &[
+                "--screenshot",
+                shot.to_str().unwrap(),
+                "--size",
+                "160",
+                "160",
+            ],
+        );
+        shots.push(Image::load_png(&shot).unwrap());
+    }
+    let p = psnr(&shots[0], &shots[1]);
+    eprintln!("PSNR between u = 0.5 and u = 4 exports: {p:.1} dB");
+    assert!(p > 40.0, "PSNR {p:.1} dB");
+    // The images are not blank (otherwise any PSNR would be high).
+    let lit = shots[0].data.iter().filter(|&&c| c > 0.05).count();
+    assert!(lit > 1000, "{lit} lit channel values");
+}
