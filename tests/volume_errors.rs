@@ -150,6 +150,16 @@ fn vti_errors() {
     let poly = doc(ok).replace("ImageData", "PolyData");
     let p = write(d.path(), "poly.vti", poly.as_bytes());
     expect_err(&p, &none(), "'PolyData' file, not ImageData");
+    let rotated = doc(ok).replace(
+        "Spacing=\"1 1 1\"",
+        "Spacing=\"1 1 1\" Direction=\"0 1 0 -1 0 0 0 0 1\"",
+    );
+    let p = write(d.path(), "rotated.vti", rotated.as_bytes());
+    expect_err(&p, &none(), "is not the identity");
+    let second = "</PointData></Piece><Piece Extent=\"0 1 0 1 1 2\"><PointData>";
+    let tiled = doc(&format!("{ok}{second}{ok}"));
+    let p = write(d.path(), "tiled.vti", tiled.as_bytes());
+    expect_err(&p, &none(), "has 2 pieces with different extents");
     let p = write(d.path(), "garbage.vti", &[0xff, 0xfe, 0, 1, 2, 3]);
     expect_err(&p, &none(), "garbage.vti");
     let p = write(d.path(), "empty_file.vti", b"");
@@ -163,7 +173,7 @@ fn vti_errors() {
     expect_err(
         &arrays,
         &pick("nope"),
-        "no point-data array named 'nope' (point-data arrays: temperature, density, velocity)",
+        "no point-data array named 'nope' (point-data arrays: temperature, density, velocity, last)",
     );
     expect_err(&arrays, &pick("cell_id"), "is cell data");
     expect_err(&arrays, &pick("velocity"), "has 3 components");

@@ -87,6 +87,7 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
     let mut saw_root = false;
     let mut whole_extent: Option<[i64; 6]> = None;
     let mut piece_extents: Vec<[i64; 6]> = Vec::new();
+    let mut pieces = 0usize;
     let mut origin = [0.0f64; 3];
     let mut spacing = [1.0f64; 3];
     let mut active: Option<String> = None;
@@ -155,6 +156,7 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
                         }
                     }
                     "Piece" => {
+                        pieces += 1;
                         if let Some(x) = a("Extent")? {
                             piece_extents.push(numbers::<i64, 6>(&x, "Piece Extent")?);
                         }
@@ -164,7 +166,8 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
                         in_point = is_start;
                     }
                     "CellData" => in_cell = is_start,
-                    "DataArray" if in_point => {
+                    // Arrays of pieces after the first are not read (see the piece check below).
+                    "DataArray" if in_point && pieces <= 1 => {
                         let name = a("Name")?.unwrap_or_else(|| format!("array{}", arrays.len()));
                         let type_name = a("type")?
                             .ok_or_else(|| format!("DataArray '{name}' has no type attribute"))?;
@@ -225,10 +228,12 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
     if !saw_root {
         return Err("not a VTK XML file: no <VTKFile> element".into());
     }
-    if piece_extents.len() > 1 {
+    // VTK's writer asked for N pieces of a non-streaming source writes N copies of the whole
+    // extent: any one of them is the data. Pieces that tile the extent are not supported.
+    if piece_extents.windows(2).any(|w| w[0] != w[1]) {
         return Err(format!(
-            "has {} pieces: only single-piece image data is supported (merge the pieces in \
-             ParaView and save again)",
+            "has {} pieces with different extents: only single-piece image data is supported \
+             (merge the pieces in ParaView and save again)",
             piece_extents.len()
         ));
     }
