@@ -12,6 +12,7 @@ mod pyramid;
 mod raw;
 mod read;
 mod vti;
+mod vti_blocks;
 
 pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
