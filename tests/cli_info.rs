@@ -163,6 +163,23 @@ fn bad_input_is_one_line_naming_the_file() {
             .count(),
         1
     );
+    let vti = std::fs::read(fixture("appended_raw_float64_zlib.vti")).unwrap();
+    let cut = put("cut.vti", &vti[..vti.len() - 200]);
+    fails(&["info", &cut], &cut, "truncated");
+    let legacy = std::fs::read_to_string(fixture("legacy_ascii_two.vtk")).unwrap();
+    let zero = put(
+        "zero.vtk",
+        legacy
+            .replace("DIMENSIONS 5 4 3", "DIMENSIONS 5 4 0")
+            .as_bytes(),
+    );
+    fails(&["info", &zero], &zero, "contains a zero");
+    let raw = fixture("ramp_7x6x5_uint16.raw");
+    fails(
+        &["info", &raw, "--array", "a"],
+        &raw,
+        "--array applies to .vti",
+    );
     let ext = put("v.mhd", b"ObjectType = Image\n");
     fails(&["info", &ext], &ext, "unknown extension");
     let bin = fixture("unnamed.bin");
