@@ -49,6 +49,11 @@ fn raw_errors() {
         &none(),
         "file holds 100 bytes but 4x4x4 uint16 needs 128 bytes",
     );
+    // A huge file of the wrong size fails from its size alone, before it is read (the sparse
+    // 8 GiB file would not fit this test's memory budget if it were read).
+    let p = d.path().join("huge_4x4x4_uint8.raw");
+    std::fs::File::create(&p).unwrap().set_len(8 << 30).unwrap();
+    expect_err(&p, &none(), "file holds 8589934592 bytes but 4x4x4 uint8 needs 64 bytes");
     let p = write(d.path(), "cube_4x4x4_uint9.raw", &[0u8; 64]);
     expect_err(&p, &none(), "unknown scalar type 'uint9'");
     let p = write(d.path(), "cube.raw", &[0u8; 64]);

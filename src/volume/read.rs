@@ -67,8 +67,10 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
             "is a directory, not a volume file (.raw, .vti or .vtk)",
         ));
     }
-    // Name and flags are checked before a possibly large file is read.
-    reader_for(path, opts)?;
+    // Name, flags and (for .raw) the size are checked before a possibly large file is read.
+    if reader_for(path, opts)? == Kind::Raw {
+        raw::check_size(path, opts, meta.len())?;
+    }
     let bytes = std::fs::read(path).map_err(|e| VolumeError::Io {
         path: path.to_path_buf(),
         error: e,
