@@ -53,7 +53,11 @@ fn raw_errors() {
     // 8 GiB file would not fit this test's memory budget if it were read).
     let p = d.path().join("huge_4x4x4_uint8.raw");
     std::fs::File::create(&p).unwrap().set_len(8 << 30).unwrap();
-    expect_err(&p, &none(), "file holds 8589934592 bytes but 4x4x4 uint8 needs 64 bytes");
+    expect_err(
+        &p,
+        &none(),
+        "file holds 8589934592 bytes but 4x4x4 uint8 needs 64 bytes",
+    );
     let p = write(d.path(), "cube_4x4x4_uint9.raw", &[0u8; 64]);
     expect_err(&p, &none(), "unknown scalar type 'uint9'");
     let p = write(d.path(), "cube.raw", &[0u8; 64]);
@@ -277,12 +281,14 @@ fn cut_or_corrupted_fixtures_never_panic() {
         for cut in 0..bytes.len() {
             check(&bytes[..cut]);
         }
-        // Shift a byte (breaks text, headers, compressed streams) or make it a '9' (bigger
-        // counts, extents and offsets).
+        // Shift any byte (breaks text, headers, compressed streams), or turn one of the text
+        // part's bytes into a '9' (bigger counts, extents and offsets).
         for at in 0..bytes.len() {
-            for changed in [bytes[at].wrapping_add(0x5b), b'9'] {
-                let mut b = bytes.clone();
-                b[at] = changed;
+            let mut b = bytes.clone();
+            b[at] = bytes[at].wrapping_add(0x5b);
+            check(&b);
+            if at < 1024 {
+                b[at] = b'9';
                 check(&b);
             }
         }
