@@ -30,10 +30,12 @@ pub(super) fn normalize(buffer: &TypedBuffer) -> Option<Normalized> {
         }
     };
     let n = bytes.len() / ty.size();
-    if n == 0 {
+    let codes = if wide { 1 << 16 } else { 1 << 8 };
+    // The tables cost O(codes): with fewer voxels than codes the per-value path is cheaper.
+    if n < codes {
         return None;
     }
-    let mut counts = vec![0u64; if wide { 1 << 16 } else { 1 << 8 }];
+    let mut counts = vec![0u64; codes];
     for i in 0..n {
         counts[code(i)] += 1;
     }
@@ -91,7 +93,8 @@ mod tests {
             ScalarType::I16,
         ] {
             for order in [ByteOrder::Little, ByteOrder::Big] {
-                for (len, seed) in [(3000, 7), (2, 1)] {
+                let min = if ty.size() == 2 { 1 << 16 } else { 1 << 8 };
+                for (len, seed) in [(min, 7), (3 * min + 5, 1)] {
                     let raw = bytes(len * ty.size(), seed);
                     let buf = TypedBuffer::new(ty, order, raw);
                     let mut values = Vec::new();
@@ -111,15 +114,17 @@ mod tests {
 
     #[test]
     fn constant_and_other_types() {
-        let buf = TypedBuffer::new(
-            ScalarType::I16,
-            ByteOrder::Big,
-            vec![0xff, 0xfe, 0xff, 0xfe],
-        );
+        let constant = [0xff, 0xfe].repeat(1 << 16);
+        let buf = TypedBuffer::new(ScalarType::I16, ByteOrder::Big, constant);
         let t = normalize(&buf).unwrap();
         assert_eq!(t.range, [-2.0, -2.0]);
         assert_eq!(t.norm_range, [-2.5, -1.5]);
-        assert_eq!(t.data, vec![0.5, 0.5]);
+        assert!(t.data.iter().all(|&x| x == 0.5));
+        let few = TypedBuffer::new(ScalarType::U16, ByteOrder::Little, vec![1, 2, 3, 4]);
+        assert!(
+            normalize(&few).is_none(),
+            "2 voxels: the generic path is cheaper"
+        );
         let f = TypedBuffer::new(ScalarType::F32, ByteOrder::Little, vec![0; 8]);
         assert!(normalize(&f).is_none());
     }
