@@ -163,6 +163,23 @@ fn bad_input_is_one_line_naming_the_file() {
             .count(),
         1
     );
+    let vti = std::fs::read(fixture("appended_raw_float64_zlib.vti")).unwrap();
+    let cut = put("cut.vti", &vti[..vti.len() - 200]);
+    fails(&["info", &cut], &cut, "truncated");
+    let legacy = std::fs::read_to_string(fixture("legacy_ascii_two.vtk")).unwrap();
+    let zero = put(
+        "zero.vtk",
+        legacy
+            .replace("DIMENSIONS 5 4 3", "DIMENSIONS 5 4 0")
+            .as_bytes(),
+    );
+    fails(&["info", &zero], &zero, "contains a zero");
+    let raw = fixture("ramp_7x6x5_uint16.raw");
+    fails(
+        &["info", &raw, "--array", "a"],
+        &raw,
+        "--array applies to .vti",
+    );
     let ext = put("v.mhd", b"ObjectType = Image\n");
     fails(&["info", &ext], &ext, "unknown extension");
     let bin = fixture("unnamed.bin");
@@ -176,4 +193,31 @@ fn bad_input_is_one_line_naming_the_file() {
     let o = t2tf(&["info", &bin, "--dims", "5,4", "--dtype", "int16"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("three"));
+}
+
+/// `t2tf info` works on every real volume shipped beside the repository.
+#[test]
+fn info_on_every_shared_volume() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/volumes");
+    let mut seen = 0;
+    for entry in std::fs::read_dir(dir).expect("../shared/data/volumes exists") {
+        let path = entry.unwrap().path();
+        if path.extension().and_then(|e| e.to_str()) != Some("raw") {
+            continue;
+        }
+        let p = path.display().to_string();
+        let v: serde_json::Value = serde_json::from_str(&stdout(&t2tf(&["info", &p, "--json"])))
+            .unwrap_or_else(|e| panic!("{p}: {e}"));
+        // NAME_XxYxZ_DTYPE.raw: the reported dims and type are the name's.
+        let stem = path.file_stem().unwrap().to_str().unwrap();
+        let mut parts = stem.rsplitn(3, '_');
+        let (dtype, dims) = (parts.next().unwrap(), parts.next().unwrap());
+        let dims: Vec<u64> = dims.split('x').map(|d| d.parse().unwrap()).collect();
+        assert_eq!(v["dims"], serde_json::json!(dims), "{p}");
+        assert_eq!(v["dtype"], dtype, "{p}");
+        assert_eq!(v["non_finite"], 0, "{p}");
+        assert!(v["range"][1].as_f64() > v["range"][0].as_f64(), "{p}");
+        seen += 1;
+    }
+    assert!(seen >= 7, "only {seen} volumes");
 }

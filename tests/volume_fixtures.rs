@@ -135,3 +135,38 @@ fn spacing_flag_overrides_the_file() {
         [2.0, 3.0, 4.0]
     );
 }
+
+#[test]
+fn flags_override_the_raw_file_name() {
+    let path = fixtures().join("ramp_7x6x5_uint16.raw");
+    let opts = ReadOptions {
+        dims: Some([210, 1, 1]),
+        dtype: Some(ScalarType::I16),
+        ..Default::default()
+    };
+    let d = volume::decode(&path, &opts).unwrap();
+    assert_eq!(d.geometry.dims, [210, 1, 1]);
+    assert_eq!(d.buffer.scalar_type(), ScalarType::I16);
+    // uint16 values above 32767 read as negative int16: the type flag really applies.
+    let mut negative = 0;
+    d.buffer.for_each(|v| negative += (v < 0.0) as usize);
+    assert!(negative > 0);
+    // The name alone gives the other reading.
+    let d = volume::decode(&path, &ReadOptions::default()).unwrap();
+    assert_eq!(d.geometry.dims, [7, 6, 5]);
+    assert_eq!(d.buffer.scalar_type(), ScalarType::U16);
+}
+
+#[test]
+fn legacy_aspect_ratio_is_spacing() {
+    let src = fixtures().join("legacy_ascii_float32.vtk");
+    let text = std::fs::read_to_string(&src).unwrap();
+    assert!(text.contains("\nSPACING "));
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("aspect.vtk");
+    std::fs::write(&path, text.replace("\nSPACING ", "\nASPECT_RATIO ")).unwrap();
+    let a = volume::decode(&src, &ReadOptions::default()).unwrap();
+    let b = volume::decode(&path, &ReadOptions::default()).unwrap();
+    assert_eq!(a.geometry, b.geometry);
+    assert_eq!(b.geometry.spacing, [0.5, 0.25, 2.0]);
+}

@@ -100,9 +100,26 @@ fn mib(bytes: u64) -> String {
     }
 }
 
-/// Three numbers, shortest round-trip form.
+/// A number for people: shortest form, but no float noise (201.60000000000002 → 201.6) and
+/// exponents for very large or small magnitudes.
+fn num(x: f64) -> String {
+    let a = x.abs();
+    if a != 0.0 && !(1e-4..1e12).contains(&a) {
+        return format!("{x:e}");
+    }
+    let short = format!("{x}");
+    if short.len() <= 12 {
+        return short;
+    }
+    let fixed = format!("{x:.6}");
+    fixed
+        .trim_end_matches('0')
+        .trim_end_matches('.')
+        .to_string()
+}
+
 fn triple(v: [f64; 3]) -> String {
-    format!("{} {} {}", v[0], v[1], v[2])
+    format!("{} {} {}", num(v[0]), num(v[1]), num(v[2]))
 }
 
 fn text_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f64) -> String {
@@ -119,7 +136,7 @@ fn text_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f6
     let _ = writeln!(s, "origin      {}", triple(g.origin));
     let _ = writeln!(s, "box size    {}", triple(g.extent()));
     let _ = writeln!(s, "dtype       {}", v.scalar_type);
-    let _ = writeln!(s, "range       {} .. {}", v.range[0], v.range[1]);
+    let _ = writeln!(s, "range       {} .. {}", num(v.range[0]), num(v.range[1]));
     let _ = writeln!(
         s,
         "non-finite  {} NaN/Inf voxels (rendered as empty)",
@@ -163,7 +180,10 @@ fn text_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f6
         }
     };
     let top = rows.iter().map(|r| weight(r.count)).fold(0.0, f64::max);
-    let label = |x: f64| format!("{x:.4}");
+    // About five significant digits of the range width.
+    let width_of_range = v.norm_range[1] - v.norm_range[0];
+    let decimals = (4.0 - width_of_range.log10().floor()).clamp(0.0, 12.0) as usize;
+    let label = |x: f64| format!("{x:.decimals$}");
     let width = rows
         .iter()
         .map(|r| label(r.lo).len().max(label(r.hi).len()))
@@ -228,4 +248,20 @@ fn json_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f6
             .collect::<Vec<_>>(),
     });
     format!("{report:#}\n")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::num;
+
+    #[test]
+    fn numbers_print_without_float_noise() {
+        assert_eq!(num(201.60000000000002), "201.6");
+        assert_eq!(num(3.2), "3.2");
+        assert_eq!(num(-30.5), "-30.5");
+        assert_eq!(num(0.0), "0");
+        assert_eq!(num(1e10), "10000000000");
+        assert_eq!(num(1e300), "1e300");
+        assert_eq!(num(2.5e-7), "2.5e-7");
+    }
 }

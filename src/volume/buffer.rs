@@ -193,6 +193,12 @@ impl TypedBuffer {
         self.len() == 0
     }
 
+    /// The stored type, byte order and bytes, for decoders that work on the bytes directly
+    /// (the table-driven path for 8/16-bit integers).
+    pub(super) fn raw(&self) -> (ScalarType, ByteOrder, &[u8]) {
+        (self.storage, self.byte_order, &self.bytes)
+    }
+
     /// Call `f` with every value as f64, in order.
     pub fn for_each(&self, mut f: impl FnMut(f64)) {
         macro_rules! each {

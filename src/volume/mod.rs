@@ -11,7 +11,9 @@ mod legacy;
 mod pyramid;
 mod raw;
 mod read;
+mod small_int;
 mod vti;
+mod vti_blocks;
 
 pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
@@ -186,48 +188,25 @@ impl Volume {
             }
         }
 
-        // Pass 1: finite range in f64 (f64 inputs beyond f32's range stay exact here).
-        let (mut lo, mut hi, mut non_finite) = (f64::INFINITY, f64::NEG_INFINITY, 0usize);
-        buffer.for_each(|v| {
-            if v.is_finite() {
-                lo = lo.min(v);
-                hi = hi.max(v);
-            } else {
-                non_finite += 1;
-            }
-        });
-        if non_finite == n {
+        let Some(Normalized {
+            range,
+            norm_range,
+            non_finite,
+            histogram,
+            data,
+        }) = small_int::normalize(buffer).or_else(|| normalize(buffer))
+        else {
             return Err(VolumeError::file(
                 name,
                 "every value is NaN or infinite: nothing to render",
             ));
-        }
-        let norm_range = if hi > lo {
-            [lo, hi]
-        } else {
-            [lo - 0.5, lo + 0.5]
         };
-
-        // Pass 2: the one f32 copy, normalized; non-finite voxels become NaN.
-        let scale = 1.0 / (norm_range[1] - norm_range[0]);
-        let mut data = Vec::with_capacity(n);
-        let mut histogram = vec![0u64; HISTOGRAM_BINS];
-        buffer.for_each(|v| {
-            if v.is_finite() {
-                let t = ((v - norm_range[0]) * scale).clamp(0.0, 1.0);
-                let bin = ((t * HISTOGRAM_BINS as f64) as usize).min(HISTOGRAM_BINS - 1);
-                histogram[bin] += 1;
-                data.push(t as f32);
-            } else {
-                data.push(f32::NAN);
-            }
-        });
 
         let levels = pyramid::build(geometry, data);
         Ok(Volume {
             geometry,
             scalar_type: buffer.scalar_type(),
-            range: [lo, hi],
+            range,
             norm_range,
             non_finite,
             histogram,
@@ -254,6 +233,72 @@ impl Volume {
     pub fn memory_bytes(&self) -> usize {
         self.levels.iter().map(Level::memory_bytes).sum()
     }
+}
+
+/// The statistics and the one f32 copy of a buffer.
+struct Normalized {
+    range: [f64; 2],
+    norm_range: [f64; 2],
+    non_finite: usize,
+    histogram: Vec<u64>,
+    data: Vec<f32>,
+}
+
+/// The range that maps to [0, 1]: the finite range, widened by ±0.5 when it is one value.
+fn norm_range(lo: f64, hi: f64) -> [f64; 2] {
+    if hi > lo {
+        [lo, hi]
+    } else {
+        [lo - 0.5, lo + 0.5]
+    }
+}
+
+/// A finite value's normalized sample and histogram bin (`scale` = 1 / range width). Shared
+/// by both normalization paths so that they agree bit for bit.
+#[inline]
+fn normalize_value(v: f64, norm_range: [f64; 2], scale: f64) -> (f32, usize) {
+    let t = ((v - norm_range[0]) * scale).clamp(0.0, 1.0);
+    let bin = ((t * HISTOGRAM_BINS as f64) as usize).min(HISTOGRAM_BINS - 1);
+    (t as f32, bin)
+}
+
+/// Two passes over any buffer; `None` when no value is finite.
+fn normalize(buffer: &TypedBuffer) -> Option<Normalized> {
+    // Pass 1: finite range in f64 (f64 inputs beyond f32's range stay exact here).
+    let (mut lo, mut hi, mut non_finite) = (f64::INFINITY, f64::NEG_INFINITY, 0usize);
+    buffer.for_each(|v| {
+        if v.is_finite() {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        } else {
+            non_finite += 1;
+        }
+    });
+    if non_finite == buffer.len() {
+        return None;
+    }
+    let norm_range = norm_range(lo, hi);
+
+    // Pass 2: the one f32 copy, normalized; non-finite voxels become NaN.
+    let scale = 1.0 / (norm_range[1] - norm_range[0]);
+    let mut data = Vec::with_capacity(buffer.len());
+    let mut histogram = vec![0u64; HISTOGRAM_BINS];
+    buffer.for_each(|v| {
+        if v.is_finite() {
+            let (t, bin) = normalize_value(v, norm_range, scale);
+            histogram[bin] += 1;
+            data.push(t);
+        } else {
+            data.push(f32::NAN);
+        }
+    });
+    Some(Normalized {
+        range: [lo, hi],
+        norm_range,
+        non_finite,
+        histogram,
+        data,
+    })
 }
 
 #[cfg(test)]

@@ -33,8 +33,8 @@ pub fn parse_name(stem: &str) -> Result<Option<([usize; 3], ScalarType)>, String
     Ok(Some((d, t)))
 }
 
-/// Decode `bytes` (the whole file) as a raw array.
-pub fn decode(path: &Path, bytes: Vec<u8>, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
+/// Dims and scalar type from the flags, else the file name.
+fn layout(path: &Path, opts: &ReadOptions) -> Result<([usize; 3], ScalarType), VolumeError> {
     let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
     let named = match parse_name(stem) {
         Ok(n) => n,
@@ -62,23 +62,33 @@ pub fn decode(path: &Path, bytes: Vec<u8>, opts: &ReadOptions) -> Result<Decoded
             ),
         ));
     }
+    Ok((dims, dtype))
+}
+
+/// Check that a file of `len` bytes holds exactly the array the name/flags describe. Run on
+/// the file's size before reading it, so a wrong guess about a huge file fails at once.
+pub fn check_size(path: &Path, opts: &ReadOptions, len: u64) -> Result<(), VolumeError> {
+    let (dims, dtype) = layout(path, opts)?;
     let need = dims
         .iter()
-        .try_fold(dtype.size(), |acc, &d| acc.checked_mul(d))
+        .try_fold(dtype.size() as u64, |acc, &d| acc.checked_mul(d as u64))
         .ok_or_else(|| VolumeError::file(path, format!("dimensions {dims:?} are too large")))?;
-    if bytes.len() != need {
+    if len != need {
         return Err(VolumeError::file(
             path,
             format!(
-                "file holds {} bytes but {}x{}x{} {} needs {need} bytes",
-                bytes.len(),
-                dims[0],
-                dims[1],
-                dims[2],
-                dtype
+                "file holds {len} bytes but {}x{}x{} {dtype} needs {need} bytes",
+                dims[0], dims[1], dims[2]
             ),
         ));
     }
+    Ok(())
+}
+
+/// Decode `bytes` (the whole file) as a raw array.
+pub fn decode(path: &Path, bytes: Vec<u8>, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
+    check_size(path, opts, bytes.len() as u64)?;
+    let (dims, dtype) = layout(path, opts)?;
     let byte_order = opts.byte_order.unwrap_or(ByteOrder::Little);
     Ok(Decoded {
         geometry: Geometry {

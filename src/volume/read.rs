@@ -67,6 +67,10 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
             "is a directory, not a volume file (.raw, .vti or .vtk)",
         ));
     }
+    // Name, flags and (for .raw) the size are checked before a possibly large file is read.
+    if reader_for(path, opts)? == Kind::Raw {
+        raw::check_size(path, opts, meta.len())?;
+    }
     let bytes = std::fs::read(path).map_err(|e| VolumeError::Io {
         path: path.to_path_buf(),
         error: e,
@@ -81,6 +85,19 @@ pub fn decode_bytes(
     bytes: Vec<u8>,
     opts: &ReadOptions,
 ) -> Result<Decoded, VolumeError> {
+    let mut decoded = match reader_for(path, opts)? {
+        Kind::Raw => raw::decode(path, bytes, opts)?,
+        Kind::Vti => vti::decode(path, &bytes, opts.array.as_deref())?,
+        Kind::Legacy => legacy::decode(path, &bytes, opts.array.as_deref())?,
+    };
+    if let Some(spacing) = opts.spacing {
+        decoded.geometry.spacing = spacing;
+    }
+    Ok(decoded)
+}
+
+/// The reader for `path` by extension, after checking that the flags fit it.
+fn reader_for(path: &Path, opts: &ReadOptions) -> Result<Kind, VolumeError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -127,14 +144,5 @@ pub fn decode_bytes(
             "--array applies to .vti and .vtk files; a .raw file holds one array",
         ));
     }
-
-    let mut decoded = match kind {
-        Kind::Raw => raw::decode(path, bytes, opts)?,
-        Kind::Vti => vti::decode(path, &bytes, opts.array.as_deref())?,
-        Kind::Legacy => legacy::decode(path, &bytes, opts.array.as_deref())?,
-    };
-    if let Some(spacing) = opts.spacing {
-        decoded.geometry.spacing = spacing;
-    }
-    Ok(decoded)
+    Ok(kind)
 }

@@ -17,39 +17,18 @@
 //! `Direction` (not re-checked here). One reader here covers every case with exact f64
 //! geometry and an error for anything it cannot read.
 //!
-//! Binary layout (VTK's `vtkXMLWriter`): an uncompressed array is `[nbytes]` then the bytes; a
-//! compressed one is `[nblocks, blocksize, lastblocksize, csize_0 … csize_{n-1}]` then the
-//! blocks, each compressed on its own (zlib stream, raw LZ4 block, or `.xz` stream for LZMA).
-//! Header integers have the file's `header_type` (UInt32 when absent) and byte order. Inline
-//! base64 encodes header and data either as one stream or as two padded streams, so base64 is
-//! decoded stream by stream (see [`base64_streams`]). The XML before `<AppendedData` is parsed
-//! with quick-xml; appended raw bytes follow the first `_` after that tag and `offset`
-//! attributes count from the byte after it.
+//! The XML before `<AppendedData` is parsed with quick-xml; appended raw bytes follow the first
+//! `_` after that tag and `offset` attributes count from the byte after it. Binary arrays are
+//! decoded in [`super::vti_blocks`].
 
 use std::borrow::Cow;
 use std::path::Path;
 
-use base64::Engine;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
+use super::vti_blocks::{base64_streams, unpack, Compressor, Layout};
 use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer, VolumeError};
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Compressor {
-    None,
-    Zlib,
-    Lz4,
-    Lzma,
-}
-
-/// How binary arrays are laid out in this file.
-#[derive(Clone, Copy, Debug)]
-struct Layout {
-    order: ByteOrder,
-    header_size: usize,
-    compressor: Compressor,
-}
 
 /// One point-data array as declared in the XML.
 struct ArrayDecl<'a> {
@@ -78,6 +57,41 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
         None
     };
 
+    let h = parse_header(xml)?;
+    let (dims, origin) = grid(&h)?;
+    let n: usize = dims.iter().product();
+    let decl = select(&h, want)?;
+    let buffer = read_array(decl, n, h.layout, appended.as_ref())
+        .map_err(|m| format!("array '{}': {m}", decl.name))?;
+    Ok(Decoded {
+        geometry: Geometry {
+            dims,
+            spacing: h.spacing,
+            origin,
+        },
+        buffer,
+        format: SourceFormat::Vti {
+            array: decl.name.clone(),
+        },
+    })
+}
+
+/// What the XML part of the file declares.
+struct Header<'a> {
+    layout: Layout,
+    /// The piece's extent (else WholeExtent): first and last point index per axis.
+    extent: [i64; 6],
+    /// Where point index (0, 0, 0) sits (not the extent's first point).
+    origin: [f64; 3],
+    spacing: [f64; 3],
+    /// `<PointData Scalars=...>`: the active scalars.
+    active: Option<String>,
+    /// Point-data arrays of the first piece, in file order.
+    arrays: Vec<ArrayDecl<'a>>,
+    cell_names: Vec<String>,
+}
+
+fn parse_header(xml: &str) -> Result<Header<'_>, String> {
     let mut reader = Reader::from_str(xml);
     let mut layout = Layout {
         order: ByteOrder::Little,
@@ -87,6 +101,7 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
     let mut saw_root = false;
     let mut whole_extent: Option<[i64; 6]> = None;
     let mut piece_extents: Vec<[i64; 6]> = Vec::new();
+    let mut pieces = 0usize;
     let mut origin = [0.0f64; 3];
     let mut spacing = [1.0f64; 3];
     let mut active: Option<String> = None;
@@ -155,6 +170,7 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
                         }
                     }
                     "Piece" => {
+                        pieces += 1;
                         if let Some(x) = a("Extent")? {
                             piece_extents.push(numbers::<i64, 6>(&x, "Piece Extent")?);
                         }
@@ -164,7 +180,8 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
                         in_point = is_start;
                     }
                     "CellData" => in_cell = is_start,
-                    "DataArray" if in_point => {
+                    // Arrays of pieces after the first are not read (see the piece check below).
+                    "DataArray" if in_point && pieces <= 1 => {
                         let name = a("Name")?.unwrap_or_else(|| format!("array{}", arrays.len()));
                         let type_name = a("type")?
                             .ok_or_else(|| format!("DataArray '{name}' has no type attribute"))?;
@@ -225,10 +242,12 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
     if !saw_root {
         return Err("not a VTK XML file: no <VTKFile> element".into());
     }
-    if piece_extents.len() > 1 {
+    // VTK's writer asked for N pieces of a non-streaming source writes N copies of the whole
+    // extent: any one of them is the data. Pieces that tile the extent are not supported.
+    if piece_extents.windows(2).any(|w| w[0] != w[1]) {
         return Err(format!(
-            "has {} pieces: only single-piece image data is supported (merge the pieces in \
-             ParaView and save again)",
+            "has {} pieces with different extents: only single-piece image data is supported \
+             (merge the pieces in ParaView and save again)",
             piece_extents.len()
         ));
     }
@@ -237,6 +256,21 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
         .copied()
         .or(whole_extent)
         .ok_or("no Extent on <Piece> or WholeExtent on <ImageData>")?;
+    Ok(Header {
+        layout,
+        extent,
+        origin,
+        spacing,
+        active,
+        arrays,
+        cell_names,
+    })
+}
+
+/// Points per axis and the world position of the extent's first point.
+fn grid(h: &Header<'_>) -> Result<([usize; 3], [f64; 3]), String> {
+    let (extent, spacing) = (h.extent, h.spacing);
+    let mut origin = h.origin;
     let mut dims = [0usize; 3];
     for a in 0..3 {
         let (lo, hi) = (extent[2 * a], extent[2 * a + 1]);
@@ -251,12 +285,15 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
         // grid is the extent's first point.
         origin[a] += lo as f64 * spacing[a];
     }
-    let n: usize = dims
-        .iter()
+    dims.iter()
         .try_fold(1usize, |acc, &d| acc.checked_mul(d))
         .ok_or_else(|| format!("extent {extent:?} too large"))?;
+    Ok((dims, origin))
+}
 
-    // The array: --array, else the active scalars, else the first point-data array.
+/// The array to read: `want`, else the active scalars, else the first point-data array.
+fn select<'h, 'a>(h: &'h Header<'a>, want: Option<&str>) -> Result<&'h ArrayDecl<'a>, String> {
+    let (arrays, cell_names) = (&h.arrays, &h.cell_names);
     let names = || {
         let mut s = arrays
             .iter()
@@ -279,7 +316,8 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
                 )
             }
         })?,
-        None => active
+        None => h
+            .active
             .as_deref()
             .and_then(|s| arrays.iter().position(|a| a.name == s))
             .or(if arrays.is_empty() { None } else { Some(0) })
@@ -294,20 +332,7 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
                 }
             })?,
     };
-    let decl = &arrays[index];
-    let buffer = read_array(decl, n, layout, appended.as_ref())
-        .map_err(|m| format!("array '{}': {m}", decl.name))?;
-    Ok(Decoded {
-        geometry: Geometry {
-            dims,
-            spacing,
-            origin,
-        },
-        buffer,
-        format: SourceFormat::Vti {
-            array: decl.name.clone(),
-        },
-    })
+    Ok(&arrays[index])
 }
 
 /// The appended block: its encoding and the bytes after the `_` marker (up to the closing
@@ -429,140 +454,6 @@ fn read_array(
     }
 }
 
-/// Decode base64 text that may be several padded streams back to back (VTK encodes the
-/// header and the data of a compressed array separately). Whitespace is ignored.
-fn base64_streams(text: &[u8]) -> Result<Vec<u8>, String> {
-    let clean: Vec<u8> = text
-        .iter()
-        .copied()
-        .filter(|b| !b.is_ascii_whitespace())
-        .collect();
-    if clean.len() % 4 != 0 {
-        return Err(format!(
-            "base64 data has {} characters, not a multiple of 4 (truncated?)",
-            clean.len()
-        ));
-    }
-    let engine = base64::engine::general_purpose::STANDARD;
-    let mut out = Vec::with_capacity(clean.len() / 4 * 3);
-    let mut start = 0;
-    for g in (0..clean.len()).step_by(4) {
-        if clean[g + 3] == b'=' {
-            engine
-                .decode_vec(&clean[start..g + 4], &mut out)
-                .map_err(|e| format!("invalid base64 data: {e}"))?;
-            start = g + 4;
-        }
-    }
-    engine
-        .decode_vec(&clean[start..], &mut out)
-        .map_err(|e| format!("invalid base64 data: {e}"))?;
-    Ok(out)
-}
-
-/// One header integer at `at`.
-fn header_int(stream: &[u8], at: usize, layout: Layout) -> Result<usize, String> {
-    let h = layout.header_size;
-    let b = stream
-        .get(at..at + h)
-        .ok_or("the data ends inside its block header (truncated?)")?;
-    let v = match (h, layout.order) {
-        (4, ByteOrder::Little) => u32::from_le_bytes(b.try_into().expect("4 bytes")) as u64,
-        (4, ByteOrder::Big) => u32::from_be_bytes(b.try_into().expect("4 bytes")) as u64,
-        (_, ByteOrder::Little) => u64::from_le_bytes(b.try_into().expect("8 bytes")),
-        (_, ByteOrder::Big) => u64::from_be_bytes(b.try_into().expect("8 bytes")),
-    };
-    usize::try_from(v).map_err(|_| format!("header value {v} is too large"))
-}
-
-/// Header + (compressed) blocks → exactly `nbytes` of array data.
-fn unpack(stream: &[u8], layout: Layout, nbytes: usize) -> Result<Vec<u8>, String> {
-    let h = layout.header_size;
-    if layout.compressor == Compressor::None {
-        let len = header_int(stream, 0, layout)?;
-        if len != nbytes {
-            return Err(format!(
-                "its header says {len} bytes but the extent needs {nbytes}"
-            ));
-        }
-        let data = stream.get(h..h + len).ok_or_else(|| {
-            format!(
-                "needs {len} bytes but only {} follow its header (truncated?)",
-                stream.len().saturating_sub(h)
-            )
-        })?;
-        return Ok(data.to_vec());
-    }
-
-    let nblocks = header_int(stream, 0, layout)?;
-    let block = header_int(stream, h, layout)?;
-    let last = header_int(stream, 2 * h, layout)?;
-    let total = match nblocks {
-        0 => 0,
-        _ => (nblocks - 1)
-            .checked_mul(block)
-            .and_then(|t| t.checked_add(if last == 0 { block } else { last }))
-            .ok_or("block header sizes overflow")?,
-    };
-    if total != nbytes {
-        return Err(format!(
-            "its block header says {total} bytes but the extent needs {nbytes}"
-        ));
-    }
-    let mut sizes = Vec::with_capacity(nblocks.min(1 << 20));
-    for b in 0..nblocks {
-        sizes.push(header_int(stream, (3 + b) * h, layout)?);
-    }
-    let mut pos = (3 + nblocks) * h;
-    let mut out = vec![0u8; total];
-    for (b, &csize) in sizes.iter().enumerate() {
-        let input = stream.get(pos..pos.saturating_add(csize)).ok_or_else(|| {
-            format!("compressed block {b} of {nblocks} is cut short (truncated?)")
-        })?;
-        pos += csize;
-        let start = b * block;
-        let dst = &mut out[start..(start + block).min(total)];
-        inflate(layout.compressor, input, dst)
-            .map_err(|m| format!("block {b} of {nblocks}: {m}"))?;
-    }
-    Ok(out)
-}
-
-/// Decompress one block into exactly `dst.len()` bytes.
-fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), String> {
-    let want = dst.len();
-    let got = match c {
-        Compressor::None => return Err("uncompressed data has no blocks".into()),
-        Compressor::Zlib => {
-            let mut z = flate2::Decompress::new(true);
-            let status = z
-                .decompress(input, dst, flate2::FlushDecompress::Finish)
-                .map_err(|e| format!("zlib: {e}"))?;
-            if status != flate2::Status::StreamEnd {
-                return Err(format!("zlib stream does not end within {want} bytes"));
-            }
-            z.total_out() as usize
-        }
-        Compressor::Lz4 => {
-            lz4_flex::block::decompress_into(input, dst).map_err(|e| format!("lz4: {e}"))?
-        }
-        Compressor::Lzma => {
-            // VTK's LZMA compressor writes .xz streams (lzma_easy_buffer_encode).
-            let mut v = Vec::with_capacity(want);
-            lzma_rs::xz_decompress(&mut std::io::Cursor::new(input), &mut v)
-                .map_err(|e| format!("lzma: {e}"))?;
-            if v.len() == want {
-                dst.copy_from_slice(&v);
-            }
-            v.len()
-        }
-    };
-    if got != want {
-        return Err(format!("decompressed to {got} bytes, expected {want}"));
-    }
-    Ok(())
-}
-
 /// An attribute's unescaped value.
 fn attr(e: &BytesStart<'_>, key: &str) -> Result<Option<String>, String> {
     for a in e.attributes() {
@@ -591,39 +482,4 @@ fn numbers<T: std::str::FromStr, const N: usize>(s: &str, what: &str) -> Result<
 /// First occurrence of `needle` in `hay`.
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
     hay.windows(needle.len()).position(|w| w == needle)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn base64_concatenated_streams_decode_like_one() {
-        let e = base64::engine::general_purpose::STANDARD;
-        let (a, b) = (b"head1".as_slice(), b"the data!!".as_slice());
-        let two = format!("{}\n  {}", e.encode(a), e.encode(b));
-        assert_eq!(base64_streams(two.as_bytes()).unwrap(), [a, b].concat());
-        let one = e.encode([a, b].concat());
-        assert_eq!(base64_streams(one.as_bytes()).unwrap(), [a, b].concat());
-        assert!(base64_streams(b"abc").is_err());
-        assert!(base64_streams(b"a*cd").is_err());
-    }
-
-    #[test]
-    fn header_int_reads_both_sizes_and_orders() {
-        let l = |order, header_size| Layout {
-            order,
-            header_size,
-            compressor: Compressor::None,
-        };
-        let s = [1u8, 0, 0, 0, 0, 0, 0, 2];
-        assert_eq!(header_int(&s, 0, l(ByteOrder::Little, 4)).unwrap(), 1);
-        assert_eq!(header_int(&s, 0, l(ByteOrder::Big, 4)).unwrap(), 1 << 24);
-        assert_eq!(header_int(&s, 4, l(ByteOrder::Big, 4)).unwrap(), 2);
-        assert_eq!(
-            header_int(&s, 0, l(ByteOrder::Big, 8)).unwrap(),
-            (1 << 56) + 2
-        );
-        assert!(header_int(&s, 4, l(ByteOrder::Little, 8)).is_err());
-    }
 }

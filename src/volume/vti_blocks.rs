@@ -1,0 +1,198 @@
+//! Binary arrays of VTK XML files (inline base64 or appended data), uncompressed or in
+//! compressed blocks.
+//!
+//! Binary layout (VTK's `vtkXMLWriter`): an uncompressed array is `[nbytes]` then the bytes; a
+//! compressed one is `[nblocks, blocksize, lastblocksize, csize_0 … csize_{n-1}]` then the
+//! blocks, each compressed on its own (zlib stream, raw LZ4 block, or `.xz` stream for LZMA).
+//! Header integers have the file's `header_type` (UInt32 when absent) and byte order. Inline
+//! base64 encodes header and data either as one stream or as two padded streams, so base64 is
+//! decoded stream by stream (see [`base64_streams`]).
+
+use base64::Engine;
+
+use super::ByteOrder;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Compressor {
+    None,
+    Zlib,
+    Lz4,
+    Lzma,
+}
+
+/// How binary arrays are laid out in this file.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Layout {
+    pub order: ByteOrder,
+    pub header_size: usize,
+    pub compressor: Compressor,
+}
+
+/// Decode base64 text that may be several padded streams back to back (VTK encodes the
+/// header and the data of a compressed array separately). Whitespace is ignored.
+pub(super) fn base64_streams(text: &[u8]) -> Result<Vec<u8>, String> {
+    let clean: Vec<u8> = text
+        .iter()
+        .copied()
+        .filter(|b| !b.is_ascii_whitespace())
+        .collect();
+    if clean.len() % 4 != 0 {
+        return Err(format!(
+            "base64 data has {} characters, not a multiple of 4 (truncated?)",
+            clean.len()
+        ));
+    }
+    let engine = base64::engine::general_purpose::STANDARD;
+    let mut out = Vec::with_capacity(clean.len() / 4 * 3);
+    let mut start = 0;
+    for g in (0..clean.len()).step_by(4) {
+        if clean[g + 3] == b'=' {
+            engine
+                .decode_vec(&clean[start..g + 4], &mut out)
+                .map_err(|e| format!("invalid base64 data: {e}"))?;
+            start = g + 4;
+        }
+    }
+    engine
+        .decode_vec(&clean[start..], &mut out)
+        .map_err(|e| format!("invalid base64 data: {e}"))?;
+    Ok(out)
+}
+
+/// One header integer at `at`.
+fn header_int(stream: &[u8], at: usize, layout: Layout) -> Result<usize, String> {
+    let h = layout.header_size;
+    let b = stream
+        .get(at..at + h)
+        .ok_or("the data ends inside its block header (truncated?)")?;
+    let v = match (h, layout.order) {
+        (4, ByteOrder::Little) => u32::from_le_bytes(b.try_into().expect("4 bytes")) as u64,
+        (4, ByteOrder::Big) => u32::from_be_bytes(b.try_into().expect("4 bytes")) as u64,
+        (_, ByteOrder::Little) => u64::from_le_bytes(b.try_into().expect("8 bytes")),
+        (_, ByteOrder::Big) => u64::from_be_bytes(b.try_into().expect("8 bytes")),
+    };
+    usize::try_from(v).map_err(|_| format!("header value {v} is too large"))
+}
+
+/// Header + (compressed) blocks → exactly `nbytes` of array data.
+pub(super) fn unpack(stream: &[u8], layout: Layout, nbytes: usize) -> Result<Vec<u8>, String> {
+    let h = layout.header_size;
+    if layout.compressor == Compressor::None {
+        let len = header_int(stream, 0, layout)?;
+        if len != nbytes {
+            return Err(format!(
+                "its header says {len} bytes but the extent needs {nbytes}"
+            ));
+        }
+        let data = stream.get(h..h + len).ok_or_else(|| {
+            format!(
+                "needs {len} bytes but only {} follow its header (truncated?)",
+                stream.len().saturating_sub(h)
+            )
+        })?;
+        return Ok(data.to_vec());
+    }
+
+    let nblocks = header_int(stream, 0, layout)?;
+    let block = header_int(stream, h, layout)?;
+    let last = header_int(stream, 2 * h, layout)?;
+    let total = match nblocks {
+        0 => 0,
+        _ => (nblocks - 1)
+            .checked_mul(block)
+            .and_then(|t| t.checked_add(if last == 0 { block } else { last }))
+            .ok_or("block header sizes overflow")?,
+    };
+    if total != nbytes {
+        return Err(format!(
+            "its block header says {total} bytes but the extent needs {nbytes}"
+        ));
+    }
+    let mut sizes = Vec::with_capacity(nblocks.min(1 << 20));
+    for b in 0..nblocks {
+        sizes.push(header_int(stream, (3 + b) * h, layout)?);
+    }
+    let mut pos = (3 + nblocks) * h;
+    let mut out = vec![0u8; total];
+    for (b, &csize) in sizes.iter().enumerate() {
+        let input = stream.get(pos..pos.saturating_add(csize)).ok_or_else(|| {
+            format!("compressed block {b} of {nblocks} is cut short (truncated?)")
+        })?;
+        pos += csize;
+        let start = b * block;
+        let dst = &mut out[start..(start + block).min(total)];
+        inflate(layout.compressor, input, dst)
+            .map_err(|m| format!("block {b} of {nblocks}: {m}"))?;
+    }
+    Ok(out)
+}
+
+/// Decompress one block into exactly `dst.len()` bytes.
+fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), String> {
+    let want = dst.len();
+    let got = match c {
+        Compressor::None => return Err("uncompressed data has no blocks".into()),
+        Compressor::Zlib => {
+            let mut z = flate2::Decompress::new(true);
+            let status = z
+                .decompress(input, dst, flate2::FlushDecompress::Finish)
+                .map_err(|e| format!("zlib: {e}"))?;
+            if status != flate2::Status::StreamEnd {
+                return Err(format!("zlib stream does not end within {want} bytes"));
+            }
+            z.total_out() as usize
+        }
+        Compressor::Lz4 => {
+            lz4_flex::block::decompress_into(input, dst).map_err(|e| format!("lz4: {e}"))?
+        }
+        Compressor::Lzma => {
+            // VTK's LZMA compressor writes .xz streams (lzma_easy_buffer_encode).
+            let mut v = Vec::with_capacity(want);
+            lzma_rs::xz_decompress(&mut std::io::Cursor::new(input), &mut v)
+                .map_err(|e| format!("lzma: {e}"))?;
+            if v.len() == want {
+                dst.copy_from_slice(&v);
+            }
+            v.len()
+        }
+    };
+    if got != want {
+        return Err(format!("decompressed to {got} bytes, expected {want}"));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_concatenated_streams_decode_like_one() {
+        let e = base64::engine::general_purpose::STANDARD;
+        let (a, b) = (b"head1".as_slice(), b"the data!!".as_slice());
+        let two = format!("{}\n  {}", e.encode(a), e.encode(b));
+        assert_eq!(base64_streams(two.as_bytes()).unwrap(), [a, b].concat());
+        let one = e.encode([a, b].concat());
+        assert_eq!(base64_streams(one.as_bytes()).unwrap(), [a, b].concat());
+        assert!(base64_streams(b"abc").is_err());
+        assert!(base64_streams(b"a*cd").is_err());
+    }
+
+    #[test]
+    fn header_int_reads_both_sizes_and_orders() {
+        let l = |order, header_size| Layout {
+            order,
+            header_size,
+            compressor: Compressor::None,
+        };
+        let s = [1u8, 0, 0, 0, 0, 0, 0, 2];
+        assert_eq!(header_int(&s, 0, l(ByteOrder::Little, 4)).unwrap(), 1);
+        assert_eq!(header_int(&s, 0, l(ByteOrder::Big, 4)).unwrap(), 1 << 24);
+        assert_eq!(header_int(&s, 4, l(ByteOrder::Big, 4)).unwrap(), 2);
+        assert_eq!(
+            header_int(&s, 0, l(ByteOrder::Big, 8)).unwrap(),
+            (1 << 56) + 2
+        );
+        assert!(header_int(&s, 4, l(ByteOrder::Little, 8)).is_err());
+    }
+}
