@@ -380,3 +380,99 @@ fn unit_distance_does_not_change_the_paraview_image() {
     let lit = shots[0].data.iter().filter(|&&c| c > 0.05).count();
     assert!(lit > 1000, "{lit} lit channel values");
 }
+
+const WRITE_WAVELET: &str = r#"
+import sys
+import paraview.simple as pvs
+out_dir = sys.argv[1]
+w = pvs.Wavelet()
+pvs.SaveData(out_dir + "/wavelet.vti", proxy=w)
+pvs.SaveData(out_dir + "/wavelet.vtk", proxy=w)
+lo, hi = w.PointData["RTData"].GetRange()
+print("RANGE %r %r" % (lo, hi))
+"#;
+
+#[test]
+fn generated_script_opens_vti_and_legacy_vtk() {
+    // ParaView writes its Wavelet source (21³ points from −10 to 10, array RTData) as .vti
+    // and legacy .vtk; our script must open each with the right reader and array and show it.
+    if !paraview_available("generated_script_opens_vti_and_legacy_vtk") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let writer = dir.path().join("write.py");
+    std::fs::write(&writer, WRITE_WAVELET).unwrap();
+    let log = pvpython(&writer, &[dir.path().to_str().unwrap()]);
+    let range: Vec<f64> = log
+        .lines()
+        .find_map(|l| l.strip_prefix("RANGE "))
+        .expect("range printed")
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let g = Geometry {
+        dims: [21, 21, 21],
+        spacing: [1.0; 3],
+        origin: [-10.0; 3],
+    };
+    // The script needs geometry, range and source only; a ramp over the range stands in
+    // for the values (our .vti/.vtk readers are tested on their own).
+    let n = g.voxel_count();
+    let ramp = (0..n)
+        .map(|i| range[0] + (range[1] - range[0]) * i as f64 / (n - 1) as f64)
+        .collect();
+    let base = Volume::from_buffer(Path::new("wavelet"), g, &TypedBuffer::from_f64(ramp)).unwrap();
+    let view = ScriptView::front(&base, 2.5);
+    for (file, format) in [
+        (
+            "wavelet.vti",
+            SourceFormat::Vti {
+                array: "RTData".into(),
+            },
+        ),
+        (
+            "wavelet.vtk",
+            SourceFormat::LegacyVtk {
+                array: "RTData".into(),
+            },
+        ),
+    ] {
+        let mut v = base.clone();
+        v.source = Some(VolumeSource {
+            path: dir.path().join(file),
+            format,
+        });
+        let name = file.replace('.', "_");
+        let files = write_all(dir.path(), &name, &test_tf(), &v, &view, [0.0; 3], None).unwrap();
+        let shot = dir.path().join(format!("{name}.png"));
+        pvpython(
+            &files.paraview_script.unwrap(),
+            &[
+                "--screenshot",
+                shot.to_str().unwrap(),
+                "--size",
+                "120",
+                "120",
+            ],
+        );
+        let img = Image::load_png(&shot).unwrap();
+        let b = projected_box(&v, &view, 120, 120);
+        let (mut lit_in, mut lit_out) = (0, 0);
+        for y in 0..120 {
+            for x in 0..120 {
+                let lit = img.pixel(x, y).iter().any(|&c| c > 1.5 / 255.0);
+                let (cx, cy) = (x as f64 + 0.5, y as f64 + 0.5);
+                if cx > b[0] - 2.0 && cx < b[2] + 2.0 && cy > b[1] - 2.0 && cy < b[3] + 2.0 {
+                    lit_in += lit as usize;
+                } else {
+                    lit_out += lit as usize;
+                }
+            }
+        }
+        assert_eq!(lit_out, 0, "{file}: pixels outside the box lit");
+        assert!(
+            lit_in > 1000,
+            "{file}: only {lit_in} pixels show the volume"
+        );
+    }
+}
