@@ -475,4 +475,30 @@ fn generated_script_opens_vti_and_legacy_vtk() {
             "{file}: only {lit_in} pixels show the volume"
         );
     }
+    // The helper's command line: open the .vti, apply the preset, save a screenshot.
+    let shot = dir.path().join("helper.png");
+    pvpython(
+        &repo().join("paraview/t2tf_apply_preset.py"),
+        &[
+            dir.path().join("wavelet_vti.json").to_str().unwrap(),
+            dir.path().join("wavelet.vti").to_str().unwrap(),
+            "--array",
+            "RTData",
+            "--screenshot",
+            shot.to_str().unwrap(),
+        ],
+    );
+    let img = Image::load_png(&shot).unwrap();
+    let bg = img.pixel(0, 0);
+    let differs = (0..img.height)
+        .flat_map(|y| (0..img.width).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            let p = img.pixel(x, y);
+            (0..3).any(|c| (p[c] - bg[c]).abs() > 2.0 / 255.0)
+        })
+        .count();
+    assert!(
+        differs > 1000,
+        "helper screenshot shows {differs} non-background pixels"
+    );
 }
