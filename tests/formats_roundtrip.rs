@@ -258,3 +258,38 @@ fn json_midpoints_become_points_and_rescale_maps_range() {
     assert!(!to_paraview_xml(&colour_only).contains(" o=\""));
     assert!(to_visit_ct(&colour_only).contains("255 255 255 255"));
 }
+
+#[test]
+fn load_tf_extends_clips_and_handles_saturation() {
+    let v = volume(); // data range [-3, 40], L = 22, default u = 7/6
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("narrow.json");
+    // A preset on [10, 20] inside the volume's range, reaching opacity 1 (σ = ∞ → 255).
+    std::fs::write(
+        &p,
+        r#"[{"Name":"n","RGBPoints":[10,1,0,0, 20,0,0,1],"Points":[10,0,0.5,0, 20,1,0.5,0]}]"#,
+    )
+    .unwrap();
+    let cp = load_tf(&p, &v, None).unwrap();
+    let t10 = 13.0 / 43.0;
+    assert!(cp.x.iter().any(|&x| (x - t10).abs() < 1e-15));
+    assert_eq!(
+        cp.eval(0.0),
+        cp.eval(t10),
+        "constant below the preset's range"
+    );
+    assert_eq!(cp.eval(1.0)[0], 255.0, "o = 1 reads as the largest density");
+    assert_eq!(cp.eval(1.0)[1..], [0.0, 0.0, 1.0]);
+    // Saturation must not make the refinement split down to its depth limit.
+    assert!(cp.len() < 200, "{} points", cp.len());
+    // A preset wider than the volume is cut at the volume's range.
+    std::fs::write(
+        &p,
+        r#"[{"RGBPoints":[-100,0,0,0, 100,1,1,1],"Points":[-100,0,0.5,0, 100,0,0.5,0]}]"#,
+    )
+    .unwrap();
+    let cp = load_tf(&p, &v, None).unwrap();
+    assert_eq!((cp.x[0], *cp.x.last().unwrap()), (0.0, 1.0));
+    let want = (-3.0 + 100.0) / 200.0;
+    assert!((cp.rgb[0][0] - want).abs() < 1e-12, "{:?}", cp.rgb[0]);
+}

@@ -8,7 +8,7 @@ use sha2::{Digest, Sha256};
 use super::FormatError;
 use crate::tf::{
     default_unit_distance, interpolate, opacity_to_sigma, sigma_to_opacity, simplified_curves,
-    ControlPoints, EXPORT_TOLERANCE,
+    ControlPoints, EXPORT_TOLERANCE, SIGMA_MAX,
 };
 use crate::volume::Volume;
 
@@ -248,8 +248,7 @@ impl ExportTf {
 
 /// Insert points strictly between `a` and `b` until σ-linear interpolation reproduces the
 /// o-linear curve within EXPORT_TOLERANCE / 2 at the quarter points (depth ≤ 12, so at most
-/// 4096 sub-points per file segment; a segment ending at o = 1 saturates σ at 255 and stops
-/// there).
+/// 4096 sub-points per file segment).
 fn refine(
     a: f64,
     b: f64,
@@ -263,10 +262,13 @@ fn refine(
         return;
     }
     let (sa, sb) = (sigma_at(a), sigma_at(b));
+    // σ is capped at 255, so opacities above o_max cannot be matched by any refinement:
+    // compare with what is reachable, or a saturated segment would always split to depth 12.
+    let o_max = sigma_to_opacity(SIGMA_MAX, ratio, 1.0);
     let bad = [0.25, 0.5, 0.75].iter().any(|&w| {
         let t = a + w * (b - a);
         let ours = sigma_to_opacity(sa + w * (sb - sa), ratio, 1.0);
-        (ours - o_at(t)).abs() > 0.5 * EXPORT_TOLERANCE
+        (ours - o_at(t).min(o_max)).abs() > 0.5 * EXPORT_TOLERANCE
     });
     if bad {
         let m = 0.5 * (a + b);
