@@ -57,14 +57,11 @@ impl BrickGrid {
         let counts = cells.map(|c| c.div_ceil(BRICK_CELLS));
         let total = counts.iter().product();
         let (mut min, mut max) = (vec![f32::INFINITY; total], vec![f32::NEG_INFINITY; total]);
-        // Each point belongs to every brick whose cell range touches it (shared faces).
+        // Each point is a corner of cells p − 1 and p (where they exist): it belongs to the
+        // bricks of those cells (two on a shared face, one elsewhere).
         let bricks_of = |p: usize, a: usize| {
+            let lo = (p.saturating_sub(1) / BRICK_CELLS).min(counts[a] - 1);
             let hi = (p / BRICK_CELLS).min(counts[a] - 1);
-            let lo = if p % BRICK_CELLS == 0 && p > 0 {
-                hi.saturating_sub(1)
-            } else {
-                hi
-            };
             lo..=hi
         };
         for k in 0..dims[2] {

@@ -1,0 +1,251 @@
+//! One ray through one mip level: box clipping, trilinear sampling, LUT lookup and front-to-back
+//! compositing. The forward and backward passes run the *same* march (same samples, same skips,
+//! same early stop) and differ only in what they do per sample, so the backward is the exact
+//! gradient of what the forward computed.
+
+use glam::DVec3;
+
+use crate::tf::Lut;
+use crate::volume::{Level, BRICK_CELLS};
+
+/// A level's samples with the index arithmetic precomputed.
+pub(crate) struct Grid<'a> {
+    data: &'a [f32],
+    /// Largest valid coordinate per axis: dims − 1.
+    max_coord: [f32; 3],
+    /// Largest cell index per axis: max(dims − 2, 0).
+    max_cell: [usize; 3],
+    /// Index offset of the +1 corner per axis (0 on a 1-point axis, so it reuses the point).
+    step: [usize; 3],
+    /// Row and slice strides.
+    stride: [usize; 2],
+    brick_counts: [usize; 3],
+    /// Per brick: may every sample in it be skipped?
+    empty: &'a [bool],
+}
+
+impl<'a> Grid<'a> {
+    pub(crate) fn new(level: &'a Level, empty: &'a [bool]) -> Grid<'a> {
+        let d = level.dims;
+        let stride = [d[0], d[0] * d[1]];
+        Grid {
+            data: &level.data,
+            max_coord: d.map(|n| (n - 1) as f32),
+            max_cell: d.map(|n| n.saturating_sub(2)),
+            step: [
+                usize::from(d[0] > 1),
+                if d[1] > 1 { stride[0] } else { 0 },
+                if d[2] > 1 { stride[1] } else { 0 },
+            ],
+            stride,
+            brick_counts: level.bricks.counts,
+            empty,
+        }
+    }
+}
+
+/// A ray in a level's index space, clipped to the box: position `a + s * b` for `s` in
+/// [0, length], `s` in world units (so `b` is the world direction divided by the spacing).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Ray {
+    a: [f32; 3],
+    b: [f32; 3],
+    /// Number of segments; segment n is [n δ, min((n + 1) δ, length)].
+    segments: u32,
+    delta: f32,
+    delta_last: f32,
+    /// Where in its segment each sample sits, in [0, 1) (0.5 without jitter).
+    jitter: f32,
+}
+
+impl Ray {
+    /// Clip the world ray `eye + t dir` (t ≥ 0) to the box of a level with `dims` points at
+    /// `spacing` from `origin`, and cut it into segments of world length `delta`.
+    /// `None` when the ray misses the box or only touches it.
+    pub(crate) fn clip(
+        eye: DVec3,
+        dir: DVec3,
+        origin: DVec3,
+        spacing: DVec3,
+        dims: [usize; 3],
+        delta: f64,
+        jitter: f32,
+    ) -> Option<Ray> {
+        let a = (eye - origin) / spacing;
+        let b = dir / spacing;
+        let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+        for ax in 0..3 {
+            let hi = (dims[ax] - 1) as f64;
+            if b[ax].abs() < 1e-300 {
+                // Parallel to this slab: inside it or never.
+                if a[ax] < 0.0 || a[ax] > hi {
+                    return None;
+                }
+                continue;
+            }
+            let (ta, tb) = ((0.0 - a[ax]) / b[ax], (hi - a[ax]) / b[ax]);
+            t0 = t0.max(ta.min(tb));
+            t1 = t1.min(ta.max(tb));
+        }
+        let length = t1 - t0;
+        if !(length > 0.0) {
+            return None;
+        }
+        let segments = (length / delta).ceil().max(1.0);
+        if segments > u32::MAX as f64 {
+            return None;
+        }
+        let segments = segments as u32;
+        let entry = a + t0 * b;
+        Some(Ray {
+            a: entry.as_vec3().to_array(),
+            b: b.as_vec3().to_array(),
+            segments,
+            delta: delta as f32,
+            delta_last: (length - (segments - 1) as f64 * delta) as f32,
+            jitter,
+        })
+    }
+}
+
+/// What the per-sample visitor sees (only non-empty samples are visited).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sample {
+    /// LUT entry below the sample and the weight of the entry above.
+    pub lut_index: usize,
+    pub lut_weight: f32,
+    pub rgb: [f32; 3],
+    /// Segment length in normalized units (δ / L).
+    pub delta_norm: f32,
+    /// Transmittance before and after the sample.
+    pub t_before: f32,
+    pub t_after: f32,
+    /// Colour accumulated up to and including this sample (no background).
+    pub acc: [f32; 3],
+}
+
+/// Result of one march.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Marched {
+    pub acc: [f32; 3],
+    pub transmittance: f32,
+    /// Samples whose scalar was interpolated (skipped ones excluded).
+    pub samples: u32,
+}
+
+/// Constants of one march shared by every ray of a view.
+pub(crate) struct MarchParams<'a> {
+    pub grid: Grid<'a>,
+    pub lut: &'a Lut,
+    /// 1 / L (L = the box's longest side, DESIGN.md density units).
+    pub inv_l: f32,
+    /// Stop once T falls below this (0 = never).
+    pub stop_below: f32,
+    pub skip: bool,
+}
+
+/// March `ray` front to back, calling `visit` after each non-empty sample.
+#[inline(always)]
+pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F) -> Marched {
+    let g = &p.grid;
+    let lut = &p.lut.entries;
+    let lut_max = (lut.len() - 1) as f32;
+    let lut_last_cell = lut.len() - 2;
+    let mut t = 1.0f32;
+    let mut acc = [0.0f32; 3];
+    let mut samples = 0u32;
+    let mut n = 0u32;
+    let last = ray.segments - 1;
+    while n < ray.segments {
+        let (s, dn) = if n < last {
+            ((n as f32 + ray.jitter) * ray.delta, ray.delta)
+        } else {
+            (
+                last as f32 * ray.delta + ray.jitter * ray.delta_last,
+                ray.delta_last,
+            )
+        };
+        let pos: [f32; 3] =
+            std::array::from_fn(|ax| (ray.a[ax] + s * ray.b[ax]).clamp(0.0, g.max_coord[ax]));
+        let cell: [usize; 3] = std::array::from_fn(|ax| (pos[ax] as usize).min(g.max_cell[ax]));
+        if p.skip {
+            let bc = cell.map(|c| c / BRICK_CELLS);
+            let brick = bc[0] + g.brick_counts[0] * (bc[1] + g.brick_counts[1] * bc[2]);
+            if g.empty[brick] {
+                // Jump to the first sample past this brick's box (sample positions do not move,
+                // so skipping only drops samples that are empty anyway).
+                let mut exit = f32::INFINITY;
+                for ax in 0..3 {
+                    let lo = (bc[ax] * BRICK_CELLS) as f32;
+                    let hi = ((bc[ax] + 1) * BRICK_CELLS).min(g.max_cell[ax] + 1) as f32;
+                    let bnd = if ray.b[ax] > 0.0 {
+                        hi
+                    } else if ray.b[ax] < 0.0 {
+                        lo
+                    } else {
+                        continue;
+                    };
+                    exit = exit.min((bnd - ray.a[ax]) / ray.b[ax]);
+                }
+                let next = (exit / ray.delta - ray.jitter).ceil();
+                n = if next > n as f32 {
+                    (next.min(ray.segments as f32)) as u32
+                } else {
+                    n + 1
+                };
+                continue;
+            }
+        }
+        n += 1;
+        let f: [f32; 3] = std::array::from_fn(|ax| pos[ax] - cell[ax] as f32);
+        let base = cell[0] + g.stride[0] * cell[1] + g.stride[1] * cell[2];
+        let (sx, sy, sz) = (g.step[0], g.step[1], g.step[2]);
+        let d = g.data;
+        let lerp = |a: f32, b: f32, w: f32| a + w * (b - a);
+        let c00 = lerp(d[base], d[base + sx], f[0]);
+        let c10 = lerp(d[base + sy], d[base + sy + sx], f[0]);
+        let c01 = lerp(d[base + sz], d[base + sz + sx], f[0]);
+        let c11 = lerp(d[base + sz + sy], d[base + sz + sy + sx], f[0]);
+        let v = lerp(lerp(c00, c10, f[1]), lerp(c01, c11, f[1]), f[2]);
+        samples += 1;
+        // Any NaN corner makes the sample NaN (0 · NaN is NaN): empty space.
+        if v.is_nan() {
+            continue;
+        }
+        let x = v.clamp(0.0, 1.0) * lut_max;
+        let j = (x as usize).min(lut_last_cell);
+        let w = x - j as f32;
+        let (e0, e1) = (lut[j], lut[j + 1]);
+        let sigma = lerp(e0[0], e1[0], w);
+        let delta_norm = dn * p.inv_l;
+        let t_after = t * (-sigma * delta_norm).exp();
+        let weight = t - t_after;
+        let rgb = [
+            lerp(e0[1], e1[1], w),
+            lerp(e0[2], e1[2], w),
+            lerp(e0[3], e1[3], w),
+        ];
+        for c in 0..3 {
+            acc[c] += weight * rgb[c];
+        }
+        visit(&Sample {
+            lut_index: j,
+            lut_weight: w,
+
+            rgb,
+            delta_norm,
+            t_before: t,
+            t_after,
+            acc,
+        });
+        t = t_after;
+        if t < p.stop_below {
+            break;
+        }
+    }
+    Marched {
+        acc,
+        transmittance: t,
+        samples,
+    }
+}
