@@ -150,7 +150,7 @@ impl Camera {
         if !orbit.yaw.is_finite() {
             return Err(param("yaw", orbit.yaw, "must be finite"));
         }
-        if !(orbit.pitch.abs() < 0.5 * PI - 1e-6) {
+        if orbit.pitch.is_nan() || orbit.pitch.abs() >= 0.5 * PI - 1e-6 {
             return Err(param(
                 "pitch",
                 orbit.pitch,

@@ -260,3 +260,20 @@ fn control_points_through_the_lut() {
         );
     }
 }
+
+#[test]
+fn uniform_regions_stepped_in_one_go() {
+    // Piecewise-constant 25³ volume: bricks inside a region are uniform and are crossed in one
+    // step; their summed gradient terms must match differences like any other sample.
+    let dims = [25usize; 3];
+    let vals = (0..25 * 25 * 25)
+        .map(|i| {
+            let (x, y, z) = (i % 25, (i / 25) % 25, i / 625);
+            [0.1, 0.4, 0.7, 1.0][(x > 8) as usize + 2 * (y + z > 24) as usize]
+        })
+        .collect();
+    let v = volume_from(dims, [1.0; 3], vals);
+    assert!(v.levels[0].bricks.uniform.iter().any(|&u| u));
+    let c = case(&v, orbit(&v, 0.4, 0.25, 2.0), 12, 12, smooth_opts(), 6);
+    c.check(&random_lut(5, 2.0, 20.0, 9), "uniform regions");
+}

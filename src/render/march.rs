@@ -22,6 +22,8 @@ pub(crate) struct Grid<'a> {
     brick_counts: [usize; 3],
     /// Per brick: may every sample in it be skipped?
     empty: &'a [bool],
+    /// Per brick: is every sample in it the same value?
+    uniform: &'a [bool],
 }
 
 impl<'a> Grid<'a> {
@@ -40,6 +42,7 @@ impl<'a> Grid<'a> {
             stride,
             brick_counts: level.bricks.counts,
             empty,
+            uniform: &level.bricks.uniform,
         }
     }
 }
@@ -88,7 +91,7 @@ impl Ray {
             t1 = t1.min(ta.max(tb));
         }
         let length = t1 - t0;
-        if !(length > 0.0) {
+        if length.is_nan() || length <= 0.0 {
             return None;
         }
         let segments = (length / delta).ceil().max(1.0);
@@ -117,6 +120,9 @@ pub(crate) struct Sample {
     pub rgb: [f32; 3],
     /// Segment length in normalized units (δ / L).
     pub delta_norm: f32,
+    /// How many identical consecutive samples this stands for (> 1 across a uniform brick,
+    /// where the per-sample terms of the backward are equal and are summed in one go).
+    pub count: f32,
     /// Transmittance before and after the sample.
     pub t_before: f32,
     pub t_after: f32,
@@ -144,6 +150,25 @@ pub(crate) struct MarchParams<'a> {
     pub skip: bool,
 }
 
+/// Index (fractional, before rounding up) of the first sample past brick `bc` along `ray`.
+#[inline(always)]
+fn next_sample_after_brick(g: &Grid, ray: &Ray, bc: [usize; 3]) -> f32 {
+    let mut exit = f32::INFINITY;
+    for (ax, &b) in bc.iter().enumerate() {
+        let lo = (b * BRICK_CELLS) as f32;
+        let hi = ((b + 1) * BRICK_CELLS).min(g.max_cell[ax] + 1) as f32;
+        let bnd = if ray.b[ax] > 0.0 {
+            hi
+        } else if ray.b[ax] < 0.0 {
+            lo
+        } else {
+            continue;
+        };
+        exit = exit.min((bnd - ray.a[ax]) / ray.b[ax]);
+    }
+    (exit / ray.delta - ray.jitter).ceil()
+}
+
 /// March `ray` front to back, calling `visit` after each non-empty sample.
 #[inline(always)]
 pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F) -> Marched {
@@ -168,35 +193,31 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
         let pos: [f32; 3] =
             std::array::from_fn(|ax| (ray.a[ax] + s * ray.b[ax]).clamp(0.0, g.max_coord[ax]));
         let cell: [usize; 3] = std::array::from_fn(|ax| (pos[ax] as usize).min(g.max_cell[ax]));
-        if p.skip {
-            let bc = cell.map(|c| c / BRICK_CELLS);
-            let brick = bc[0] + g.brick_counts[0] * (bc[1] + g.brick_counts[1] * bc[2]);
-            if g.empty[brick] {
-                // Jump to the first sample past this brick's box (sample positions do not move,
-                // so skipping only drops samples that are empty anyway).
-                let mut exit = f32::INFINITY;
-                for ax in 0..3 {
-                    let lo = (bc[ax] * BRICK_CELLS) as f32;
-                    let hi = ((bc[ax] + 1) * BRICK_CELLS).min(g.max_cell[ax] + 1) as f32;
-                    let bnd = if ray.b[ax] > 0.0 {
-                        hi
-                    } else if ray.b[ax] < 0.0 {
-                        lo
-                    } else {
-                        continue;
-                    };
-                    exit = exit.min((bnd - ray.a[ax]) / ray.b[ax]);
-                }
-                let next = (exit / ray.delta - ray.jitter).ceil();
-                n = if next > n as f32 {
-                    (next.min(ray.segments as f32)) as u32
-                } else {
-                    n + 1
-                };
-                continue;
-            }
+        let bc = cell.map(|c| c / BRICK_CELLS);
+        let brick = bc[0] + g.brick_counts[0] * (bc[1] + g.brick_counts[1] * bc[2]);
+        if p.skip && g.empty[brick] {
+            // Jump to the first sample past this brick's box (sample positions do not move,
+            // so skipping only drops samples that are empty anyway).
+            let next = next_sample_after_brick(g, ray, bc);
+            n = if next > n as f32 {
+                (next.min(ray.segments as f32)) as u32
+            } else {
+                n + 1
+            };
+            continue;
         }
-        n += 1;
+        // Samples n..n+run all lie in this brick; in a uniform brick they are identical (the
+        // last, shorter segment is always taken on its own).
+        let run = if g.uniform[brick] && n + 1 < last {
+            let next = next_sample_after_brick(g, ray, bc).min(last as f32);
+            if next > (n + 1) as f32 {
+                next as u32 - n
+            } else {
+                1
+            }
+        } else {
+            1
+        };
         let f: [f32; 3] = std::array::from_fn(|ax| pos[ax] - cell[ax] as f32);
         let base = cell[0] + g.stride[0] * cell[1] + g.stride[1] * cell[2];
         let (sx, sy, sz) = (g.step[0], g.step[1], g.step[2]);
@@ -210,6 +231,7 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
         samples += 1;
         // Any NaN corner makes the sample NaN (0 · NaN is NaN): empty space.
         if v.is_nan() {
+            n += 1;
             continue;
         }
         let x = v.clamp(0.0, 1.0) * lut_max;
@@ -218,7 +240,17 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
         let (e0, e1) = (lut[j], lut[j + 1]);
         let sigma = lerp(e0[0], e1[0], w);
         let delta_norm = dn * p.inv_l;
-        let t_after = t * (-sigma * delta_norm).exp();
+        let x = sigma * delta_norm;
+        let mut count = run;
+        let mut t_after = t * (-(run as f32) * x).exp();
+        if run > 1 && t_after < p.stop_below {
+            // Stop where sample-by-sample compositing would have: the first m with
+            // T·e^(−m x) < threshold.
+            let m = ((t / p.stop_below).ln() / x).floor() + 1.0;
+            count = (m.max(1.0) as u32).min(run);
+            t_after = t * (-(count as f32) * x).exp();
+        }
+        n += count;
         let weight = t - t_after;
         let rgb = [
             lerp(e0[1], e1[1], w),
@@ -231,9 +263,9 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
         visit(&Sample {
             lut_index: j,
             lut_weight: w,
-
             rgb,
             delta_norm,
+            count: count as f32,
             t_before: t,
             t_after,
             acc,
@@ -247,5 +279,84 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
         acc,
         transmittance: t,
         samples,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::volume::{Geometry, TypedBuffer, Volume};
+    use std::path::Path;
+
+    /// Stepping across a uniform brick in one go gives what sample-by-sample compositing gives,
+    /// with and without early termination.
+    #[test]
+    fn uniform_bricks_match_sample_by_sample() {
+        // 33³ points: 4³ bricks; values constant per 16-point octant, so most bricks are uniform.
+        let dims = [33usize; 3];
+        let vals = (0..33 * 33 * 33)
+            .map(|i| {
+                let (x, y, z) = (i % 33, (i / 33) % 33, i / (33 * 33));
+                ((x / 17) + 2 * (y / 17) + 3 * (z / 17)) as f64 / 6.0
+            })
+            .collect();
+        let g = Geometry {
+            dims,
+            spacing: [1.0; 3],
+            origin: [0.0; 3],
+        };
+        let v = Volume::from_buffer(Path::new("t"), g, &TypedBuffer::from_f64(vals)).unwrap();
+        let level = &v.levels[0];
+        assert!(level.bricks.uniform.iter().filter(|&&u| u).count() >= 8);
+        let lut = Lut {
+            entries: (0..7)
+                .map(|j| {
+                    [
+                        3.0 + 4.0 * j as f32,
+                        0.1 * j as f32,
+                        0.5,
+                        1.0 - 0.1 * j as f32,
+                    ]
+                })
+                .collect(),
+        };
+        let empty = vec![false; level.bricks.min.len()];
+        let none = vec![false; level.bricks.min.len()];
+        for stop in [0.0, 0.05] {
+            let params = |uniform: bool| {
+                let mut grid = Grid::new(level, &empty);
+                if !uniform {
+                    grid.uniform = &none;
+                }
+                MarchParams {
+                    grid,
+                    lut: &lut,
+                    inv_l: 1.0 / 32.0,
+                    stop_below: stop,
+                    skip: false,
+                }
+            };
+            let (fast, slow) = (params(true), params(false));
+            let mut saved = 0;
+            for k in 0..50 {
+                let a = k as f64 * 0.37;
+                let dir = DVec3::new(a.cos(), a.sin(), 0.3 * (1.3 * a).cos()).normalize();
+                let eye = DVec3::new(15.3, 13.7, 14.1) - 60.0 * dir;
+                let ray = Ray::clip(eye, dir, DVec3::ZERO, DVec3::ONE, dims, 0.5, 0.3).unwrap();
+                let (mut count_fast, mut count_slow) = (0.0, 0.0);
+                let m1 = march(&fast, &ray, |s| count_fast += s.count);
+                let m2 = march(&slow, &ray, |s| count_slow += s.count);
+                saved += m2.samples - m1.samples;
+                assert!(
+                    (m1.transmittance - m2.transmittance).abs() < 1e-5,
+                    "ray {k}"
+                );
+                for c in 0..3 {
+                    assert!((m1.acc[c] - m2.acc[c]).abs() < 1e-5, "ray {k}");
+                }
+                assert_eq!(count_fast, count_slow, "ray {k} stop {stop}");
+            }
+            assert!(saved > 500, "uniform runs saved only {saved} samples");
+        }
     }
 }

@@ -294,7 +294,8 @@ pub fn forward(
     )?;
     let tiles = v.tiles();
     // Per tile: (pixel, rgb, T) triples and the sample count.
-    let done: Vec<(Vec<(usize, [f32; 3], f32)>, u64)> = tiles
+    type TileOut = (Vec<(usize, [f32; 3], f32)>, u64);
+    let done: Vec<TileOut> = tiles
         .par_iter()
         .map(|&tile| {
             let mut out = Vec::with_capacity(TILE * TILE);
@@ -451,7 +452,7 @@ fn backward_impl(
                         d_sigma += g[c] * (s.t_after * s.rgb[c] - (image[c] - s.acc[c]));
                         d_rgb[c] = weight * g[c];
                     }
-                    let d_sigma = (d_sigma * s.delta_norm) as f64;
+                    let d_sigma = (d_sigma * s.delta_norm * s.count) as f64;
                     let (w1, w0) = (s.lut_weight as f64, 1.0 - s.lut_weight as f64);
                     let (e0, e1) = grad.split_at_mut(s.lut_index + 1);
                     let (e0, e1) = (&mut e0[s.lut_index], &mut e1[0]);
