@@ -103,8 +103,8 @@ fn main() -> anyhow::Result<()> {
             }
         }
         println!("## 256³ aneurism, {name} TF: speed against error\n");
-        println!("| step (voxels) | level | forward (s) | fwd+bwd (s) | Msamples/s (fwd) | PSNR (dB) | grad rel. L2 |");
-        println!("|---|---|---|---|---|---|---|");
+        println!("| step (voxels) | level | forward (s) | fwd+bwd (s) | fwd+bwd CPU (s) | samples | PSNR (dB) | grad rel. L2 |");
+        println!("|---|---|---|---|---|---|---|---|");
         let steps: &[f32] = if quick {
             &[0.5, 1.0]
         } else {
@@ -117,14 +117,14 @@ fn main() -> anyhow::Result<()> {
                     level,
                     ..RenderOptions::default()
                 };
-                let (run, fwd, both) = scene.timed(&v256, lut, &opts, reps)?;
+                let (run, fwd, both, cpu) = scene.timed(&v256, lut, &opts, reps)?;
                 let level_name = match level {
                     Some(l) => l.to_string(),
                     None => format!("auto ({})", levels(&run)),
                 };
                 println!(
-                    "| {step} | {level_name} | {fwd:.3} | {both:.3} | {:.0} | {:.1} | {:.2e} |",
-                    run.samples() as f64 / fwd / 1e6,
+                    "| {step} | {level_name} | {fwd:.3} | {both:.3} | {cpu:.3} | {:.2}M | {:.1} | {:.2e} |",
+                    run.samples() as f64 / 1e6,
                     run.psnr(&reference),
                     run.grad_error(&reference)
                 );
@@ -148,16 +148,16 @@ fn main() -> anyhow::Result<()> {
                 early_termination: stop,
                 ..RenderOptions::default()
             };
-            let (run, fwd, both) = scene.timed(&v256, lut, &opts, reps)?;
+            let (run, fwd, both, cpu) = scene.timed(&v256, lut, &opts, reps)?;
             println!(
-                "| {} | {} | {fwd:.3} | {both:.3} | {} | {:.1} |",
+                "| {} | {} | {fwd:.3} | {both:.3} | {cpu:.3} | {:.2}M | {:.1} |",
                 if skip { "on" } else { "off" },
                 if stop > 0.0 {
                     format!("T < {stop}")
                 } else {
                     "off".into()
                 },
-                run.samples(),
+                run.samples() as f64 / 1e6,
                 run.psnr(&reference)
             );
         }
@@ -170,27 +170,24 @@ fn main() -> anyhow::Result<()> {
     drop(bytes);
     eprintln!("512³ built in {:.2} s", t0.elapsed().as_secs_f64());
     println!("## 512³ upsampled aneurism against 256³ (default options, auto level)\n");
-    println!("| volume | TF | level | forward (s) | fwd+bwd (s) | PSNR vs 256³ reference (dB) |");
-    println!("|---|---|---|---|---|---|");
+    println!("| volume | TF | level | forward (s) | fwd+bwd (s) | fwd+bwd CPU (s) | PSNR vs 256³ level-0 reference (dB) |");
+    println!("|---|---|---|---|---|---|---|");
     for (name, lut) in [("sparse", &sparse), ("dense", &dense)] {
         let reference = scene.run(&v256, lut, &reference_opts())?;
         let opts = RenderOptions::default();
-        let mut both256 = 0.0;
+        let mut cpus = Vec::new();
         for (vname, v) in [("256³", &v256), ("512³", &v512)] {
-            let (run, fwd, both) = scene.timed(v, lut, &opts, reps)?;
-            if vname == "256³" {
-                both256 = both;
-            }
+            let (run, fwd, both, cpu) = scene.timed(v, lut, &opts, reps)?;
+            cpus.push(cpu);
             println!(
-                "| {vname} | {name} | {} | {fwd:.3} | {both:.3} | {:.1} |",
+                "| {vname} | {name} | {} | {fwd:.3} | {both:.3} | {cpu:.3} | {:.1} |",
                 levels(&run),
                 run.psnr(&reference)
             );
         }
-        let (_, _, both512) = scene.timed(&v512, lut, &opts, reps)?;
         println!(
-            "| 512³ / 256³ fwd+bwd | {name} | | | {:.2}× | |",
-            both512 / both256
+            "| 512³ / 256³ CPU | {name} | | | | {:.2}× | |",
+            cpus[1] / cpus[0]
         );
     }
     Ok(())
@@ -316,16 +313,18 @@ impl Scene {
         Ok(grad)
     }
 
-    /// (last run, median forward seconds, median forward+backward seconds).
+    /// (last run, median forward seconds, median forward+backward seconds, mean CPU seconds of
+    /// forward+backward summed over threads).
     fn timed(
         &self,
         v: &Volume,
         lut: &Lut,
         opts: &RenderOptions,
         reps: usize,
-    ) -> anyhow::Result<(Run, f64, f64)> {
+    ) -> anyhow::Result<(Run, f64, f64, f64)> {
         let (mut fwd, mut both) = (Vec::new(), Vec::new());
         let mut last = None;
+        let cpu0 = cpu_seconds();
         for _ in 0..reps {
             let t0 = Instant::now();
             let rendered = self.forward(v, lut, opts)?;
@@ -336,12 +335,26 @@ impl Scene {
             both.push((t2 - t0).as_secs_f64());
             last = Some(Run { rendered, grad });
         }
+        let cpu = (cpu_seconds() - cpu0) / reps as f64;
         let median = |mut x: Vec<f64>| {
             x.sort_by(f64::total_cmp);
             x[x.len() / 2]
         };
-        Ok((last.expect("reps ≥ 1"), median(fwd), median(both)))
+        Ok((last.expect("reps ≥ 1"), median(fwd), median(both), cpu))
     }
+}
+
+/// CPU time (user + system, all threads) of this process so far, from /proc (Linux).
+/// Wall times on a shared machine mostly measure the other processes; CPU time divided by
+/// the thread count estimates the wall time on an idle machine.
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the parenthesized command name; utime and stime are fields 14 and 15.
+    let rest = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    // USER_HZ is 100 on Linux.
+    (tick(11) + tick(12)) / 100.0
 }
 
 /// Trilinear upsampling of an `n`³ uint8 volume to `m`³ points over the same box.
