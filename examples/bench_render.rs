@@ -1,7 +1,7 @@
 //! Renderer speed against error (issue 4). Not a timed test: prints a Markdown table.
 //!
 //! ```text
-//! cargo run --release --example bench_render [-- --out DIR] [--quick]
+//! cargo run --release --example bench_render [-- --out DIR] [--quick] [--speed]
 //! ```
 //!
 //! Volume: `../shared/data/volumes/aneurism_256x256x256_uint8.raw`, and a 512³ trilinear
@@ -88,6 +88,17 @@ fn main() -> anyhow::Result<()> {
     let sparse = vessel_tf(0.0);
     let dense = vessel_tf(0.5);
 
+    if args.iter().any(|a| a == "--speed") {
+        // Just the default options, for quick before/after comparisons.
+        for (name, lut) in [("sparse", &sparse), ("dense", &dense)] {
+            let (run, fwd, both, cpu) = scene.timed(&v256, lut, &RenderOptions::default(), reps)?;
+            println!(
+                "{name}: forward {fwd:.3} s, fwd+bwd {both:.3} s, CPU {cpu:.3} s, {:.2}M samples",
+                run.samples() as f64 / 1e6
+            );
+        }
+        return Ok(());
+    }
     println!("# Renderer benchmark\n");
     println!(
         "rayon threads: {}; {VIEWS} views at {SIZE}²; times are the median of {reps} runs\n",

@@ -5,8 +5,9 @@
 
 use glam::DVec3;
 
+use super::skip::Blocks;
 use crate::tf::Lut;
-use crate::volume::{Level, BRICK_CELLS};
+use crate::volume::Level;
 
 /// A level's samples with the index arithmetic precomputed.
 pub(crate) struct Grid<'a> {
@@ -19,15 +20,12 @@ pub(crate) struct Grid<'a> {
     step: [usize; 3],
     /// Row and slice strides.
     stride: [usize; 2],
-    brick_counts: [usize; 3],
-    /// Per brick: may every sample in it be skipped?
-    empty: &'a [bool],
-    /// Per brick: is every sample in it the same value?
-    uniform: &'a [bool],
+    /// [super-blocks, bricks]: checked coarse to fine before sampling.
+    blocks: &'a [Blocks; 2],
 }
 
 impl<'a> Grid<'a> {
-    pub(crate) fn new(level: &'a Level, empty: &'a [bool]) -> Grid<'a> {
+    pub(crate) fn new(level: &'a Level, blocks: &'a [Blocks; 2]) -> Grid<'a> {
         let d = level.dims;
         let stride = [d[0], d[0] * d[1]];
         Grid {
@@ -40,9 +38,7 @@ impl<'a> Grid<'a> {
                 if d[2] > 1 { stride[1] } else { 0 },
             ],
             stride,
-            brick_counts: level.bricks.counts,
-            empty,
-            uniform: &level.bricks.uniform,
+            blocks,
         }
     }
 }
@@ -147,20 +143,18 @@ pub(crate) struct MarchParams<'a> {
     pub inv_l: f32,
     /// Stop once T falls below this (0 = never).
     pub stop_below: f32,
-    pub skip: bool,
 }
 
-/// Index (fractional, before rounding up) of the first sample past brick `bc` along `ray`.
+/// Index (fractional, before rounding up) of the first sample past block `bc` (of `cells`
+/// cells per side) along `ray`.
 #[inline(always)]
-fn next_sample_after_brick(g: &Grid, ray: &Ray, bc: [usize; 3]) -> f32 {
+fn next_sample_after_block(g: &Grid, ray: &Ray, bc: [usize; 3], cells: usize) -> f32 {
     let mut exit = f32::INFINITY;
     for (ax, &b) in bc.iter().enumerate() {
-        let lo = (b * BRICK_CELLS) as f32;
-        let hi = ((b + 1) * BRICK_CELLS).min(g.max_cell[ax] + 1) as f32;
         let bnd = if ray.b[ax] > 0.0 {
-            hi
+            ((b + 1) * cells).min(g.max_cell[ax] + 1) as f32
         } else if ray.b[ax] < 0.0 {
-            lo
+            (b * cells) as f32
         } else {
             continue;
         };
@@ -193,41 +187,52 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
         let pos: [f32; 3] =
             std::array::from_fn(|ax| (ray.a[ax] + s * ray.b[ax]).clamp(0.0, g.max_coord[ax]));
         let cell: [usize; 3] = std::array::from_fn(|ax| (pos[ax] as usize).min(g.max_cell[ax]));
-        let bc = cell.map(|c| c / BRICK_CELLS);
-        let brick = bc[0] + g.brick_counts[0] * (bc[1] + g.brick_counts[1] * bc[2]);
-        if p.skip && g.empty[brick] {
-            // Jump to the first sample past this brick's box (sample positions do not move,
-            // so skipping only drops samples that are empty anyway).
-            let next = next_sample_after_brick(g, ray, bc);
-            n = if next > n as f32 {
-                (next.min(ray.segments as f32)) as u32
-            } else {
-                n + 1
-            };
+        let lerp = |a: f32, b: f32, w: f32| a + w * (b - a);
+        // Coarse to fine: an empty block is jumped over (sample positions do not move, so this
+        // only drops samples that are empty anyway); a uniform block is crossed in one step
+        // (every trilinear sample in it is its value, exactly: a + w·0).
+        let mut found = None;
+        let mut jumped = false;
+        for b in g.blocks {
+            let bc = cell.map(|c| c / b.cells);
+            let i = bc[0] + b.counts[0] * (bc[1] + b.counts[1] * bc[2]);
+            if b.empty[i] {
+                let next = next_sample_after_block(g, ray, bc, b.cells);
+                n = if next > n as f32 {
+                    next.min(ray.segments as f32) as u32
+                } else {
+                    n + 1
+                };
+                jumped = true;
+                break;
+            }
+            if !b.value[i].is_nan() {
+                // Samples n..n+run all lie in this block (the last, shorter segment is always
+                // taken on its own).
+                let next = next_sample_after_block(g, ray, bc, b.cells).min(last as f32);
+                let run = if n + 1 < last && next > (n + 1) as f32 {
+                    next as u32 - n
+                } else {
+                    1
+                };
+                found = Some((run, b.value[i]));
+                break;
+            }
+        }
+        if jumped {
             continue;
         }
-        // Samples n..n+run all lie in this brick; in a uniform brick they are identical (the
-        // last, shorter segment is always taken on its own).
-        let run = if g.uniform[brick] && n + 1 < last {
-            let next = next_sample_after_brick(g, ray, bc).min(last as f32);
-            if next > (n + 1) as f32 {
-                next as u32 - n
-            } else {
-                1
-            }
-        } else {
-            1
-        };
-        let f: [f32; 3] = std::array::from_fn(|ax| pos[ax] - cell[ax] as f32);
-        let base = cell[0] + g.stride[0] * cell[1] + g.stride[1] * cell[2];
-        let (sx, sy, sz) = (g.step[0], g.step[1], g.step[2]);
-        let d = g.data;
-        let lerp = |a: f32, b: f32, w: f32| a + w * (b - a);
-        let c00 = lerp(d[base], d[base + sx], f[0]);
-        let c10 = lerp(d[base + sy], d[base + sy + sx], f[0]);
-        let c01 = lerp(d[base + sz], d[base + sz + sx], f[0]);
-        let c11 = lerp(d[base + sz + sy], d[base + sz + sy + sx], f[0]);
-        let v = lerp(lerp(c00, c10, f[1]), lerp(c01, c11, f[1]), f[2]);
+        let (run, v) = found.unwrap_or_else(|| {
+            let f: [f32; 3] = std::array::from_fn(|ax| pos[ax] - cell[ax] as f32);
+            let base = cell[0] + g.stride[0] * cell[1] + g.stride[1] * cell[2];
+            let (sx, sy, sz) = (g.step[0], g.step[1], g.step[2]);
+            let d = g.data;
+            let c00 = lerp(d[base], d[base + sx], f[0]);
+            let c10 = lerp(d[base + sy], d[base + sy + sx], f[0]);
+            let c01 = lerp(d[base + sz], d[base + sz + sx], f[0]);
+            let c11 = lerp(d[base + sz + sy], d[base + sz + sy + sx], f[0]);
+            (1, lerp(lerp(c00, c10, f[1]), lerp(c01, c11, f[1]), f[2]))
+        });
         samples += 1;
         // Any NaN corner makes the sample NaN (0 · NaN is NaN): empty space.
         if v.is_nan() {
@@ -320,21 +325,14 @@ mod tests {
                 })
                 .collect(),
         };
-        let empty = vec![false; level.bricks.min.len()];
-        let none = vec![false; level.bricks.min.len()];
+        let with = super::super::skip::blocks(level, &lut, false, 0.0, true);
+        let without = super::super::skip::blocks(level, &lut, false, 0.0, false);
         for stop in [0.0, 0.05] {
-            let params = |uniform: bool| {
-                let mut grid = Grid::new(level, &empty);
-                if !uniform {
-                    grid.uniform = &none;
-                }
-                MarchParams {
-                    grid,
-                    lut: &lut,
-                    inv_l: 1.0 / 32.0,
-                    stop_below: stop,
-                    skip: false,
-                }
+            let params = |uniform: bool| MarchParams {
+                grid: Grid::new(level, if uniform { &with } else { &without }),
+                lut: &lut,
+                inv_l: 1.0 / 32.0,
+                stop_below: stop,
             };
             let (fast, slow) = (params(true), params(false));
             let mut saved = 0;

@@ -46,12 +46,13 @@ use crate::tf::{Lut, LutGrad};
 use crate::volume::Volume;
 
 use march::{march, Grid, MarchParams, Ray};
+use skip::Blocks;
 
 /// Tile side in pixels (parallel work unit and gradient reduction unit).
 const TILE: usize = 16;
 
 /// Default step in voxels of the rendered level (see BENCHMARKS.md, "Renderer").
-pub const DEFAULT_STEP: f32 = 0.5;
+pub const DEFAULT_STEP: f32 = 1.0;
 /// Default early-termination threshold: a ray stops when T < 1e-3, so what it leaves out is at
 /// most T·|c − B| ≤ 1e-3 per channel, a quarter of an 8-bit level (≥ 60 dB PSNR).
 pub const DEFAULT_EARLY_TERMINATION: f32 = 1e-3;
@@ -226,16 +227,15 @@ fn validate(lut: &Lut, opts: &RenderOptions) -> Result<(), RenderError> {
     Ok(())
 }
 
-/// Set up a view; `empty` receives the brick table it borrows.
-fn view<'a>(
-    volume: &'a Volume,
-    lut: &'a Lut,
+/// Validate, choose the level and build its block tables.
+fn prepare(
+    volume: &Volume,
+    lut: &Lut,
     camera: &Camera,
     width: usize,
     height: usize,
     opts: &RenderOptions,
-    empty: &'a mut Vec<bool>,
-) -> Result<View<'a>, RenderError> {
+) -> Result<(usize, [Blocks; 2]), RenderError> {
     validate(lut, opts)?;
     if width == 0 || height == 0 {
         return Err(RenderError::EmptyImage {
@@ -243,7 +243,7 @@ fn view<'a>(
             got_h: height,
         });
     }
-    let level_index = match opts.level {
+    let level = match opts.level {
         Some(l) if l >= volume.levels.len() => {
             return Err(RenderError::Level {
                 level: l,
@@ -253,21 +253,33 @@ fn view<'a>(
         Some(l) => l,
         None => choose_level(volume, camera, height),
     };
-    let level = &volume.levels[level_index];
-    *empty = if opts.skip_empty {
-        skip::empty_bricks(level, lut, opts.empty_sigma)
-    } else {
-        vec![false; level.bricks.min.len()]
-    };
-    let empty: &'a [bool] = empty;
+    let blocks = skip::blocks(
+        &volume.levels[level],
+        lut,
+        opts.skip_empty,
+        opts.empty_sigma,
+        true,
+    );
+    Ok((level, blocks))
+}
+
+/// Set up a view on `level` with its `blocks` (from [`prepare`]).
+fn view<'a>(
+    volume: &'a Volume,
+    lut: &'a Lut,
+    camera: &Camera,
+    (width, height): (usize, usize),
+    opts: &RenderOptions,
+    (level_index, blocks): &'a (usize, [Blocks; 2]),
+) -> View<'a> {
+    let level = &volume.levels[*level_index];
     let voxel = level.spacing.iter().copied().fold(f64::INFINITY, f64::min);
-    Ok(View {
+    View {
         params: MarchParams {
-            grid: Grid::new(level, empty),
+            grid: Grid::new(level, blocks),
             lut,
             inv_l: (1.0 / volume.geometry.longest_side()) as f32,
             stop_below: opts.early_termination,
-            skip: opts.skip_empty,
         },
         eye: camera.position,
         rays: camera.rays(width, height),
@@ -278,8 +290,8 @@ fn view<'a>(
         jitter_seed: opts.jitter_seed,
         width,
         height,
-        level: level_index,
-    })
+        level: *level_index,
+    }
 }
 
 /// Render `volume` with `lut` from `camera` over `background` (whose size is the image size).
@@ -290,16 +302,9 @@ pub fn forward(
     background: &Image,
     opts: &RenderOptions,
 ) -> Result<Rendered, RenderError> {
-    let mut empty = Vec::new();
-    let v = view(
-        volume,
-        lut,
-        camera,
-        background.width,
-        background.height,
-        opts,
-        &mut empty,
-    )?;
+    let size = (background.width, background.height);
+    let prepared = prepare(volume, lut, camera, size.0, size.1, opts)?;
+    let v = view(volume, lut, camera, size, opts, &prepared);
     let tiles = v.tiles();
     // Per tile: (pixel, rgb, T) triples and the sample count.
     type TileOut = (Vec<(usize, [f32; 3], f32)>, u64);
@@ -426,8 +431,8 @@ fn backward_impl(
     if !(d_transmittance.is_empty() || d_transmittance.len() == w * h) {
         return Err(size_err("d_transmittance", d_transmittance.len(), w * h));
     }
-    let mut empty = Vec::new();
-    let v = view(volume, lut, camera, w, h, opts, &mut empty)?;
+    let prepared = prepare(volume, lut, camera, w, h, opts)?;
+    let v = view(volume, lut, camera, (w, h), opts, &prepared);
     let n = lut.entries.len();
     let tiles = v.tiles();
     let grads: Vec<Vec<[f64; 4]>> = tiles
