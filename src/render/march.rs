@@ -194,7 +194,7 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
         let mut found = None;
         let mut jumped = false;
         for b in g.blocks {
-            let bc = cell.map(|c| c / b.cells);
+            let bc = cell.map(|c| c >> b.shift);
             let i = bc[0] + b.counts[0] * (bc[1] + b.counts[1] * bc[2]);
             if b.empty[i] {
                 let next = next_sample_after_block(g, ray, bc, b.cells);

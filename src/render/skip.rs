@@ -16,11 +16,14 @@ use crate::volume::{Level, BRICK_CELLS};
 
 /// Bricks per super-block side.
 const SUPER: usize = 4;
+const _: () = assert!(BRICK_CELLS.is_power_of_two() && SUPER.is_power_of_two());
 
 /// Per-block flags of one block size over a level.
 pub(crate) struct Blocks {
     /// Cells per block side.
     pub cells: usize,
+    /// log2(cells): block coordinates are shifts, not divisions, in the march's inner loop.
+    pub shift: u32,
     /// Blocks per axis.
     pub counts: [usize; 3],
     /// The TF has σ ≤ threshold on every sample of the block (or every point is NaN).
@@ -41,6 +44,7 @@ pub(crate) fn blocks(
     let b = &level.bricks;
     let bricks = Blocks {
         cells: BRICK_CELLS,
+        shift: BRICK_CELLS.trailing_zeros(),
         counts: b.counts,
         empty: if skip {
             empty_bricks(level, lut, threshold)
@@ -85,6 +89,7 @@ pub(crate) fn blocks(
     }
     let supers = Blocks {
         cells: BRICK_CELLS * SUPER,
+        shift: (BRICK_CELLS * SUPER).trailing_zeros(),
         counts,
         empty,
         value,
