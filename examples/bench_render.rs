@@ -150,9 +150,9 @@ fn main() -> anyhow::Result<()> {
         println!();
         println!("## 256³ aneurism, {name} TF: what skipping and early termination buy (default step, auto level)\n");
         println!(
-            "| skipping | early termination | forward (s) | fwd+bwd (s) | samples | PSNR (dB) |"
+            "| skipping | early termination | forward (s) | fwd+bwd (s) | fwd+bwd CPU (s) | samples | PSNR (dB) |"
         );
-        println!("|---|---|---|---|---|---|");
+        println!("|---|---|---|---|---|---|---|");
         for (skip, stop) in [(true, 1e-3), (false, 1e-3), (true, 0.0), (false, 0.0)] {
             let opts = RenderOptions {
                 skip_empty: skip,

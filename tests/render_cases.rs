@@ -423,3 +423,27 @@ fn bad_inputs_are_clear_errors() {
     .to_string();
     assert!(e.contains("d_image has 5 values; 48 expected"), "{e}");
 }
+
+#[test]
+fn orbit_sheet_tiles_the_ring_views() {
+    let v = blob([12, 12, 12]);
+    let cams = Camera::ring(&v.geometry, 5, 0.2, 2.5, UpAxis::Z).unwrap();
+    let bg = background::from_name("gray:0.5", 10, 8, 0).unwrap();
+    let lut = random_lut(8, 5.0, 40.0, 2);
+    let opts = RenderOptions::default();
+    let sheet = render::orbit_sheet(&v, &lut, &cams, &bg, &opts).unwrap();
+    // 5 views: 3 columns, 2 rows; the sixth cell is background.
+    assert_eq!((sheet.width, sheet.height), (30, 16));
+    for (i, cam) in cams.iter().enumerate() {
+        let one = render::forward(&v, &lut, cam, &bg, &opts).unwrap().image;
+        let (cx, cy) = (i % 3, i / 3);
+        for y in 0..8 {
+            for x in 0..10 {
+                assert_eq!(sheet.pixel(cx * 10 + x, cy * 8 + y), one.pixel(x, y));
+            }
+        }
+    }
+    assert_eq!(sheet.pixel(25, 12), [0.5; 3]);
+    // The ring's views differ (yaw 0, 72°, ...).
+    assert_ne!(sheet.pixel(5, 4), sheet.pixel(15, 4));
+}
