@@ -206,16 +206,35 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
                 jumped = true;
                 break;
             }
-            if !b.value[i].is_nan() {
-                // Samples n..n+run all lie in this block (the last, shorter segment is always
-                // taken on its own).
-                let next = next_sample_after_block(g, ray, bc, b.cells).min(last as f32);
+            let value = b.value[i];
+            if !value.is_nan() {
+                // Samples n..n+run all lie in this block or in the blocks right behind it that
+                // hold the same value (the last, shorter segment is always taken on its own).
+                let mut next = next_sample_after_block(g, ray, bc, b.cells);
+                while next > n as f32 && next < last as f32 {
+                    let m = next as u32;
+                    let s = (m as f32 + ray.jitter) * ray.delta;
+                    let cell: [usize; 3] = std::array::from_fn(|ax| {
+                        let p = (ray.a[ax] + s * ray.b[ax]).clamp(0.0, g.max_coord[ax]);
+                        (p as usize).min(g.max_cell[ax])
+                    });
+                    let same = g.blocks.iter().find_map(|b| {
+                        let bc = cell.map(|c| c >> b.shift);
+                        let i = bc[0] + b.counts[0] * (bc[1] + b.counts[1] * bc[2]);
+                        (b.value[i] == value).then(|| next_sample_after_block(g, ray, bc, b.cells))
+                    });
+                    match same {
+                        Some(after) if after > next => next = after,
+                        _ => break,
+                    }
+                }
+                let next = next.min(last as f32);
                 let run = if n + 1 < last && next > (n + 1) as f32 {
                     next as u32 - n
                 } else {
                     1
                 };
-                found = Some((run, b.value[i]));
+                found = Some((run, value));
                 break;
             }
         }
