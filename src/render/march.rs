@@ -49,6 +49,8 @@ impl<'a> Grid<'a> {
 pub(crate) struct Ray {
     a: [f32; 3],
     b: [f32; 3],
+    /// 1 / (b · δ) per axis (0 where b is 0): block exits in sample units without divisions.
+    inv_b_delta: [f32; 3],
     /// Number of segments; segment n is [n δ, min((n + 1) δ, length)].
     segments: u32,
     delta: f32,
@@ -99,6 +101,14 @@ impl Ray {
         Some(Ray {
             a: entry.as_vec3().to_array(),
             b: b.as_vec3().to_array(),
+            inv_b_delta: std::array::from_fn(|ax| {
+                let bd = b[ax] * delta;
+                if bd.abs() < 1e-300 {
+                    0.0
+                } else {
+                    (1.0 / bd) as f32
+                }
+            }),
             segments,
             delta: delta as f32,
             delta_last: (length - (segments - 1) as f64 * delta) as f32,
@@ -145,8 +155,8 @@ pub(crate) struct MarchParams<'a> {
     pub stop_below: f32,
 }
 
-/// Index (fractional, before rounding up) of the first sample past block `bc` (of `cells`
-/// cells per side) along `ray`.
+/// Index of the first sample past block `bc` (of `cells` cells per side) along `ray`, as a
+/// whole number in f32 (infinite when the ray never leaves it, which cannot happen in a box).
 #[inline(always)]
 fn next_sample_after_block(g: &Grid, ray: &Ray, bc: [usize; 3], cells: usize) -> f32 {
     let mut exit = f32::INFINITY;
@@ -158,9 +168,9 @@ fn next_sample_after_block(g: &Grid, ray: &Ray, bc: [usize; 3], cells: usize) ->
         } else {
             continue;
         };
-        exit = exit.min((bnd - ray.a[ax]) / ray.b[ax]);
+        exit = exit.min((bnd - ray.a[ax]) * ray.inv_b_delta[ax]);
     }
-    (exit / ray.delta - ray.jitter).ceil()
+    (exit - ray.jitter).ceil()
 }
 
 /// March `ray` front to back, calling `visit` after each non-empty sample.
