@@ -4,7 +4,8 @@
 //! away from the plane perpendicular to it, and distance as a multiple of the box's bounding
 //! radius. The default up axis is **z**: medical scans (the main use) are stored as stacks of
 //! axial slices, so z runs head to feet and an orbit around z shows the patient upright; for
-//! simulation fields any axis is as good. `--up x|y` is there for volumes stored otherwise.
+//! simulation fields any axis is as good. `--up x|y|-x|-y|-z` is there for volumes stored
+//! otherwise (`-z` when the slices run from the top of the head down).
 //!
 //! The same camera is ParaView's CameraPosition / FocalPoint / ViewUp / ViewAngle
 //! ([`Camera::paraview`]); ParaView's view angle is vertical, as ours.
@@ -27,7 +28,7 @@ pub const DISTANCE_RANGE: [f64; 2] = [2.0, 4.0];
 
 #[derive(Debug, thiserror::Error)]
 pub enum CameraError {
-    #[error("unknown up axis `{0}`: expected x, y or z")]
+    #[error("unknown up axis `{0}`: expected x, y, z, -x, -y or -z")]
     UpAxis(String),
     #[error("camera {what} {value} is not allowed: {why}")]
     Param {
@@ -37,13 +38,18 @@ pub enum CameraError {
     },
 }
 
-/// World axis that points up on screen; the orbit turns around it.
+/// World axis that points up on screen; the orbit turns around it. The negative axes are for
+/// data stored upside down (e.g. a CT stacked from the top of the head down, like the shared
+/// `cthead`, shows the head upright with `-z`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum UpAxis {
     X,
     Y,
     #[default]
     Z,
+    NegX,
+    NegY,
+    NegZ,
 }
 
 impl UpAxis {
@@ -53,6 +59,9 @@ impl UpAxis {
             UpAxis::X => (DVec3::X, DVec3::Y, DVec3::Z),
             UpAxis::Y => (DVec3::Y, DVec3::Z, DVec3::X),
             UpAxis::Z => (DVec3::Z, DVec3::X, DVec3::Y),
+            UpAxis::NegX => (DVec3::NEG_X, DVec3::Z, DVec3::Y),
+            UpAxis::NegY => (DVec3::NEG_Y, DVec3::X, DVec3::Z),
+            UpAxis::NegZ => (DVec3::NEG_Z, DVec3::Y, DVec3::X),
         }
     }
 }
@@ -61,9 +70,12 @@ impl FromStr for UpAxis {
     type Err = CameraError;
     fn from_str(s: &str) -> Result<Self, CameraError> {
         match s.trim().to_ascii_lowercase().as_str() {
-            "x" => Ok(UpAxis::X),
-            "y" => Ok(UpAxis::Y),
-            "z" => Ok(UpAxis::Z),
+            "x" | "+x" => Ok(UpAxis::X),
+            "y" | "+y" => Ok(UpAxis::Y),
+            "z" | "+z" => Ok(UpAxis::Z),
+            "-x" => Ok(UpAxis::NegX),
+            "-y" => Ok(UpAxis::NegY),
+            "-z" => Ok(UpAxis::NegZ),
             _ => Err(CameraError::UpAxis(s.to_string())),
         }
     }
@@ -75,6 +87,9 @@ impl fmt::Display for UpAxis {
             UpAxis::X => "x",
             UpAxis::Y => "y",
             UpAxis::Z => "z",
+            UpAxis::NegX => "-x",
+            UpAxis::NegY => "-y",
+            UpAxis::NegZ => "-z",
         })
     }
 }
@@ -287,7 +302,14 @@ mod tests {
 
     #[test]
     fn up_axes_frame_is_right_handed_and_view_up_orthogonal() {
-        for up in [UpAxis::X, UpAxis::Y, UpAxis::Z] {
+        for up in [
+            UpAxis::X,
+            UpAxis::Y,
+            UpAxis::Z,
+            UpAxis::NegX,
+            UpAxis::NegY,
+            UpAxis::NegZ,
+        ] {
             let (u, e1, e2) = up.frame();
             assert!((e1.cross(e2) - u).length() < 1e-15);
             let cam = Camera::orbit(
@@ -305,6 +327,11 @@ mod tests {
             assert!(cam.view_up.dot(u) > 0.9);
         }
         assert_eq!("Y".parse::<UpAxis>().unwrap(), UpAxis::Y);
+        assert_eq!("-z".parse::<UpAxis>().unwrap(), UpAxis::NegZ);
+        assert_eq!(
+            UpAxis::NegZ.to_string().parse::<UpAxis>().unwrap(),
+            UpAxis::NegZ
+        );
         assert!("w".parse::<UpAxis>().is_err());
     }
 

@@ -237,6 +237,28 @@ fn orientation_up_is_up_and_right_is_right() {
     let top: f32 = r.transmittance[..32 * 16].iter().map(|t| 1.0 - t).sum();
     let bottom: f32 = r.transmittance[32 * 16..].iter().map(|t| 1.0 - t).sum();
     assert!(top > 10.0 * bottom.max(1e-3), "top {top} bottom {bottom}");
+    // Up = -z: the block (high z) is now at the bottom.
+    let cam_neg = Camera::orbit(
+        &v.geometry,
+        t2tf::camera::Orbit {
+            yaw: 0.3,
+            pitch: 0.0,
+            distance: 2.0,
+            up: UpAxis::NegZ,
+        },
+    )
+    .unwrap();
+    let r = render::forward(
+        &v,
+        &lut,
+        &cam_neg,
+        &Image::new(32, 32),
+        &RenderOptions::default(),
+    )
+    .unwrap();
+    let top: f32 = r.transmittance[..32 * 16].iter().map(|t| 1.0 - t).sum();
+    let bottom: f32 = r.transmittance[32 * 16..].iter().map(|t| 1.0 - t).sum();
+    assert!(bottom > 10.0 * top.max(1e-3), "top {top} bottom {bottom}");
 }
 
 #[test]
