@@ -178,6 +178,88 @@ fn main() -> anyhow::Result<()> {
         println!();
     }
 
+    // Every shared volume at the defaults, dense TF (the optimizer's case): where no brick is
+    // uniform (noisy backgrounds, e.g. CT air), every sample is taken.
+    println!("## Every shared volume, dense TF, default options\n");
+    println!("| volume | level | forward (s) | fwd+bwd (s) | fwd+bwd CPU (s) | samples |");
+    println!("|---|---|---|---|---|---|");
+    for (file, dims, spacing, scalar) in [
+        (
+            "aneurism_256x256x256_uint8.raw",
+            [256, 256, 256],
+            [1.0, 1.0, 1.0],
+            ScalarType::U8,
+        ),
+        (
+            "cthead_256x256x99_uint8.raw",
+            [256, 256, 99],
+            [1.0, 1.0, 2.0],
+            ScalarType::U8,
+        ),
+        (
+            "headsq_64x64x93_uint16.raw",
+            [64, 64, 93],
+            [3.2, 3.2, 1.5],
+            ScalarType::U16,
+        ),
+        (
+            "walnut_128x96x114_uint16.raw",
+            [128, 96, 114],
+            [1.0, 1.0, 1.0],
+            ScalarType::U16,
+        ),
+        (
+            "hydrogen_atom_128x128x128_uint8.raw",
+            [128, 128, 128],
+            [1.0, 1.0, 1.0],
+            ScalarType::U8,
+        ),
+        (
+            "neghip_64x64x64_uint8.raw",
+            [64, 64, 64],
+            [1.0, 1.0, 1.0],
+            ScalarType::U8,
+        ),
+        (
+            "nucleon_41x41x41_uint8.raw",
+            [41, 41, 41],
+            [1.0, 1.0, 1.0],
+            ScalarType::U8,
+        ),
+    ] {
+        let p = root.join(file);
+        let g = Geometry {
+            dims,
+            spacing,
+            origin: [0.0; 3],
+        };
+        let v = Volume::from_buffer(
+            &p,
+            g,
+            &TypedBuffer::new(scalar, ByteOrder::Little, std::fs::read(&p)?),
+        )?;
+        let mut rng = ChaCha8Rng::seed_from_u64(2024);
+        let views = Scene {
+            cameras: (0..VIEWS)
+                .map(|_| Camera::random(&v.geometry, UpAxis::Z, &mut rng))
+                .collect(),
+            ..scene.clone()
+        };
+        let (run, fwd, both, cpu) = views.timed(&v, &dense, &RenderOptions::default(), reps)?;
+        println!(
+            "| {file} | {} | {fwd:.3} | {both:.3} | {cpu:.3} | {:.2}M |",
+            levels(&run),
+            run.samples() as f64 / 1e6
+        );
+        if let Some(dir) = &out {
+            let name = file.split('_').next().unwrap_or(file);
+            run.rendered[0]
+                .image
+                .save_png(&dir.join(format!("{name}_dense_0.png")))?;
+        }
+    }
+    println!();
+
     // 512³: trilinear upsampling of the same data over the same box.
     let t0 = Instant::now();
     let v512 = upsample_u8(&bytes, 256, 512, &path)?;
@@ -244,6 +326,7 @@ fn levels(run: &Run) -> String {
         .join("/")
 }
 
+#[derive(Clone)]
 struct Scene {
     cameras: Vec<Camera>,
     backgrounds: Vec<Image>,

@@ -431,7 +431,9 @@ fn bad_inputs_are_clear_errors() {
     let mut neg = lut.clone();
     neg.entries[2][0] = -1.0;
     assert!(err(RenderOptions::default(), &neg).contains("entry 2"));
-    assert!(err(RenderOptions::default(), &flat_lut(1, 1.0, [0.0; 3])).contains("2 are needed"));
+    assert!(
+        err(RenderOptions::default(), &flat_lut(1, 1.0, [0.0; 3])).contains("2 to 2^24 are needed")
+    );
     let e = render::backward(
         &v,
         &lut,

@@ -5,6 +5,7 @@
 
 use glam::DVec3;
 
+use super::fastmath::{ceil, exp_neg};
 use super::skip::Blocks;
 use crate::tf::Lut;
 use crate::volume::Level;
@@ -59,32 +60,54 @@ pub(crate) struct Ray {
     jitter: f32,
 }
 
-impl Ray {
-    /// Clip the world ray `eye + t dir` (t ≥ 0) to the box of a level with `dims` points at
-    /// `spacing` from `origin`, and cut it into segments of world length `delta`.
-    /// `None` when the ray misses the box or only touches it.
-    pub(crate) fn clip(
+/// One view's box in a level's index space, with what every ray's clipping shares.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct BoxFrame {
+    /// The eye in index coordinates.
+    eye: DVec3,
+    inv_spacing: DVec3,
+    /// dims − 1 per axis: the box is [0, hi].
+    hi: DVec3,
+    delta: f64,
+    inv_delta: f64,
+}
+
+impl BoxFrame {
+    /// The box of a level with `dims` points at `spacing` from `origin`, seen from `eye`, cut
+    /// into segments of world length `delta`.
+    pub(crate) fn new(
         eye: DVec3,
-        dir: DVec3,
         origin: DVec3,
         spacing: DVec3,
         dims: [usize; 3],
         delta: f64,
-        jitter: f32,
-    ) -> Option<Ray> {
-        let a = (eye - origin) / spacing;
-        let b = dir / spacing;
+    ) -> BoxFrame {
+        let inv_spacing = spacing.recip();
+        BoxFrame {
+            eye: (eye - origin) * inv_spacing,
+            inv_spacing,
+            hi: DVec3::from_array(dims.map(|d| (d - 1) as f64)),
+            delta,
+            inv_delta: 1.0 / delta,
+        }
+    }
+
+    /// Clip the ray `eye + t dir` (t ≥ 0, `dir` a unit world vector) to the box. `None` when
+    /// it misses the box or only touches it.
+    #[inline]
+    pub(crate) fn clip(&self, dir: DVec3, jitter: f32) -> Option<Ray> {
+        let (a, b) = (self.eye, dir * self.inv_spacing);
+        let inv_b = b.recip();
         let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
         for ax in 0..3 {
-            let hi = (dims[ax] - 1) as f64;
             if b[ax].abs() < 1e-300 {
                 // Parallel to this slab: inside it or never.
-                if a[ax] < 0.0 || a[ax] > hi {
+                if a[ax] < 0.0 || a[ax] > self.hi[ax] {
                     return None;
                 }
                 continue;
             }
-            let (ta, tb) = ((0.0 - a[ax]) / b[ax], (hi - a[ax]) / b[ax]);
+            let (ta, tb) = (-a[ax] * inv_b[ax], (self.hi[ax] - a[ax]) * inv_b[ax]);
             t0 = t0.max(ta.min(tb));
             t1 = t1.min(ta.max(tb));
         }
@@ -92,7 +115,7 @@ impl Ray {
         if length.is_nan() || length <= 0.0 {
             return None;
         }
-        let segments = (length / delta).ceil().max(1.0);
+        let segments = (length * self.inv_delta).ceil().max(1.0);
         if segments > u32::MAX as f64 {
             return None;
         }
@@ -102,16 +125,15 @@ impl Ray {
             a: entry.as_vec3().to_array(),
             b: b.as_vec3().to_array(),
             inv_b_delta: std::array::from_fn(|ax| {
-                let bd = b[ax] * delta;
-                if bd.abs() < 1e-300 {
+                if b[ax].abs() < 1e-300 {
                     0.0
                 } else {
-                    (1.0 / bd) as f32
+                    (inv_b[ax] * self.inv_delta) as f32
                 }
             }),
             segments,
-            delta: delta as f32,
-            delta_last: (length - (segments - 1) as f64 * delta) as f32,
+            delta: self.delta as f32,
+            delta_last: (length - (segments - 1) as f64 * self.delta) as f32,
             jitter,
         })
     }
@@ -170,7 +192,7 @@ fn next_sample_after_block(g: &Grid, ray: &Ray, bc: [usize; 3], cells: usize) ->
         };
         exit = exit.min((bnd - ray.a[ax]) * ray.inv_b_delta[ax]);
     }
-    (exit - ray.jitter).ceil()
+    ceil(exit - ray.jitter)
 }
 
 /// March `ray` front to back, calling `visit` after each non-empty sample.
@@ -196,7 +218,10 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
         };
         let pos: [f32; 3] =
             std::array::from_fn(|ax| (ray.a[ax] + s * ray.b[ax]).clamp(0.0, g.max_coord[ax]));
-        let cell: [usize; 3] = std::array::from_fn(|ax| (pos[ax] as usize).min(g.max_cell[ax]));
+        // Through i32: f32 → usize saturation costs about 12 instructions on x86-64, f32 → i32
+        // about 4 (measured with callgrind); positions are clamped to [0, dims − 1] already.
+        let cell: [usize; 3] =
+            std::array::from_fn(|ax| (pos[ax] as i32 as usize).min(g.max_cell[ax]));
         let lerp = |a: f32, b: f32, w: f32| a + w * (b - a);
         // Coarse to fine: an empty block is jumped over (sample positions do not move, so this
         // only drops samples that are empty anyway); a uniform block is crossed in one step
@@ -226,7 +251,7 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
                     let s = (m as f32 + ray.jitter) * ray.delta;
                     let cell: [usize; 3] = std::array::from_fn(|ax| {
                         let p = (ray.a[ax] + s * ray.b[ax]).clamp(0.0, g.max_coord[ax]);
-                        (p as usize).min(g.max_cell[ax])
+                        (p as i32 as usize).min(g.max_cell[ax])
                     });
                     let same = g.blocks.iter().find_map(|b| {
                         let bc = cell.map(|c| c >> b.shift);
@@ -269,20 +294,20 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
             continue;
         }
         let x = v.clamp(0.0, 1.0) * lut_max;
-        let j = (x as usize).min(lut_last_cell);
+        let j = (x as i32 as usize).min(lut_last_cell);
         let w = x - j as f32;
         let (e0, e1) = (lut[j], lut[j + 1]);
         let sigma = lerp(e0[0], e1[0], w);
         let delta_norm = dn * p.inv_l;
         let x = sigma * delta_norm;
         let mut count = run;
-        let mut t_after = t * (-(run as f32) * x).exp();
+        let mut t_after = t * exp_neg(run as f32 * x);
         if run > 1 && t_after < p.stop_below {
             // Stop where sample-by-sample compositing would have: the first m with
             // T·e^(−m x) < threshold.
             let m = ((t / p.stop_below).ln() / x).floor() + 1.0;
             count = (m.max(1.0) as u32).min(run);
-            t_after = t * (-(count as f32) * x).exp();
+            t_after = t * exp_neg(count as f32 * x);
         }
         n += count;
         let weight = t - t_after;
@@ -369,7 +394,8 @@ mod tests {
                 let a = k as f64 * 0.37;
                 let dir = DVec3::new(a.cos(), a.sin(), 0.3 * (1.3 * a).cos()).normalize();
                 let eye = DVec3::new(15.3, 13.7, 14.1) - 60.0 * dir;
-                let ray = Ray::clip(eye, dir, DVec3::ZERO, DVec3::ONE, dims, 0.5, 0.3).unwrap();
+                let frame = BoxFrame::new(eye, DVec3::ZERO, DVec3::ONE, dims, 0.5);
+                let ray = frame.clip(dir, 0.3).unwrap();
                 let (mut count_fast, mut count_slow) = (0.0, 0.0);
                 let m1 = march(&fast, &ray, |s| count_fast += s.count);
                 let m2 = march(&slow, &ray, |s| count_slow += s.count);

@@ -34,6 +34,7 @@
 //! Rays run in parallel over 16 × 16 tiles (rayon); LUT gradients are summed per tile and the
 //! tiles reduced in a fixed order, so the result does not depend on the thread count.
 
+mod fastmath;
 mod march;
 mod skip;
 
@@ -45,7 +46,7 @@ use crate::image::Image;
 use crate::tf::{Lut, LutGrad};
 use crate::volume::Volume;
 
-use march::{march, Grid, MarchParams, Ray};
+use march::{march, BoxFrame, Grid, MarchParams, Ray};
 use skip::Blocks;
 
 /// Tile side in pixels (parallel work unit and gradient reduction unit).
@@ -67,7 +68,7 @@ pub enum RenderError {
     EarlyTermination(f32),
     #[error("empty-space threshold {0} must be finite and at least 0")]
     EmptySigma(f32),
-    #[error("lookup table has {0} entries; at least 2 are needed")]
+    #[error("lookup table has {0} entries; 2 to 2^24 are needed")]
     LutSize(usize),
     #[error("lookup table entry {index} is {entry:?}: σ must be finite and ≥ 0, colours finite")]
     LutEntry { index: usize, entry: [f32; 4] },
@@ -151,12 +152,8 @@ pub fn choose_level(volume: &Volume, camera: &Camera, height: usize) -> usize {
 /// Everything one view's rays share, validated.
 struct View<'a> {
     params: MarchParams<'a>,
-    eye: DVec3,
     rays: crate::camera::RayFrame,
-    origin: DVec3,
-    spacing: DVec3,
-    dims: [usize; 3],
-    delta: f64,
+    frame: BoxFrame,
     jitter_seed: Option<u64>,
     width: usize,
     height: usize,
@@ -169,15 +166,7 @@ impl<'a> View<'a> {
             None => 0.5,
             Some(seed) => unit_hash(seed, (py * self.width + px) as u64),
         };
-        Ray::clip(
-            self.eye,
-            self.rays.dir(px, py),
-            self.origin,
-            self.spacing,
-            self.dims,
-            self.delta,
-            jitter,
-        )
+        self.frame.clip(self.rays.dir(px, py), jitter)
     }
 
     fn tiles(&self) -> Vec<(usize, usize)> {
@@ -216,7 +205,7 @@ fn validate(lut: &Lut, opts: &RenderOptions) -> Result<(), RenderError> {
     if !(opts.empty_sigma.is_finite() && opts.empty_sigma >= 0.0) {
         return Err(RenderError::EmptySigma(opts.empty_sigma));
     }
-    if lut.entries.len() < 2 {
+    if lut.entries.len() < 2 || lut.entries.len() > 1 << 24 {
         return Err(RenderError::LutSize(lut.entries.len()));
     }
     for (index, e) in lut.entries.iter().enumerate() {
@@ -281,12 +270,14 @@ fn view<'a>(
             inv_l: (1.0 / volume.geometry.longest_side()) as f32,
             stop_below: opts.early_termination,
         },
-        eye: camera.position,
         rays: camera.rays(width, height),
-        origin: DVec3::from_array(volume.geometry.origin),
-        spacing: DVec3::from_array(level.spacing),
-        dims: level.dims,
-        delta: opts.step as f64 * voxel,
+        frame: BoxFrame::new(
+            camera.position,
+            DVec3::from_array(volume.geometry.origin),
+            DVec3::from_array(level.spacing),
+            level.dims,
+            opts.step as f64 * voxel,
+        ),
         jitter_seed: opts.jitter_seed,
         width,
         height,
