@@ -5,7 +5,7 @@
 
 use glam::DVec3;
 
-use super::fastmath::{ceil, exp_neg};
+use super::fastmath::ceil;
 use super::skip::Blocks;
 use crate::tf::Lut;
 use crate::volume::Level;
@@ -301,13 +301,13 @@ pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F)
         let delta_norm = dn * p.inv_l;
         let x = sigma * delta_norm;
         let mut count = run;
-        let mut t_after = t * exp_neg(run as f32 * x);
+        let mut t_after = t * (-(run as f32) * x).exp();
         if run > 1 && t_after < p.stop_below {
             // Stop where sample-by-sample compositing would have: the first m with
             // T·e^(−m x) < threshold.
             let m = ((t / p.stop_below).ln() / x).floor() + 1.0;
             count = (m.max(1.0) as u32).min(run);
-            t_after = t * exp_neg(count as f32 * x);
+            t_after = t * (-(count as f32) * x).exp();
         }
         n += count;
         let weight = t - t_after;
