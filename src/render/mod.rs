@@ -422,6 +422,15 @@ fn backward_impl(
     if !(d_transmittance.is_empty() || d_transmittance.len() == w * h) {
         return Err(size_err("d_transmittance", d_transmittance.len(), w * h));
     }
+    if let Final::Rendered(r) = fin {
+        if r.transmittance.len() != w * h || r.image.data.len() != w * h * 3 {
+            return Err(size_err(
+                "rendered transmittance",
+                r.transmittance.len(),
+                w * h,
+            ));
+        }
+    }
     let prepared = prepare(volume, lut, camera, w, h, opts)?;
     let v = view(volume, lut, camera, (w, h), opts, &prepared);
     let n = lut.entries.len();
