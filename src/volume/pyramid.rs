@@ -33,6 +33,7 @@ pub struct Level {
 impl Level {
     pub fn memory_bytes(&self) -> usize {
         4 * (self.data.len() + self.bricks.min.len() + self.bricks.max.len())
+            + self.bricks.uniform.len()
     }
 
     #[inline]
@@ -49,6 +50,9 @@ pub struct BrickGrid {
     /// Per brick, x fastest. An all-NaN brick has min = +inf, max = -inf.
     pub min: Vec<f32>,
     pub max: Vec<f32>,
+    /// Per brick: every point it touches is finite and equal (min == max, no NaN), so every
+    /// sample inside it has that value and the renderer can step across it in one go.
+    pub uniform: Vec<bool>,
 }
 
 impl BrickGrid {
@@ -57,36 +61,41 @@ impl BrickGrid {
         let counts = cells.map(|c| c.div_ceil(BRICK_CELLS));
         let total = counts.iter().product();
         let (mut min, mut max) = (vec![f32::INFINITY; total], vec![f32::NEG_INFINITY; total]);
-        // Each point belongs to every brick whose cell range touches it (shared faces).
+        let mut nan = vec![false; total];
+        // Each point is a corner of cells p − 1 and p (where they exist): it belongs to the
+        // bricks of those cells (two on a shared face, one elsewhere).
         let bricks_of = |p: usize, a: usize| {
+            let lo = (p.saturating_sub(1) / BRICK_CELLS).min(counts[a] - 1);
             let hi = (p / BRICK_CELLS).min(counts[a] - 1);
-            let lo = if p % BRICK_CELLS == 0 && p > 0 {
-                hi.saturating_sub(1)
-            } else {
-                hi
-            };
             lo..=hi
         };
         for k in 0..dims[2] {
             for j in 0..dims[1] {
                 let row = &data[dims[0] * (j + dims[1] * k)..][..dims[0]];
                 for (i, &v) in row.iter().enumerate() {
-                    if v.is_nan() {
-                        continue;
-                    }
                     for bk in bricks_of(k, 2) {
                         for bj in bricks_of(j, 1) {
                             for bi in bricks_of(i, 0) {
                                 let b = bi + counts[0] * (bj + counts[1] * bk);
-                                min[b] = min[b].min(v);
-                                max[b] = max[b].max(v);
+                                if v.is_nan() {
+                                    nan[b] = true;
+                                } else {
+                                    min[b] = min[b].min(v);
+                                    max[b] = max[b].max(v);
+                                }
                             }
                         }
                     }
                 }
             }
         }
-        BrickGrid { counts, min, max }
+        let uniform = (0..total).map(|b| !nan[b] && min[b] == max[b]).collect();
+        BrickGrid {
+            counts,
+            min,
+            max,
+            uniform,
+        }
     }
 
     #[inline]
@@ -253,6 +262,12 @@ mod tests {
         data[5] = f32::NAN;
         let g = BrickGrid::build(dims, &data);
         assert_eq!(g.counts, [3, 2, 1]);
+        assert!(g.uniform.iter().all(|&u| !u));
+        // A constant block is uniform, unless a NaN touches it.
+        let mut flat = vec![0.25f32; n];
+        flat[n - 1] = f32::NAN;
+        let f = BrickGrid::build(dims, &flat);
+        assert!(f.uniform[0] && !f.uniform[f.index(2, 1, 0)]);
         for k in 0..dims[2] {
             for j in 0..dims[1] {
                 for i in 0..dims[0] {
