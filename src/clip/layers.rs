@@ -1,0 +1,319 @@
+//! The building blocks of both towers: linear layers, layer norm and the MLP activations, each
+//! with a forward pass and the backward pass with respect to its *input* only (the weights are
+//! frozen, so no weight gradients are ever formed).
+//!
+//! Tensors are row-major `[rows, features]` f32 slices; `rows` is tokens × sequences.
+
+use super::config::Activation;
+use super::matmul::{matmul, Mat, Op};
+
+/// `torch.nn.Linear`: `y = x Wᵀ + b`, `W` stored `[out, in]` as in the checkpoint.
+pub struct Linear {
+    /// `[out, in]`
+    pub w: Vec<f32>,
+    /// `[out]`, absent for the bias-free projections.
+    pub b: Option<Vec<f32>>,
+    pub in_dim: usize,
+    pub out_dim: usize,
+}
+
+impl Linear {
+    /// `x: [rows, in]` → `[rows, out]`.
+    pub fn forward(&self, x: &[f32], rows: usize) -> Vec<f32> {
+        debug_assert_eq!(x.len(), rows * self.in_dim);
+        let mut y = match &self.b {
+            Some(b) => {
+                let mut y = Vec::with_capacity(rows * self.out_dim);
+                for _ in 0..rows {
+                    y.extend_from_slice(b);
+                }
+                y
+            }
+            None => vec![0.0; rows * self.out_dim],
+        };
+        matmul(
+            &mut y,
+            self.out_dim,
+            Mat::new(x, self.in_dim),
+            Op::N,
+            Mat::new(&self.w, self.in_dim),
+            Op::T,
+            rows,
+            self.out_dim,
+            self.in_dim,
+            self.b.is_some(),
+        );
+        y
+    }
+
+    /// `dy: [rows, out]` → `dx = dy W: [rows, in]`.
+    pub fn backward(&self, dy: &[f32], rows: usize) -> Vec<f32> {
+        let mut dx = vec![0.0; rows * self.in_dim];
+        self.backward_into(dy, rows, &mut dx, false);
+        dx
+    }
+
+    /// As `backward`, writing (or adding, with `accumulate`) into `dx`.
+    pub fn backward_into(&self, dy: &[f32], rows: usize, dx: &mut [f32], accumulate: bool) {
+        debug_assert_eq!(dy.len(), rows * self.out_dim);
+        matmul(
+            dx,
+            self.in_dim,
+            Mat::new(dy, self.out_dim),
+            Op::N,
+            Mat::new(&self.w, self.in_dim),
+            Op::N,
+            rows,
+            self.in_dim,
+            self.out_dim,
+            accumulate,
+        );
+    }
+}
+
+/// `torch.nn.LayerNorm` over the last dimension.
+pub struct LayerNorm {
+    pub gamma: Vec<f32>,
+    pub beta: Vec<f32>,
+    pub eps: f32,
+}
+
+/// What layer-norm backward needs: the normalized input and 1/σ per row.
+pub struct LnSaved {
+    /// `[rows, dim]`
+    pub xhat: Vec<f32>,
+    /// `[rows]`
+    pub rstd: Vec<f32>,
+}
+
+impl LayerNorm {
+    pub fn dim(&self) -> usize {
+        self.gamma.len()
+    }
+
+    /// `x: [rows, dim]` → `y: [rows, dim]`, and the saved state when `save`.
+    pub fn forward(&self, x: &[f32], save: bool) -> (Vec<f32>, Option<LnSaved>) {
+        let d = self.dim();
+        let rows = x.len() / d;
+        let mut y = vec![0.0; x.len()];
+        let mut rstd = vec![0.0; rows];
+        for ((xr, yr), rs) in x.chunks_exact(d).zip(y.chunks_exact_mut(d)).zip(&mut rstd) {
+            // Two passes in f64: exact enough that a constant row (variance 0) gives y = β.
+            let mean = xr.iter().map(|&v| v as f64).sum::<f64>() / d as f64;
+            let var = xr.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / d as f64;
+            let r = 1.0 / (var + self.eps as f64).sqrt();
+            *rs = r as f32;
+            for (yv, &xv) in yr.iter_mut().zip(xr) {
+                *yv = ((xv as f64 - mean) * r) as f32;
+            }
+        }
+        let saved = save.then(|| LnSaved {
+            xhat: y.clone(),
+            rstd: rstd.clone(),
+        });
+        for yr in y.chunks_exact_mut(d) {
+            for ((yv, g), b) in yr.iter_mut().zip(&self.gamma).zip(&self.beta) {
+                *yv = *yv * g + b;
+            }
+        }
+        (y, saved)
+    }
+
+    /// `dy: [rows, dim]` → `dx`. With x̂ the normalized input and g = dy·γ:
+    /// `dx = rstd · (g − mean(g) − x̂ · mean(g x̂))`.
+    pub fn backward(&self, dy: &[f32], s: &LnSaved) -> Vec<f32> {
+        let d = self.dim();
+        let mut dx = vec![0.0; dy.len()];
+        for (((dyr, xr), dxr), &r) in dy
+            .chunks_exact(d)
+            .zip(s.xhat.chunks_exact(d))
+            .zip(dx.chunks_exact_mut(d))
+            .zip(&s.rstd)
+        {
+            let mut sg = 0.0f64;
+            let mut sgx = 0.0f64;
+            for ((&g, &gam), &xh) in dyr.iter().zip(&self.gamma).zip(xr) {
+                let gg = (g * gam) as f64;
+                sg += gg;
+                sgx += gg * xh as f64;
+            }
+            let (mg, mgx) = (sg / d as f64, sgx / d as f64);
+            for (((o, &g), &gam), &xh) in dxr.iter_mut().zip(dyr).zip(&self.gamma).zip(xr) {
+                *o = (r as f64 * ((g * gam) as f64 - mg - xh as f64 * mgx)) as f32;
+            }
+        }
+        dx
+    }
+}
+
+const SQRT_2_OVER_PI: f32 = 0.797_884_6;
+
+/// Apply the activation in place.
+pub fn activation_forward(act: Activation, x: &mut [f32]) {
+    match act {
+        Activation::QuickGelu => x.iter_mut().for_each(|v| *v *= sigmoid(1.702 * *v)),
+        Activation::Gelu => x
+            .iter_mut()
+            .for_each(|v| *v = 0.5 * *v * (1.0 + libm::erff(*v * std::f32::consts::FRAC_1_SQRT_2))),
+        Activation::GeluTanh => x.iter_mut().for_each(|v| {
+            let u = SQRT_2_OVER_PI * (*v + 0.044715 * *v * *v * *v);
+            *v = 0.5 * *v * (1.0 + u.tanh());
+        }),
+    }
+}
+
+/// `dy ← dy · act'(pre)` in place, `pre` being the activation's input.
+pub fn activation_backward(act: Activation, pre: &[f32], dy: &mut [f32]) {
+    match act {
+        Activation::QuickGelu => {
+            for (g, &x) in dy.iter_mut().zip(pre) {
+                let s = sigmoid(1.702 * x);
+                *g *= s + 1.702 * x * s * (1.0 - s);
+            }
+        }
+        Activation::Gelu => {
+            // d/dx [x Φ(x)] = Φ(x) + x φ(x)
+            let inv_sqrt_2pi = 0.398_942_3f32;
+            for (g, &x) in dy.iter_mut().zip(pre) {
+                let cdf = 0.5 * (1.0 + libm::erff(x * std::f32::consts::FRAC_1_SQRT_2));
+                *g *= cdf + x * inv_sqrt_2pi * (-0.5 * x * x).exp();
+            }
+        }
+        Activation::GeluTanh => {
+            for (g, &x) in dy.iter_mut().zip(pre) {
+                let u = SQRT_2_OVER_PI * (x + 0.044715 * x * x * x);
+                let t = u.tanh();
+                let du = SQRT_2_OVER_PI * (1.0 + 3.0 * 0.044715 * x * x);
+                *g *= 0.5 * (1.0 + t) + 0.5 * x * (1.0 - t * t) * du;
+            }
+        }
+    }
+}
+
+/// Logistic function that stays finite for any input (exp of a large positive argument is
+/// never formed).
+#[inline]
+fn sigmoid(z: f32) -> f32 {
+    if z >= 0.0 {
+        1.0 / (1.0 + (-z).exp())
+    } else {
+        let e = z.exp();
+        e / (1.0 + e)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Central differences in f64 of a scalar function of an f32 vector.
+    /// Steps of 1e-2 on O(1) inputs: the f32 rounding of the loss (~1e-7 relative) divided by
+    /// the step gives ~1e-5 noise, the truncation error O(h²) ~1e-4 for these smooth
+    /// functions, hence the 2e-3 relative tolerance below.
+    fn fd(f: &dyn Fn(&[f32]) -> f64, x: &[f32], i: usize) -> f64 {
+        let h = 1e-2f32;
+        let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+        xp[i] += h;
+        xm[i] -= h;
+        (f(&xp) - f(&xm)) / (2.0 * h as f64)
+    }
+
+    fn close(a: f64, b: f64, tol: f64) -> bool {
+        (a - b).abs() <= tol * (1.0 + b.abs())
+    }
+
+    #[test]
+    fn activations_match_definitions_and_finite_differences() {
+        let xs: Vec<f32> = (-40..=40).map(|i| i as f32 * 0.1).collect();
+        for act in [
+            Activation::QuickGelu,
+            Activation::Gelu,
+            Activation::GeluTanh,
+        ] {
+            let mut y = xs.clone();
+            activation_forward(act, &mut y);
+            for (&x, &v) in xs.iter().zip(&y) {
+                let x64 = x as f64;
+                let want = match act {
+                    Activation::QuickGelu => x64 / (1.0 + (-1.702 * x64).exp()),
+                    Activation::Gelu => 0.5 * x64 * (1.0 + libm::erf(x64 / 2f64.sqrt())),
+                    Activation::GeluTanh => {
+                        0.5 * x64
+                            * (1.0
+                                + ((2.0 / std::f64::consts::PI).sqrt()
+                                    * (x64 + 0.044715 * x64.powi(3)))
+                                .tanh())
+                    }
+                };
+                assert!(close(v as f64, want, 1e-6), "{act:?} at {x}: {v} vs {want}");
+            }
+            let mut g = vec![1.0; xs.len()];
+            activation_backward(act, &xs, &mut g);
+            for i in 0..xs.len() {
+                let f = |x: &[f32]| {
+                    let mut y = x.to_vec();
+                    activation_forward(act, &mut y);
+                    y[i] as f64
+                };
+                assert!(
+                    close(g[i] as f64, fd(&f, &xs, i), 2e-3),
+                    "{act:?} grad at {}",
+                    xs[i]
+                );
+            }
+        }
+        // Huge inputs stay finite.
+        let mut big = vec![1e30f32, -1e30, 88.0, -88.0];
+        let pre = big.clone();
+        activation_forward(Activation::QuickGelu, &mut big);
+        let mut g = vec![1.0; 4];
+        activation_backward(Activation::QuickGelu, &pre, &mut g);
+        assert!(big.iter().chain(&g).all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn layer_norm_backward_matches_finite_differences() {
+        let d = 6;
+        let ln = LayerNorm {
+            gamma: (0..d).map(|i| 0.5 + i as f32 * 0.3).collect(),
+            beta: (0..d).map(|i| i as f32 * 0.1 - 0.2).collect(),
+            eps: 1e-5,
+        };
+        let x: Vec<f32> = (0..2 * d)
+            .map(|i| ((i * 7 % 11) as f32 - 5.0) * 0.4)
+            .collect();
+        let w: Vec<f32> = (0..2 * d)
+            .map(|i| ((i * 5 % 13) as f32 - 6.0) * 0.2)
+            .collect();
+        let loss = |x: &[f32]| -> f64 {
+            let (y, _) = ln.forward(x, false);
+            y.iter().zip(&w).map(|(a, b)| (a * b) as f64).sum()
+        };
+        let (_, s) = ln.forward(&x, true);
+        let dx = ln.backward(&w, &s.unwrap());
+        for i in 0..x.len() {
+            assert!(close(dx[i] as f64, fd(&loss, &x, i), 2e-3), "dx[{i}]");
+        }
+        // A constant row normalizes to β with a finite gradient.
+        let (y, s) = ln.forward(&[3.0; 6], true);
+        assert!(y.iter().zip(&ln.beta).all(|(a, b)| (a - b).abs() < 1e-6));
+        assert!(ln
+            .backward(&[1.0; 6], &s.unwrap())
+            .iter()
+            .all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn linear_forward_and_backward() {
+        let l = Linear {
+            w: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0], // [2 out, 3 in]
+            b: Some(vec![0.5, -0.5]),
+            in_dim: 3,
+            out_dim: 2,
+        };
+        let y = l.forward(&[1.0, 0.0, -1.0, 2.0, 1.0, 0.0], 2);
+        assert_eq!(y, vec![-1.5, -2.5, 4.5, 12.5]);
+        let dx = l.backward(&[1.0, 0.0, 0.0, 2.0], 2);
+        assert_eq!(dx, vec![1.0, 2.0, 3.0, 8.0, 10.0, 12.0]);
+    }
+}
