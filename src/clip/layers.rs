@@ -4,6 +4,8 @@
 //!
 //! Tensors are row-major `[rows, features]` f32 slices; `rows` is tokens × sequences.
 
+use rayon::prelude::*;
+
 use super::config::Activation;
 use super::matmul::{matmul, Mat, Op};
 
@@ -97,16 +99,21 @@ impl LayerNorm {
         let rows = x.len() / d;
         let mut y = vec![0.0; x.len()];
         let mut rstd = vec![0.0; rows];
-        for ((xr, yr), rs) in x.chunks_exact(d).zip(y.chunks_exact_mut(d)).zip(&mut rstd) {
-            // Two passes in f64: exact enough that a constant row (variance 0) gives y = β.
-            let mean = xr.iter().map(|&v| v as f64).sum::<f64>() / d as f64;
-            let var = xr.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / d as f64;
-            let r = 1.0 / (var + self.eps as f64).sqrt();
-            *rs = r as f32;
-            for (yv, &xv) in yr.iter_mut().zip(xr) {
-                *yv = ((xv as f64 - mean) * r) as f32;
-            }
-        }
+        let rows_per_task = (CHUNK / d).max(1);
+        y.par_chunks_mut(d)
+            .zip(x.par_chunks(d))
+            .zip(rstd.par_iter_mut())
+            .with_min_len(rows_per_task)
+            .for_each(|((yr, xr), rs)| {
+                // Two passes in f64: exact enough that a constant row (variance 0) gives y = β.
+                let mean = xr.iter().map(|&v| v as f64).sum::<f64>() / d as f64;
+                let var = xr.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / d as f64;
+                let r = 1.0 / (var + self.eps as f64).sqrt();
+                *rs = r as f32;
+                for (yv, &xv) in yr.iter_mut().zip(xr) {
+                    *yv = ((xv as f64 - mean) * r) as f32;
+                }
+            });
         let saved = save.then(|| LnSaved {
             xhat: y.clone(),
             rstd: rstd.clone(),
@@ -124,68 +131,82 @@ impl LayerNorm {
     pub fn backward(&self, dy: &[f32], s: &LnSaved) -> Vec<f32> {
         let d = self.dim();
         let mut dx = vec![0.0; dy.len()];
-        for (((dyr, xr), dxr), &r) in dy
-            .chunks_exact(d)
-            .zip(s.xhat.chunks_exact(d))
-            .zip(dx.chunks_exact_mut(d))
-            .zip(&s.rstd)
-        {
-            let mut sg = 0.0f64;
-            let mut sgx = 0.0f64;
-            for ((&g, &gam), &xh) in dyr.iter().zip(&self.gamma).zip(xr) {
-                let gg = (g * gam) as f64;
-                sg += gg;
-                sgx += gg * xh as f64;
-            }
-            let (mg, mgx) = (sg / d as f64, sgx / d as f64);
-            for (((o, &g), &gam), &xh) in dxr.iter_mut().zip(dyr).zip(&self.gamma).zip(xr) {
-                *o = (r as f64 * ((g * gam) as f64 - mg - xh as f64 * mgx)) as f32;
-            }
-        }
+        let rows_per_task = (CHUNK / d).max(1);
+        dx.par_chunks_mut(d)
+            .zip(dy.par_chunks(d))
+            .zip(s.xhat.par_chunks(d))
+            .zip(s.rstd.par_iter())
+            .with_min_len(rows_per_task)
+            .for_each(|(((dxr, dyr), xr), &r)| {
+                let mut sg = 0.0f64;
+                let mut sgx = 0.0f64;
+                for ((&g, &gam), &xh) in dyr.iter().zip(&self.gamma).zip(xr) {
+                    let gg = (g * gam) as f64;
+                    sg += gg;
+                    sgx += gg * xh as f64;
+                }
+                let (mg, mgx) = (sg / d as f64, sgx / d as f64);
+                for (((o, &g), &gam), &xh) in dxr.iter_mut().zip(dyr).zip(&self.gamma).zip(xr) {
+                    *o = (r as f64 * ((g * gam) as f64 - mg - xh as f64 * mgx)) as f32;
+                }
+            });
         dx
     }
 }
 
 const SQRT_2_OVER_PI: f32 = 0.797_884_6;
 
+/// Elementwise work is split into chunks of this many values across threads: the MLP
+/// activation of three ViT-B/32 views is 150 × 3072 values, enough exp/erf calls to matter
+/// next to the GEMMs.
+const CHUNK: usize = 8192;
+
 /// Apply the activation in place.
 pub fn activation_forward(act: Activation, x: &mut [f32]) {
-    match act {
-        Activation::QuickGelu => x.iter_mut().for_each(|v| *v *= sigmoid(1.702 * *v)),
-        Activation::Gelu => x
-            .iter_mut()
-            .for_each(|v| *v = 0.5 * *v * (1.0 + libm::erff(*v * std::f32::consts::FRAC_1_SQRT_2))),
-        Activation::GeluTanh => x.iter_mut().for_each(|v| {
-            let u = SQRT_2_OVER_PI * (*v + 0.044715 * *v * *v * *v);
-            *v = 0.5 * *v * (1.0 + u.tanh());
-        }),
-    }
+    x.par_chunks_mut(CHUNK)
+        .for_each(|c| c.iter_mut().for_each(|v| *v = act_value(act, *v)));
 }
 
 /// `dy ← dy · act'(pre)` in place, `pre` being the activation's input.
 pub fn activation_backward(act: Activation, pre: &[f32], dy: &mut [f32]) {
+    dy.par_chunks_mut(CHUNK)
+        .zip(pre.par_chunks(CHUNK))
+        .for_each(|(g, p)| {
+            g.iter_mut()
+                .zip(p)
+                .for_each(|(g, &x)| *g *= act_slope(act, x))
+        });
+}
+
+#[inline]
+fn act_value(act: Activation, x: f32) -> f32 {
+    match act {
+        Activation::QuickGelu => x * sigmoid(1.702 * x),
+        Activation::Gelu => 0.5 * x * (1.0 + libm::erff(x * std::f32::consts::FRAC_1_SQRT_2)),
+        Activation::GeluTanh => {
+            let u = SQRT_2_OVER_PI * (x + 0.044715 * x * x * x);
+            0.5 * x * (1.0 + u.tanh())
+        }
+    }
+}
+
+#[inline]
+fn act_slope(act: Activation, x: f32) -> f32 {
     match act {
         Activation::QuickGelu => {
-            for (g, &x) in dy.iter_mut().zip(pre) {
-                let s = sigmoid(1.702 * x);
-                *g *= s + 1.702 * x * s * (1.0 - s);
-            }
+            let s = sigmoid(1.702 * x);
+            s + 1.702 * x * s * (1.0 - s)
         }
         Activation::Gelu => {
             // d/dx [x Φ(x)] = Φ(x) + x φ(x)
-            let inv_sqrt_2pi = 0.398_942_3f32;
-            for (g, &x) in dy.iter_mut().zip(pre) {
-                let cdf = 0.5 * (1.0 + libm::erff(x * std::f32::consts::FRAC_1_SQRT_2));
-                *g *= cdf + x * inv_sqrt_2pi * (-0.5 * x * x).exp();
-            }
+            let cdf = 0.5 * (1.0 + libm::erff(x * std::f32::consts::FRAC_1_SQRT_2));
+            cdf + x * 0.398_942_3 * (-0.5 * x * x).exp()
         }
         Activation::GeluTanh => {
-            for (g, &x) in dy.iter_mut().zip(pre) {
-                let u = SQRT_2_OVER_PI * (x + 0.044715 * x * x * x);
-                let t = u.tanh();
-                let du = SQRT_2_OVER_PI * (1.0 + 3.0 * 0.044715 * x * x);
-                *g *= 0.5 * (1.0 + t) + 0.5 * x * (1.0 - t * t) * du;
-            }
+            let u = SQRT_2_OVER_PI * (x + 0.044715 * x * x * x);
+            let t = u.tanh();
+            let du = SQRT_2_OVER_PI * (1.0 + 3.0 * 0.044715 * x * x);
+            0.5 * (1.0 + t) + 0.5 * x * (1.0 - t * t) * du
         }
     }
 }
