@@ -44,6 +44,7 @@ use std::path::{Path, PathBuf};
 
 pub use config::{Activation, ClipConfig};
 pub use load::DEFAULT_MODEL;
+pub use preprocess::preprocess;
 pub use similarity::{cosine, cosine_grad, softmax_scaled};
 pub use source::{RandomSource, TensorSource};
 pub use tokenizer::ClipTokenizer;
