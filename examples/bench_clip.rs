@@ -19,6 +19,23 @@ use t2tf::clip::{
 };
 use t2tf::image::Image;
 
+/// CPU seconds (user + system, all threads) this process has used so far, from
+/// /proc/self/stat (clock ticks of 1/100 s). On a machine shared with other jobs, CPU time /
+/// threads estimates what the wall time would be on an idle machine (an upper bound: idle
+/// rayon workers spin a little).
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    // rest[0] is field 3 (the state letter), so utime is rest[11] and stime rest[12].
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let field = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok());
+    match (field(11), field(12)) {
+        (Some(u), Some(s)) => (u + s) / 100.0,
+        _ => f64::NAN,
+    }
+}
+
 fn best_and_median(mut times: Vec<f64>) -> (f64, f64) {
     times.sort_by(f64::total_cmp);
     (times[0], times[times.len() / 2])
@@ -195,7 +212,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .collect();
     let target = vec![0.01f32; cfg.projection_dim];
     let (mut fwd_times, mut bwd_times, mut tot_times) = (vec![], vec![], vec![]);
+    let mut cpu_start = 0.0;
     for rep in 0..=reps {
+        if rep == 1 {
+            cpu_start = cpu_seconds();
+        }
         let t0 = Instant::now();
         let (emb, cache) = clip.encode_images(&views)?;
         let t1 = Instant::now();
@@ -209,6 +230,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             tot_times.push((t2 - t0).as_secs_f64());
         }
     }
+    let img_cpu = (cpu_seconds() - cpu_start) / reps as f64;
     let v = &cfg.vision;
     let (b, n, d, i, l) = (3.0, v.num_tokens() as f64, 768.0, 3072.0, 12.0);
     let gp = (v.grid() * v.grid()) as f64;
@@ -220,10 +242,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (tb, tm) = best_and_median(tot_times);
     println!(
         "ViT-B/32 image, 3 views: forward {fb:.3} s (median {fm:.3}), backward {bb:.3} s \
-         (median {bm:.3}), total {tb:.3} s (median {tm:.3}); {:.1} GFLOP → {:.0} GFLOPS = {:.0} % of peak",
+         (median {bm:.3}), total {tb:.3} s (median {tm:.3}); {:.1} GFLOP → {:.0} GFLOPS = {:.0} % of peak; \
+         CPU {img_cpu:.3} s per run → idle estimate {:.3} s",
         flops / 1e9,
         flops / tb / 1e9,
-        100.0 * flops / tb / 1e9 / peak
+        100.0 * flops / tb / 1e9 / peak,
+        img_cpu / threads as f64
     );
 
     // 3. Text encoder, 128 short captions.
@@ -256,9 +280,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|c| tok.encode(c))
         .collect::<Result<_, _>>()?;
     let tokens: usize = ids.iter().map(Vec::len).sum();
+    let c0 = cpu_seconds();
     let (tb, tm) = time_reps(reps, || {
         clip.encode_tokens(&ids).expect("text");
     });
+    let txt_cpu = (cpu_seconds() - c0) / (reps + 1) as f64;
     let (kb, _) = time_reps(reps, || {
         for c in &captions {
             tok.encode(c).expect("tokenize");
@@ -271,10 +297,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         * 12.0;
     println!(
         "text, 128 captions ({tokens} tokens, {:.1} mean): {tb:.3} s (median {tm:.3}), {:.0} GFLOPS; \
-         tokenizing them {:.1} ms",
+         tokenizing them {:.1} ms; CPU {txt_cpu:.3} s per run → idle estimate {:.3} s",
         tokens as f64 / 128.0,
         tflops / tb / 1e9,
-        kb * 1e3
+        kb * 1e3,
+        txt_cpu / threads as f64
     );
 
     // 4. Reduced precision: the same model with weights rounded to bf16 / f16.
