@@ -172,15 +172,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("\nGEMM peak (2048³ / 1536³ best): {peak:.0} GFLOPS f32");
     println!("| shape m×k · (n×k)ᵀ | use | GFLOPS f32 | % of peak | GFLOPS f16 |");
     println!("|---|---|---|---|---|");
-    let shapes: [(usize, usize, usize, bool, &str); 8] = [
+    // bt: the weight is the right operand as stored in the checkpoint ([out, in], transposed);
+    // otherwise it is untransposed. `Linear` picks the faster layout (see clip/layers.rs).
+    let shapes: [(usize, usize, usize, bool, &str); 11] = [
         (150, 2304, 768, true, "ViT qkv fwd"),
         (150, 768, 768, true, "ViT out-proj fwd"),
         (150, 3072, 768, true, "ViT fc1 fwd"),
-        (150, 768, 3072, true, "ViT fc2 fwd"),
+        (
+            150,
+            768,
+            3072,
+            true,
+            "ViT fc2 fwd, checkpoint layout (not used)",
+        ),
+        (150, 768, 3072, false, "ViT fc2 fwd, Wᵀ stored (used)"),
         (150, 768, 2304, false, "ViT qkv bwd (dy·W)"),
+        (150, 3072, 768, true, "ViT fc2 bwd (dy·W, Wᵀ stored)"),
         (150, 768, 3072, false, "ViT fc1 bwd (dy·W)"),
-        (147, 768, 3072, true, "patch embedding"),
-        (1400, 2048, 512, true, "text fc1 (128 captions)"),
+        (147, 768, 3072, false, "patch embedding (Wᵀ stored)"),
+        (1137, 2048, 512, true, "text fc1 (128 captions)"),
+        (1137, 512, 2048, false, "text fc2 (Wᵀ stored)"),
     ];
     for (m, n, k, bt, what) in shapes {
         let g = gemm_gflops(m, n, k, bt, reps.max(5));

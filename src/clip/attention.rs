@@ -209,18 +209,18 @@ mod tests {
     use super::*;
 
     fn lin(out: usize, inp: usize, seed: usize) -> Linear {
-        Linear {
-            w: (0..out * inp)
+        Linear::new(
+            (0..out * inp)
                 .map(|i| (((i + seed) * 2654435761usize % 1000) as f32 / 1000.0 - 0.5) * 0.8)
                 .collect(),
-            b: Some(
+            Some(
                 (0..out)
                     .map(|i| ((i + seed) % 7) as f32 * 0.05 - 0.15)
                     .collect(),
             ),
-            in_dim: inp,
-            out_dim: out,
-        }
+            inp,
+            out,
+        )
     }
 
     /// Finite differences of `sum(w ⊙ attn(x))` for causal packed segments of different

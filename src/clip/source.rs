@@ -20,16 +20,13 @@ pub trait TensorSource {
         inp: usize,
         bias: bool,
     ) -> Result<Linear, ClipError> {
-        Ok(Linear {
-            w: self.tensor(&format!("{prefix}.weight"), &[out, inp])?,
-            b: if bias {
-                Some(self.tensor(&format!("{prefix}.bias"), &[out])?)
-            } else {
-                None
-            },
-            in_dim: inp,
-            out_dim: out,
-        })
+        let w = self.tensor(&format!("{prefix}.weight"), &[out, inp])?;
+        let b = if bias {
+            Some(self.tensor(&format!("{prefix}.bias"), &[out])?)
+        } else {
+            None
+        };
+        Ok(Linear::new(w, b, inp, out))
     }
 
     fn layer_norm(&self, prefix: &str, dim: usize, eps: f32) -> Result<LayerNorm, ClipError> {

@@ -9,6 +9,12 @@ use super::layers::Linear;
 use super::source::TensorSource;
 use super::ClipError;
 
+/// A projection's checkpoint tensors before stacking.
+struct Raw {
+    weight: Vec<f32>,
+    bias: Vec<f32>,
+}
+
 pub struct Tower {
     pub layers: Vec<EncoderLayer>,
 }
@@ -19,15 +25,20 @@ impl Tower {
         let mut layers = Vec::with_capacity(c.num_layers);
         for i in 0..c.num_layers {
             let p = format!("{prefix}.encoder.layers.{i}");
-            let q = src.linear(&format!("{p}.self_attn.q_proj"), d, d, true)?;
-            let k = src.linear(&format!("{p}.self_attn.k_proj"), d, d, true)?;
-            let v = src.linear(&format!("{p}.self_attn.v_proj"), d, d, true)?;
-            let qkv = Linear {
-                w: [q.w, k.w, v.w].concat(),
-                b: Some([q.b, k.b, v.b].map(Option::unwrap_or_default).concat()),
-                in_dim: d,
-                out_dim: 3 * d,
+            let raw = |name: &str| -> Result<Raw, ClipError> {
+                let pre = format!("{p}.self_attn.{name}");
+                Ok(Raw {
+                    weight: src.tensor(&format!("{pre}.weight"), &[d, d])?,
+                    bias: src.tensor(&format!("{pre}.bias"), &[d])?,
+                })
             };
+            let (q, k, v) = (raw("q_proj")?, raw("k_proj")?, raw("v_proj")?);
+            let qkv = Linear::new(
+                [q.weight, k.weight, v.weight].concat(),
+                Some([q.bias, k.bias, v.bias].concat()),
+                d,
+                3 * d,
+            );
             layers.push(EncoderLayer {
                 ln1: src.layer_norm(&format!("{p}.layer_norm1"), d, c.layer_norm_eps)?,
                 attn: Attention {

@@ -67,12 +67,7 @@ impl VisionModel {
         )?;
         Ok(VisionModel {
             cfg: cfg.clone(),
-            patch_embedding: Linear {
-                w: pe,
-                b: None,
-                in_dim: 3 * p * p,
-                out_dim: d,
-            },
+            patch_embedding: Linear::new(pe, None, 3 * p * p, d),
             class_embedding: src.tensor("vision_model.embeddings.class_embedding", &[d])?,
             position_embedding: src.tensor(
                 "vision_model.embeddings.position_embedding.weight",
