@@ -7,7 +7,7 @@
 
 use rayon::prelude::*;
 
-use super::layers::Linear;
+use super::layers::{fast_exp, Linear};
 use super::matmul::{matmul, Mat, Op};
 
 /// Where each packed sequence lives: rows `start .. start + len`.
@@ -195,7 +195,7 @@ fn softmax_rows(p: &mut [f32], len: usize, causal: bool) {
         let max = row[..keep].iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
         let mut sum = 0.0f32;
         for v in &mut row[..keep] {
-            *v = (*v - max).exp();
+            *v = fast_exp(*v - max);
             sum += *v;
         }
         let inv = 1.0 / sum;
