@@ -395,8 +395,8 @@ mod tests {
         };
         let (_, s) = ln.forward(&x, true);
         let dx = ln.backward(&w, &s.unwrap());
-        for i in 0..x.len() {
-            assert!(close(dx[i] as f64, fd(&loss, &x, i), 2e-3), "dx[{i}]");
+        for (i, &g) in dx.iter().enumerate() {
+            assert!(close(g as f64, fd(&loss, &x, i), 2e-3), "dx[{i}]");
         }
         // A constant row normalizes to β with a finite gradient.
         let (y, s) = ln.forward(&[3.0; 6], true);

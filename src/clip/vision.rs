@@ -16,8 +16,11 @@ use super::tower::Tower;
 use super::ClipError;
 use crate::image::Image;
 
-/// OpenAI CLIP's pixel statistics (`image_mean` / `image_std` of CLIPImageProcessor).
+/// OpenAI CLIP's pixel statistics (`image_mean` / `image_std` of CLIPImageProcessor), written
+/// with the digits published in preprocessor_config.json.
+#[allow(clippy::excessive_precision)]
 pub const MEAN: [f32; 3] = [0.481_454_66, 0.457_827_5, 0.408_210_73];
+#[allow(clippy::excessive_precision)]
 pub const STD: [f32; 3] = [0.268_629_54, 0.261_302_58, 0.275_777_11];
 
 pub struct VisionModel {
