@@ -187,6 +187,149 @@ impl Attention {
     }
 }
 
+/// Activations `backward_pooled` needs.
+pub struct PooledAttnSaved {
+    /// `[T, 2D]`: k and v for every token.
+    kv: Vec<f32>,
+    /// `[S, D]`: scaled q of each sequence's query token.
+    q: Vec<f32>,
+    /// Softmax probabilities `[len]` per (sequence, head).
+    probs: Vec<Vec<f32>>,
+}
+
+impl Attention {
+    /// Attention output for one query token per sequence (`rows[s]`, counted from the start of
+    /// sequence s), keys and values from all tokens: `x: [T, D]` → `[S, D]`. The last layer of a
+    /// tower only needs the pooled token (class token, end-of-text token), so this skips the
+    /// query projection, scores, output projection (and, in `EncoderLayer`, the MLP) of every
+    /// other token.
+    pub fn forward_pooled(
+        &self,
+        x: &[f32],
+        seg: &Segments,
+        rows: &[usize],
+        save: bool,
+    ) -> (Vec<f32>, Option<PooledAttnSaved>) {
+        let (d, dh, scale) = self.dims();
+        let (t, ns, h) = (seg.total(), seg.spans.len(), self.num_heads);
+        let kv = self.qkv.forward_part(x, t, d..3 * d);
+        let xq: Vec<f32> = seg
+            .spans
+            .iter()
+            .zip(rows)
+            .flat_map(|(&(start, _), &r)| x[(start + r) * d..][..d].iter().copied())
+            .collect();
+        let mut q = self.qkv.forward_part(&xq, ns, 0..d);
+        q.iter_mut().for_each(|v| *v *= scale);
+        let results: Vec<(Vec<f32>, Vec<f32>)> = (0..ns * h)
+            .into_par_iter()
+            .map(|task| {
+                let (sq, head) = (task / h, task % h);
+                let (start, len) = seg.spans[sq];
+                let qh = &q[sq * d + head * dh..][..dh];
+                let keep = if seg.causal { rows[sq] + 1 } else { len };
+                let mut p = vec![0.0f32; len];
+                for (j, pj) in p[..keep].iter_mut().enumerate() {
+                    let k = &kv[(start + j) * 2 * d + head * dh..][..dh];
+                    *pj = qh.iter().zip(k).map(|(a, b)| a * b).sum();
+                }
+                softmax_rows(&mut p[..keep], keep, false);
+                let mut o = vec![0.0f32; dh];
+                for (j, &pj) in p[..keep].iter().enumerate() {
+                    let v = &kv[(start + j) * 2 * d + d + head * dh..][..dh];
+                    o.iter_mut().zip(v).for_each(|(o, v)| *o += pj * v);
+                }
+                (p, o)
+            })
+            .collect();
+        let mut ctx = vec![0.0f32; ns * d];
+        for (task, (_, o)) in results.iter().enumerate() {
+            ctx[(task / h) * d + (task % h) * dh..][..dh].copy_from_slice(o);
+        }
+        let y = self.out.forward(&ctx, ns);
+        let saved = save.then(|| PooledAttnSaved {
+            kv,
+            q,
+            probs: results.into_iter().map(|(p, _)| p).collect(),
+        });
+        (y, saved)
+    }
+
+    /// Backward of `forward_pooled`: `dy: [S, D]` → `dx: [T, D]`.
+    pub fn backward_pooled(
+        &self,
+        dy: &[f32],
+        seg: &Segments,
+        rows: &[usize],
+        s: &PooledAttnSaved,
+    ) -> Vec<f32> {
+        let (d, dh, scale) = self.dims();
+        let (t, ns, h) = (seg.total(), seg.spans.len(), self.num_heads);
+        let dctx = self.out.backward(dy, ns);
+        // Per (sequence, head), one query row: dp_j = dO·v_j, ds = p ⊙ (dp − p·dp),
+        // dq = Σ_j ds_j k_j, dk_j = ds_j q, dv_j = p_j dO.
+        let results: Vec<(Vec<f32>, Vec<f32>)> = (0..ns * h)
+            .into_par_iter()
+            .map(|task| {
+                let (sq, head) = (task / h, task % h);
+                let (start, len) = seg.spans[sq];
+                let p = &s.probs[task];
+                let qh = &s.q[sq * d + head * dh..][..dh];
+                let dout = &dctx[sq * d + head * dh..][..dh];
+                let key = |j: usize| &s.kv[(start + j) * 2 * d + head * dh..][..dh];
+                let val = |j: usize| &s.kv[(start + j) * 2 * d + d + head * dh..][..dh];
+                let dp: Vec<f32> = (0..len)
+                    .map(|j| dout.iter().zip(val(j)).map(|(a, b)| a * b).sum())
+                    .collect();
+                let dot: f32 = dp.iter().zip(p).map(|(a, b)| a * b).sum();
+                let ds: Vec<f32> = dp.iter().zip(p).map(|(a, &b)| b * (a - dot)).collect();
+                let mut dq = vec![0.0f32; dh];
+                // dkv block for this head: [len, 2 dh] = (dK | dV).
+                let mut g = vec![0.0f32; len * 2 * dh];
+                for j in 0..len {
+                    dq.iter_mut().zip(key(j)).for_each(|(a, k)| *a += ds[j] * k);
+                    let row = &mut g[j * 2 * dh..][..2 * dh];
+                    row[..dh]
+                        .iter_mut()
+                        .zip(qh)
+                        .for_each(|(a, q)| *a = ds[j] * q);
+                    row[dh..]
+                        .iter_mut()
+                        .zip(dout)
+                        .for_each(|(a, o)| *a = p[j] * o);
+                }
+                (dq, g)
+            })
+            .collect();
+        let mut dkv = vec![0.0f32; t * 2 * d];
+        let mut dq = vec![0.0f32; ns * d];
+        for (task, (dqh, g)) in results.iter().enumerate() {
+            let (sq, head) = (task / h, task % h);
+            let (start, len) = seg.spans[sq];
+            // q was scaled after its projection.
+            dq[sq * d + head * dh..][..dh]
+                .iter_mut()
+                .zip(dqh)
+                .for_each(|(a, b)| *a = b * scale);
+            for j in 0..len {
+                let row = &mut dkv[(start + j) * 2 * d..][..2 * d];
+                let src = &g[j * 2 * dh..][..2 * dh];
+                row[head * dh..][..dh].copy_from_slice(&src[..dh]);
+                row[d + head * dh..][..dh].copy_from_slice(&src[dh..]);
+            }
+        }
+        let mut dx = self.qkv.backward_part(&dkv, t, d..3 * d);
+        let dxq = self.qkv.backward_part(&dq, ns, 0..d);
+        for ((&(start, _), &r), g) in seg.spans.iter().zip(rows).zip(dxq.chunks_exact(d)) {
+            dx[(start + r) * d..][..d]
+                .iter_mut()
+                .zip(g)
+                .for_each(|(a, b)| *a += b);
+        }
+        dx
+    }
+}
+
 /// Row-wise softmax of a `[len, len]` score block, in place; with `causal`, entries above the
 /// diagonal get probability 0 (as adding -inf to the scores would).
 fn softmax_rows(p: &mut [f32], len: usize, causal: bool) {
@@ -252,6 +395,57 @@ mod tests {
             };
             let (_, s) = att.forward(&x, &seg, true);
             let dx = att.backward(&w, &seg, &s.unwrap());
+            let h = 1e-2f32;
+            for i in 0..x.len() {
+                let (mut xp, mut xm) = (x.clone(), x.clone());
+                xp[i] += h;
+                xm[i] -= h;
+                let fd = (loss(&xp) - loss(&xm)) / (2.0 * h as f64);
+                assert!(
+                    (dx[i] as f64 - fd).abs() <= 2e-3 * (1.0 + fd.abs()),
+                    "causal={causal} i={i}: {} vs {fd}",
+                    dx[i]
+                );
+            }
+        }
+    }
+
+    /// The pooled path equals the full one at the query rows, and its backward matches
+    /// finite differences (same tolerance argument as above).
+    #[test]
+    fn pooled_matches_full_and_finite_differences() {
+        let d = 6;
+        for causal in [false, true] {
+            let att = Attention {
+                qkv: lin(3 * d, d, 3),
+                out: lin(d, d, 4),
+                num_heads: 3,
+            };
+            let seg = Segments {
+                spans: vec![(0, 3), (3, 1), (4, 4)],
+                causal,
+            };
+            let rows = [2usize, 0, if causal { 3 } else { 1 }];
+            let t = seg.total();
+            let x: Vec<f32> = (0..t * d)
+                .map(|i| ((i * 29 % 19) as f32 - 9.0) / 7.0)
+                .collect();
+            let (full, _) = att.forward(&x, &seg, false);
+            let (pooled, s) = att.forward_pooled(&x, &seg, &rows, true);
+            for (k, (&(start, _), &r)) in seg.spans.iter().zip(&rows).enumerate() {
+                for c in 0..d {
+                    let (a, b) = (pooled[k * d + c], full[(start + r) * d + c]);
+                    assert!((a - b).abs() < 1e-5, "causal={causal} seq {k}: {a} vs {b}");
+                }
+            }
+            let w: Vec<f32> = (0..3 * d)
+                .map(|i| ((i * 7 % 11) as f32 - 5.0) / 5.0)
+                .collect();
+            let loss = |x: &[f32]| -> f64 {
+                let (y, _) = att.forward_pooled(x, &seg, &rows, false);
+                y.iter().zip(&w).map(|(a, b)| *a as f64 * *b as f64).sum()
+            };
+            let dx = att.backward_pooled(&w, &seg, &rows, &s.unwrap());
             let h = 1e-2f32;
             for i in 0..x.len() {
                 let (mut xp, mut xm) = (x.clone(), x.clone());

@@ -4,6 +4,8 @@
 //!
 //! Tensors are row-major `[rows, features]` f32 slices; `rows` is tokens × sequences.
 
+use std::ops::Range;
+
 use rayon::prelude::*;
 
 use super::config::Activation;
@@ -91,6 +93,64 @@ impl Linear {
             self.b.is_some(),
         );
         y
+    }
+
+    /// Outputs `outs` only: `x: [rows, in]` → `[rows, outs.len()]` (the q or the k|v part of
+    /// a stacked projection).
+    pub fn forward_part(&self, x: &[f32], rows: usize, outs: Range<usize>) -> Vec<f32> {
+        let n = outs.len();
+        let mut y = match &self.b {
+            Some(b) => b[outs.clone()].repeat(rows),
+            None => vec![0.0; rows * n],
+        };
+        let (w, op) = self.part_operand(outs, true);
+        let x = Mat::new(x, self.in_dim);
+        matmul(
+            &mut y,
+            n,
+            x,
+            Op::N,
+            w,
+            op,
+            rows,
+            n,
+            self.in_dim,
+            self.b.is_some(),
+        );
+        y
+    }
+
+    /// Backward of `forward_part`: `dy: [rows, outs.len()]` → `dx: [rows, in]`.
+    pub fn backward_part(&self, dy: &[f32], rows: usize, outs: Range<usize>) -> Vec<f32> {
+        let n = outs.len();
+        let mut dx = vec![0.0; rows * self.in_dim];
+        let (w, op) = self.part_operand(outs, false);
+        let dy = Mat::new(dy, n);
+        matmul(
+            &mut dx,
+            self.in_dim,
+            dy,
+            Op::N,
+            w,
+            op,
+            rows,
+            self.in_dim,
+            n,
+            false,
+        );
+        dx
+    }
+
+    /// The rows `outs` of `W` (stored `[out, in]`), or the columns `outs` of `Wᵀ` (stored
+    /// `[in, out]`), as a GEMM operand.
+    fn part_operand(&self, outs: Range<usize>, forward: bool) -> (Mat<'_>, Op) {
+        let (m, op) = self.operand(forward);
+        let offset = if self.transposed {
+            outs.start
+        } else {
+            outs.start * self.in_dim
+        };
+        (Mat::new(&m.data[offset..], m.ld), op)
     }
 
     /// `dy: [rows, out]` → `dx = dy W: [rows, in]`.
@@ -426,5 +486,37 @@ mod tests {
         assert!(!l.transposed);
         assert_eq!(l.forward(&[1.0, 2.0], 1), vec![9.0, 12.0, 15.0]);
         assert_eq!(l.backward(&[1.0, 0.0, -1.0], 1), vec![-2.0, -2.0]);
+        // Parts agree with the whole, in both storage layouts.
+        for l in [
+            Linear::new(
+                (0..12).map(|v| v as f32 - 5.0).collect(),
+                Some(vec![0.1; 4]),
+                3,
+                4,
+            ),
+            Linear::new(
+                (0..12).map(|v| v as f32 - 5.0).collect(),
+                Some(vec![0.1; 3]),
+                4,
+                3,
+            ),
+        ] {
+            let x: Vec<f32> = (0..2 * l.in_dim).map(|v| v as f32 * 0.5).collect();
+            let full = l.forward(&x, 2);
+            let part = l.forward_part(&x, 2, 1..3);
+            for r in 0..2 {
+                assert_eq!(
+                    &part[r * 2..r * 2 + 2],
+                    &full[r * l.out_dim + 1..r * l.out_dim + 3]
+                );
+            }
+            let dy_part = [1.0, -1.0, 0.5, 2.0];
+            let mut dy = vec![0.0; 2 * l.out_dim];
+            for r in 0..2 {
+                dy[r * l.out_dim + 1..r * l.out_dim + 3]
+                    .copy_from_slice(&dy_part[r * 2..r * 2 + 2]);
+            }
+            assert_eq!(l.backward_part(&dy_part, 2, 1..3), l.backward(&dy, 2));
+        }
     }
 }
