@@ -104,12 +104,10 @@ impl TextModel {
                 }
             }
         }
-        self.tower.forward(&mut x, &seg, false);
-        // Final layer norm is per token, so only the pooled (last) rows need it.
-        let mut pooled = Vec::with_capacity(captions.len() * d);
-        for &(s, len) in &seg.spans {
-            pooled.extend_from_slice(&x[(s + len - 1) * d..(s + len) * d]);
-        }
+        // Pool at each caption's last token (its end-of-text token); the final layer norm is
+        // per token, so only those rows need it.
+        let rows: Vec<usize> = seg.spans.iter().map(|&(_, len)| len - 1).collect();
+        let (pooled, _) = self.tower.forward_pooled(x, &seg, &rows, false);
         let (pooled, _) = self.final_ln.forward(&pooled, false);
         let out = self.projection.forward(&pooled, captions.len());
         Ok(out

@@ -4,7 +4,7 @@
 
 use super::attention::{Attention, Segments};
 use super::config::TowerConfig;
-use super::encoder::{EncoderLayer, LayerSaved};
+use super::encoder::{EncoderLayer, LayerSaved, PooledLayerSaved};
 use super::layers::Linear;
 use super::source::TensorSource;
 use super::ClipError;
@@ -55,21 +55,69 @@ impl Tower {
         Ok(Tower { layers })
     }
 
-    /// `x: [T, D]` in place; returns per-layer saved activations when `save`.
-    pub fn forward(&self, x: &mut [f32], seg: &Segments, save: bool) -> Vec<LayerSaved> {
-        let mut saved = Vec::new();
-        for l in &self.layers {
-            if let Some(s) = l.forward(x, seg, save) {
-                saved.push(s);
+    /// Run the stack on `x: [T, D]` and return the final states of the pooled tokens only
+    /// (`rows[s]` within sequence s), `[S, D]`: every layer but the last runs on all tokens, the
+    /// last one only produces the pooled rows (its other outputs would be discarded).
+    pub fn forward_pooled(
+        &self,
+        mut x: Vec<f32>,
+        seg: &Segments,
+        rows: &[usize],
+        save: bool,
+    ) -> (Vec<f32>, TowerSaved) {
+        let mut saved = TowerSaved {
+            layers: Vec::new(),
+            last: None,
+        };
+        let Some((last, body)) = self.layers.split_last() else {
+            let d = x.len() / seg.total().max(1);
+            return (gather(&x, seg, rows, d), saved);
+        };
+        for l in body {
+            if let Some(s) = l.forward(&mut x, seg, save) {
+                saved.layers.push(s);
             }
         }
-        saved
+        let (y, s) = last.forward_pooled(&x, seg, rows, save);
+        saved.last = s;
+        (y, saved)
     }
 
-    /// `dy: [T, D]` at the output becomes the gradient at the input, in place.
-    pub fn backward(&self, dy: &mut [f32], seg: &Segments, saved: &[LayerSaved]) {
-        for (l, s) in self.layers.iter().zip(saved).rev() {
-            l.backward(dy, seg, s);
+    /// Backward of `forward_pooled` (which must have run with `save`): `dy: [S, D]` →
+    /// `dx: [T, D]`. `d` is the width, needed only for a tower without layers.
+    pub fn backward_pooled(
+        &self,
+        dy: &[f32],
+        seg: &Segments,
+        rows: &[usize],
+        saved: &TowerSaved,
+        d: usize,
+    ) -> Vec<f32> {
+        let (Some((last, body)), Some(ls)) = (self.layers.split_last(), saved.last.as_ref()) else {
+            let mut dx = vec![0.0; seg.total() * d];
+            for ((&(start, _), &r), g) in seg.spans.iter().zip(rows).zip(dy.chunks_exact(d)) {
+                dx[(start + r) * d..][..d].copy_from_slice(g);
+            }
+            return dx;
+        };
+        let mut dx = last.backward_pooled(dy, seg, rows, ls);
+        for (l, s) in body.iter().zip(&saved.layers).rev() {
+            l.backward(&mut dx, seg, s);
         }
+        dx
     }
+}
+
+/// Saved activations of a whole tower.
+pub struct TowerSaved {
+    layers: Vec<LayerSaved>,
+    last: Option<PooledLayerSaved>,
+}
+
+fn gather(x: &[f32], seg: &Segments, rows: &[usize], d: usize) -> Vec<f32> {
+    seg.spans
+        .iter()
+        .zip(rows)
+        .flat_map(|(&(start, _), &r)| x[(start + r) * d..][..d].iter().copied())
+        .collect()
 }

@@ -9,10 +9,9 @@
 
 use super::attention::Segments;
 use super::config::VisionConfig;
-use super::encoder::LayerSaved;
 use super::layers::{LayerNorm, Linear, LnSaved};
 use super::source::TensorSource;
-use super::tower::Tower;
+use super::tower::{Tower, TowerSaved};
 use super::ClipError;
 use crate::image::Image;
 
@@ -42,7 +41,7 @@ pub struct VisionModel {
 pub struct ImageCache {
     images: usize,
     pre_ln: LnSaved,
-    layers: Vec<LayerSaved>,
+    layers: TowerSaved,
     post_ln: LnSaved,
 }
 
@@ -145,12 +144,9 @@ impl VisionModel {
                 }
             }
         }
-        let (mut x, pre_saved) = self.pre_ln.forward(&x, true);
+        let (x, pre_saved) = self.pre_ln.forward(&x, true);
         let seg = Segments::uniform(b, n, false);
-        let layers = self.tower.forward(&mut x, &seg, true);
-        let cls: Vec<f32> = (0..b)
-            .flat_map(|bi| x[bi * n * d..][..d].to_vec())
-            .collect();
+        let (cls, layers) = self.tower.forward_pooled(x, &seg, &vec![0; b], true);
         let (pooled, post_saved) = self.post_ln.forward(&cls, true);
         let out = self.projection.forward(&pooled, b);
         let emb = out
@@ -189,12 +185,10 @@ impl VisionModel {
         let de: Vec<f32> = d_embeddings.concat();
         let d_pooled = self.projection.backward(&de, b);
         let d_cls = self.post_ln.backward(&d_pooled, &cache.post_ln);
-        let mut dx = vec![0.0f32; b * n * d];
-        for bi in 0..b {
-            dx[bi * n * d..][..d].copy_from_slice(&d_cls[bi * d..][..d]);
-        }
         let seg = Segments::uniform(b, n, false);
-        self.tower.backward(&mut dx, &seg, &cache.layers);
+        let dx = self
+            .tower
+            .backward_pooled(&d_cls, &seg, &vec![0; b], &cache.layers, d);
         let dx = self.pre_ln.backward(&dx, &cache.pre_ln);
         // Patch rows only (the class token has no pixels behind it).
         let mut d_pe = vec![0.0f32; b * g * g * d];
