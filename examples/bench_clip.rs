@@ -245,8 +245,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let v = &cfg.vision;
     let (b, n, d, i, l) = (3.0, v.num_tokens() as f64, 768.0, 3072.0, 12.0);
     let gp = (v.grid() * v.grid()) as f64;
-    let lin = 2.0 * b * n * (4.0 * d * d + 2.0 * d * i) * l + 2.0 * b * gp * 3072.0 * d;
-    let att_f = 4.0 * b * n * n * d * l;
+    // FLOPs actually computed: layers 1..L−1 on all tokens; the last layer projects k, v for
+    // all tokens but q, scores, out-proj and MLP for the class tokens only (clip/tower.rs).
+    // Backward (input only) repeats every linear product once and attention twice.
+    let lin = 2.0 * b * n * (4.0 * d * d + 2.0 * d * i) * (l - 1.0)
+        + 2.0 * b * n * 2.0 * d * d
+        + 2.0 * b * (2.0 * d * d + 2.0 * d * i)
+        + 2.0 * b * gp * 3072.0 * d;
+    let att_f = 4.0 * b * n * n * d * (l - 1.0) + 4.0 * b * n * d;
     let flops = 2.0 * lin + att_f + 2.0 * att_f;
     let (fb, fm) = best_and_median(fwd_times);
     let (bb, bm) = best_and_median(bwd_times);
@@ -302,10 +308,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     });
     let tc = &cfg.text.tower;
-    let tflops = 2.0
-        * tokens as f64
-        * (4.0 * 512f64.powi(2) + 2.0 * 512.0 * tc.intermediate_size as f64)
-        * 12.0;
+    // Same accounting as above: the last layer does only k, v for all tokens.
+    let (td, ti) = (tc.hidden_size as f64, tc.intermediate_size as f64);
+    let tflops = 2.0 * tokens as f64 * (4.0 * td * td + 2.0 * td * ti) * 11.0
+        + 2.0 * tokens as f64 * 2.0 * td * td
+        + 2.0 * 128.0 * (2.0 * td * td + 2.0 * td * ti);
     println!(
         "text, 128 captions ({tokens} tokens, {:.1} mean): {tb:.3} s (median {tm:.3}), {:.0} GFLOPS; \
          tokenizing them {:.1} ms; CPU {txt_cpu:.3} s per run → idle estimate {:.3} s",
