@@ -34,7 +34,7 @@ pub struct ClipScoreArgs {
 pub fn run(args: ClipScoreArgs) -> Result<()> {
     let image = Image::load_png(&args.image)?;
     let clip = Clip::load_with_tokenizer(&args.model, args.tokenizer.as_deref())
-        .with_context(|| format!("cannot load CLIP model {}", args.model))?;
+        .context("cannot load the CLIP model")?;
     let input = clip.preprocess(&image);
     let (img, _) = clip.encode_images(&[input])?;
     let captions: Vec<&str> = args.captions.iter().map(String::as_str).collect();
