@@ -1,9 +1,49 @@
-//! `t2tf clip-score` (being written).
+//! `t2tf clip-score`: how well an image matches each of several captions under CLIP.
 
-/// Placeholder arguments until the command lands.
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+
+use crate::clip::{cosine, softmax_scaled, Clip, DEFAULT_MODEL};
+use crate::image::Image;
+
+/// Print each caption's cosine similarity to the image and CLIP's softmax probability over the
+/// captions (cosines × the model's logit scale).
 #[derive(clap::Args, Debug)]
-pub struct ClipScoreArgs {}
+#[command(
+    after_help = "Example:\n  t2tf clip-score render.png --caption \"a white skull\" \
+                        --caption \"a red engine\"\n  t2tf clip-score render.png --model ./my-clip \
+                        --caption \"a glowing teapot\"\n\n\
+                        The image is resized (shortest side, bicubic) and centre-cropped to the \
+                        model's input size as transformers' CLIPImageProcessor does."
+)]
+pub struct ClipScoreArgs {
+    /// PNG image to score.
+    pub image: PathBuf,
+    /// Caption to compare with (repeat for several).
+    #[arg(long = "caption", required = true, value_name = "TEXT")]
+    pub captions: Vec<String>,
+    /// Model directory (config.json, model.safetensors, tokenizer.json) or Hugging Face repo id.
+    #[arg(long, default_value = DEFAULT_MODEL, value_name = "DIR_OR_REPO")]
+    pub model: String,
+    /// tokenizer.json to use instead of the model's own.
+    #[arg(long, value_name = "PATH")]
+    pub tokenizer: Option<PathBuf>,
+}
 
-pub fn run(_args: ClipScoreArgs) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+pub fn run(args: ClipScoreArgs) -> Result<()> {
+    let image = Image::load_png(&args.image)?;
+    let clip = Clip::load_with_tokenizer(&args.model, args.tokenizer.as_deref())
+        .context("cannot load the CLIP model")?;
+    let input = clip.preprocess(&image);
+    let (img, _) = clip.encode_images(&[input])?;
+    let captions: Vec<&str> = args.captions.iter().map(String::as_str).collect();
+    let text = clip.encode_text(&captions)?;
+    let sims: Vec<f32> = text.iter().map(|t| cosine(&img[0], t)).collect();
+    let probs = softmax_scaled(&sims, clip.logit_scale());
+    println!("cosine   softmax  caption");
+    for ((s, p), c) in sims.iter().zip(&probs).zip(&captions) {
+        println!("{s:>7.4}  {p:>7.4}  {c}");
+    }
+    Ok(())
 }

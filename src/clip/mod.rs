@@ -1,2 +1,184 @@
-//! CLIP in Rust: tokenizer, weights, text and image encoders, image input gradient.
-//! (Being written: issue 5.)
+//! CLIP in Rust: tokenizer, weights, text and image encoders, and the gradient of the image
+//! embedding with respect to the input pixels (what the optimizer back-propagates through).
+//!
+//! The model is written by hand on the `gemm` crate; candle's CLIP was measured first and gave no
+//! input gradient (its fused layer norm has no backward) and, rebuilt from differentiable candle
+//! ops, ran ViT-B/32 forward+backward ~5–8× slower than the target (BENCHMARKS-clip.md).
+//!
+//! Parts, each reproducing a `transformers` modeling_clip.py class:
+//! `config` (CLIPConfig), `weights` (safetensors), `tokenizer` (CLIPTokenizerFast),
+//! `layers` (Linear, LayerNorm, activations), `attention` (CLIPAttention), `encoder`
+//! (CLIPEncoderLayer), `tower` (CLIPEncoder), `text` (CLIPTextTransformer), `vision`
+//! (CLIPVisionTransformer), `load` (files and the Hugging Face cache), `preprocess`
+//! (CLIPImageProcessor's resize + crop), `similarity` (cosine and softmax).
+//!
+//! ```no_run
+//! # fn main() -> Result<(), t2tf::clip::ClipError> {
+//! use t2tf::clip::{cosine, cosine_grad, Clip};
+//! let clip = Clip::load("openai/clip-vit-base-patch32")?;
+//! let text = clip.encode_text(&["a skull in white bone"])?;
+//! let s = clip.image_size();
+//! let views = vec![t2tf::image::Image::new(s, s); 3];
+//! let (emb, cache) = clip.encode_images(&views)?;
+//! let d: Vec<Vec<f32>> = emb.iter().map(|e| cosine_grad(e, &text[0])).collect();
+//! let d_pixels = clip.image_backward(&cache, &d)?; // ∂Σcos/∂pixel, one Image per view
+//! # let _ = (cosine(&emb[0], &text[0]), d_pixels); Ok(()) }
+//! ```
+
+mod attention;
+pub mod config;
+mod encoder;
+mod layers;
+pub mod load;
+pub mod matmul;
+mod preprocess;
+mod similarity;
+mod source;
+mod text;
+mod tokenizer;
+mod tower;
+mod vision;
+mod weights;
+
+use std::path::{Path, PathBuf};
+
+pub use config::{Activation, ClipConfig};
+pub use load::DEFAULT_MODEL;
+pub use preprocess::preprocess;
+pub use similarity::{cosine, cosine_grad, softmax_scaled};
+pub use source::{RandomSource, TensorSource};
+pub use tokenizer::ClipTokenizer;
+pub use vision::{ImageCache, MEAN, STD};
+
+use crate::image::Image;
+use text::TextModel;
+use vision::VisionModel;
+use weights::WeightFile;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ClipError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: bad CLIP config: {msg}")]
+    Config { path: PathBuf, msg: String },
+    #[error("{path}: {msg}")]
+    Weights { path: PathBuf, msg: String },
+    #[error("{path}: tokenizer: {msg}")]
+    Tokenizer { path: PathBuf, msg: String },
+    #[error("{0}")]
+    Missing(String),
+    #[error("CLIP input: {0}")]
+    Input(String),
+}
+
+/// A loaded CLIP model (`CLIPModel`).
+pub struct Clip {
+    config: ClipConfig,
+    text: TextModel,
+    vision: VisionModel,
+    tokenizer: Option<ClipTokenizer>,
+    logit_scale: f32,
+}
+
+impl Clip {
+    /// `model`: a directory with `config.json`, `model.safetensors` and `tokenizer.json`, or a
+    /// Hugging Face repo id (fetched into the standard cache; `HF_HUB_OFFLINE=1` forbids the
+    /// network).
+    pub fn load(model: &str) -> Result<Clip, ClipError> {
+        Clip::load_with_tokenizer(model, None)
+    }
+
+    /// As `load`, with `tokenizer.json` taken from `tokenizer` when given.
+    pub fn load_with_tokenizer(model: &str, tokenizer: Option<&Path>) -> Result<Clip, ClipError> {
+        let files = load::resolve(model, tokenizer)?;
+        let config = ClipConfig::from_file(&files.config)?;
+        let tok = ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
+        let wf = WeightFile::open(&files.weights)?;
+        let w = wf.tensors()?;
+        let mut clip = Clip::from_source(config, &w)?;
+        clip.tokenizer = Some(tok);
+        Ok(clip)
+    }
+
+    /// Build the model from any tensor source (checkpoint or `RandomSource`); no tokenizer, so
+    /// `encode_text` needs `set_tokenizer` first, `encode_tokens` works.
+    pub fn from_source(config: ClipConfig, src: &dyn TensorSource) -> Result<Clip, ClipError> {
+        let text = TextModel::load(src, &config.text, config.projection_dim)?;
+        let vision = VisionModel::load(src, &config.vision, config.projection_dim)?;
+        let logit_scale = src.tensor("logit_scale", &[])?[0].exp();
+        Ok(Clip {
+            config,
+            text,
+            vision,
+            tokenizer: None,
+            logit_scale,
+        })
+    }
+
+    pub fn set_tokenizer(&mut self, tokenizer: ClipTokenizer) {
+        self.tokenizer = Some(tokenizer);
+    }
+
+    pub fn config(&self) -> &ClipConfig {
+        &self.config
+    }
+
+    /// Token ids of each text (with start/end tokens, truncated to the context length).
+    pub fn tokenize(&self, texts: &[&str]) -> Result<Vec<Vec<u32>>, ClipError> {
+        let tok = self
+            .tokenizer
+            .as_ref()
+            .ok_or_else(|| ClipError::Input("this model was built without a tokenizer".into()))?;
+        texts.iter().map(|t| tok.encode(t)).collect()
+    }
+
+    /// Projected, not normalized, text embeddings `[texts][projection_dim]`.
+    pub fn encode_text(&self, texts: &[&str]) -> Result<Vec<Vec<f32>>, ClipError> {
+        let ids = self.tokenize(texts)?;
+        self.encode_tokens(&ids)
+    }
+
+    /// Text embeddings from token ids (each sequence as the tokenizer returns it).
+    pub fn encode_tokens(&self, ids: &[Vec<u32>]) -> Result<Vec<Vec<f32>>, ClipError> {
+        self.text.forward(ids)
+    }
+
+    /// Side of the square images the vision tower takes (224 for ViT-B/32).
+    pub fn image_size(&self) -> usize {
+        self.config.vision.image_size
+    }
+
+    /// Projected, not normalized, image embeddings of `image_size()`² RGB images in [0, 1]
+    /// (CLIP's mean/std normalisation is applied inside), and what `image_backward` needs.
+    pub fn encode_images(
+        &self,
+        images: &[Image],
+    ) -> Result<(Vec<Vec<f32>>, ImageCache), ClipError> {
+        self.vision.forward(images)
+    }
+
+    /// Gradient with respect to the input pixels of a scalar loss whose gradient with respect
+    /// to the embeddings `encode_images` returned is `d_embeddings`.
+    pub fn image_backward(
+        &self,
+        cache: &ImageCache,
+        d_embeddings: &[Vec<f32>],
+    ) -> Result<Vec<Image>, ClipError> {
+        self.vision.backward(cache, d_embeddings)
+    }
+
+    /// exp(logit_scale): the temperature CLIP multiplies cosine similarities by (100 for
+    /// OpenAI's models).
+    pub fn logit_scale(&self) -> f32 {
+        self.logit_scale
+    }
+
+    /// `CLIPImageProcessor`'s resize (shortest side, bicubic) and centre crop to
+    /// `image_size()`², for arbitrary pictures; see `preprocess`.
+    pub fn preprocess(&self, image: &Image) -> Image {
+        preprocess::preprocess(image, self.image_size())
+    }
+}

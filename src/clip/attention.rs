@@ -1,0 +1,472 @@
+//! Multi-head self-attention, `transformers` modeling_clip.py `CLIPAttention`, forward and
+//! input backward.
+//!
+//! Many sequences are packed into one `[tokens, D]` matrix (three 50-token views, or captions
+//! of different lengths one after another), so the projections run as single large GEMMs and no
+//! padding is ever computed; only the score/softmax/value step works per (sequence, head).
+
+use rayon::prelude::*;
+
+use super::layers::{fast_exp, Linear};
+use super::matmul::{matmul, Mat, Op};
+
+/// Where each packed sequence lives: rows `start .. start + len`.
+#[derive(Clone, Debug)]
+pub struct Segments {
+    pub spans: Vec<(usize, usize)>,
+    /// Causal mask (text tower): token i attends to tokens 0..=i only.
+    pub causal: bool,
+}
+
+impl Segments {
+    /// `count` sequences of `len` tokens each.
+    pub fn uniform(count: usize, len: usize, causal: bool) -> Segments {
+        Segments {
+            spans: (0..count).map(|s| (s * len, len)).collect(),
+            causal,
+        }
+    }
+    pub fn total(&self) -> usize {
+        self.spans.last().map_or(0, |&(s, l)| s + l)
+    }
+}
+
+pub struct Attention {
+    /// q, k and v projections stacked: weight `[3D, D]`, bias `[3D]`, rows q then k then v.
+    pub qkv: Linear,
+    pub out: Linear,
+    pub num_heads: usize,
+}
+
+/// Activations attention backward needs.
+pub struct AttnSaved {
+    /// `[T, 3D]`: scaled q, k, v for every token.
+    qkv: Vec<f32>,
+    /// Softmax probabilities, one `[len, len]` block per (sequence, head), sequence-major.
+    probs: Vec<Vec<f32>>,
+}
+
+impl Attention {
+    fn dims(&self) -> (usize, usize, f32) {
+        let d = self.out.out_dim;
+        let dh = d / self.num_heads;
+        (d, dh, (dh as f32).powf(-0.5))
+    }
+
+    /// `x: [T, D]` → `[T, D]`.
+    pub fn forward(&self, x: &[f32], seg: &Segments, save: bool) -> (Vec<f32>, Option<AttnSaved>) {
+        let (d, dh, scale) = self.dims();
+        let t = seg.total();
+        // qkv: [T, 3D]; q is scaled by dh^-1/2 right after its projection, as in CLIPAttention.
+        let mut qkv = self.qkv.forward(x, t);
+        for row in qkv.chunks_exact_mut(3 * d) {
+            row[..d].iter_mut().for_each(|v| *v *= scale);
+        }
+        let h = self.num_heads;
+        // One task per (sequence, head): P = softmax(Q Kᵀ + mask), O = P V.
+        let results: Vec<(Vec<f32>, Vec<f32>)> = (0..seg.spans.len() * h)
+            .into_par_iter()
+            .map(|task| {
+                let (start, len) = seg.spans[task / h];
+                let head = task % h;
+                let base = &qkv[start * 3 * d..(start + len) * 3 * d];
+                let q = Mat::new(&base[head * dh..], 3 * d);
+                let k = Mat::new(&base[d + head * dh..], 3 * d);
+                let v = Mat::new(&base[2 * d + head * dh..], 3 * d);
+                let mut p = vec![0.0f32; len * len];
+                matmul(&mut p, len, q, Op::N, k, Op::T, len, len, dh, false);
+                softmax_rows(&mut p, len, seg.causal);
+                let mut o = vec![0.0f32; len * dh];
+                matmul(
+                    &mut o,
+                    dh,
+                    Mat::new(&p, len),
+                    Op::N,
+                    v,
+                    Op::N,
+                    len,
+                    dh,
+                    len,
+                    false,
+                );
+                (p, o)
+            })
+            .collect();
+        // ctx: [T, D], heads side by side.
+        let mut ctx = vec![0.0f32; t * d];
+        for (task, (_, o)) in results.iter().enumerate() {
+            let (start, len) = seg.spans[task / h];
+            let head = task % h;
+            for i in 0..len {
+                let dst = (start + i) * d + head * dh;
+                ctx[dst..dst + dh].copy_from_slice(&o[i * dh..(i + 1) * dh]);
+            }
+        }
+        let y = self.out.forward(&ctx, t);
+        let saved = save.then(|| AttnSaved {
+            qkv,
+            probs: results.into_iter().map(|(p, _)| p).collect(),
+        });
+        (y, saved)
+    }
+
+    /// `dy: [T, D]` → `dx: [T, D]`.
+    pub fn backward(&self, dy: &[f32], seg: &Segments, s: &AttnSaved) -> Vec<f32> {
+        let (d, dh, scale) = self.dims();
+        let t = seg.total();
+        let h = self.num_heads;
+        let dctx = self.out.backward(dy, t);
+        // Per (sequence, head), with S = Q Kᵀ, P = softmax(S), O = P V:
+        //   dP = dO Vᵀ, dV = Pᵀ dO, dS = P ⊙ (dP − rowsum(dP ⊙ P)), dQ = dS K, dK = dSᵀ Q.
+        let results: Vec<Vec<f32>> = (0..seg.spans.len() * h)
+            .into_par_iter()
+            .map(|task| {
+                let (start, len) = seg.spans[task / h];
+                let head = task % h;
+                let base = &s.qkv[start * 3 * d..(start + len) * 3 * d];
+                let q = Mat::new(&base[head * dh..], 3 * d);
+                let k = Mat::new(&base[d + head * dh..], 3 * d);
+                let v = Mat::new(&base[2 * d + head * dh..], 3 * d);
+                let dout = Mat::new(&dctx[start * d + head * dh..], d);
+                let p = &s.probs[task];
+                let mut dp = vec![0.0f32; len * len];
+                matmul(&mut dp, len, dout, Op::N, v, Op::T, len, len, dh, false);
+                for (dr, pr) in dp.chunks_exact_mut(len).zip(p.chunks_exact(len)) {
+                    let dot: f32 = dr.iter().zip(pr).map(|(a, b)| a * b).sum();
+                    dr.iter_mut()
+                        .zip(pr)
+                        .for_each(|(a, &b)| *a = b * (*a - dot));
+                }
+                // dqkv block for this head: [len, 3 dh] = (dQ | dK | dV).
+                let mut g = vec![0.0f32; len * 3 * dh];
+                let ds = Mat::new(&dp, len);
+                matmul(&mut g, 3 * dh, ds, Op::N, k, Op::N, len, dh, len, false);
+                matmul(
+                    &mut g[dh..],
+                    3 * dh,
+                    ds,
+                    Op::T,
+                    q,
+                    Op::N,
+                    len,
+                    dh,
+                    len,
+                    false,
+                );
+                matmul(
+                    &mut g[2 * dh..],
+                    3 * dh,
+                    Mat::new(p, len),
+                    Op::T,
+                    dout,
+                    Op::N,
+                    len,
+                    dh,
+                    len,
+                    false,
+                );
+                g
+            })
+            .collect();
+        let mut dqkv = vec![0.0f32; t * 3 * d];
+        for (task, g) in results.iter().enumerate() {
+            let (start, len) = seg.spans[task / h];
+            let head = task % h;
+            for i in 0..len {
+                let row = &mut dqkv[(start + i) * 3 * d..(start + i + 1) * 3 * d];
+                let src = &g[i * 3 * dh..(i + 1) * 3 * dh];
+                // q was scaled after its projection, so its gradient picks up the scale too.
+                for (dst, s) in row[head * dh..(head + 1) * dh].iter_mut().zip(&src[..dh]) {
+                    *dst = s * scale;
+                }
+                row[d + head * dh..d + (head + 1) * dh].copy_from_slice(&src[dh..2 * dh]);
+                row[2 * d + head * dh..2 * d + (head + 1) * dh].copy_from_slice(&src[2 * dh..]);
+            }
+        }
+        self.qkv.backward(&dqkv, t)
+    }
+}
+
+/// Activations `backward_pooled` needs.
+pub struct PooledAttnSaved {
+    /// `[T, 2D]`: k and v for every token.
+    kv: Vec<f32>,
+    /// `[S, D]`: scaled q of each sequence's query token.
+    q: Vec<f32>,
+    /// Softmax probabilities `[len]` per (sequence, head).
+    probs: Vec<Vec<f32>>,
+}
+
+impl Attention {
+    /// Attention output for one query token per sequence (`rows[s]`, counted from the start of
+    /// sequence s), keys and values from all tokens: `x: [T, D]` → `[S, D]`. The last layer of a
+    /// tower only needs the pooled token (class token, end-of-text token), so this skips the
+    /// query projection, scores, output projection (and, in `EncoderLayer`, the MLP) of every
+    /// other token.
+    pub fn forward_pooled(
+        &self,
+        x: &[f32],
+        seg: &Segments,
+        rows: &[usize],
+        save: bool,
+    ) -> (Vec<f32>, Option<PooledAttnSaved>) {
+        let (d, dh, scale) = self.dims();
+        let (t, ns, h) = (seg.total(), seg.spans.len(), self.num_heads);
+        let kv = self.qkv.forward_part(x, t, d..3 * d);
+        let xq: Vec<f32> = seg
+            .spans
+            .iter()
+            .zip(rows)
+            .flat_map(|(&(start, _), &r)| x[(start + r) * d..][..d].iter().copied())
+            .collect();
+        let mut q = self.qkv.forward_part(&xq, ns, 0..d);
+        q.iter_mut().for_each(|v| *v *= scale);
+        let results: Vec<(Vec<f32>, Vec<f32>)> = (0..ns * h)
+            .into_par_iter()
+            .map(|task| {
+                let (sq, head) = (task / h, task % h);
+                let (start, len) = seg.spans[sq];
+                let qh = &q[sq * d + head * dh..][..dh];
+                let keep = if seg.causal { rows[sq] + 1 } else { len };
+                let mut p = vec![0.0f32; len];
+                for (j, pj) in p[..keep].iter_mut().enumerate() {
+                    let k = &kv[(start + j) * 2 * d + head * dh..][..dh];
+                    *pj = qh.iter().zip(k).map(|(a, b)| a * b).sum();
+                }
+                softmax_rows(&mut p[..keep], keep, false);
+                let mut o = vec![0.0f32; dh];
+                for (j, &pj) in p[..keep].iter().enumerate() {
+                    let v = &kv[(start + j) * 2 * d + d + head * dh..][..dh];
+                    o.iter_mut().zip(v).for_each(|(o, v)| *o += pj * v);
+                }
+                (p, o)
+            })
+            .collect();
+        let mut ctx = vec![0.0f32; ns * d];
+        for (task, (_, o)) in results.iter().enumerate() {
+            ctx[(task / h) * d + (task % h) * dh..][..dh].copy_from_slice(o);
+        }
+        let y = self.out.forward(&ctx, ns);
+        let saved = save.then(|| PooledAttnSaved {
+            kv,
+            q,
+            probs: results.into_iter().map(|(p, _)| p).collect(),
+        });
+        (y, saved)
+    }
+
+    /// Backward of `forward_pooled`: `dy: [S, D]` → `dx: [T, D]`.
+    pub fn backward_pooled(
+        &self,
+        dy: &[f32],
+        seg: &Segments,
+        rows: &[usize],
+        s: &PooledAttnSaved,
+    ) -> Vec<f32> {
+        let (d, dh, scale) = self.dims();
+        let (t, ns, h) = (seg.total(), seg.spans.len(), self.num_heads);
+        let dctx = self.out.backward(dy, ns);
+        // Per (sequence, head), one query row: dp_j = dO·v_j, ds = p ⊙ (dp − p·dp),
+        // dq = Σ_j ds_j k_j, dk_j = ds_j q, dv_j = p_j dO.
+        let results: Vec<(Vec<f32>, Vec<f32>)> = (0..ns * h)
+            .into_par_iter()
+            .map(|task| {
+                let (sq, head) = (task / h, task % h);
+                let (start, len) = seg.spans[sq];
+                let p = &s.probs[task];
+                let qh = &s.q[sq * d + head * dh..][..dh];
+                let dout = &dctx[sq * d + head * dh..][..dh];
+                let key = |j: usize| &s.kv[(start + j) * 2 * d + head * dh..][..dh];
+                let val = |j: usize| &s.kv[(start + j) * 2 * d + d + head * dh..][..dh];
+                let dp: Vec<f32> = (0..len)
+                    .map(|j| dout.iter().zip(val(j)).map(|(a, b)| a * b).sum())
+                    .collect();
+                let dot: f32 = dp.iter().zip(p).map(|(a, b)| a * b).sum();
+                let ds: Vec<f32> = dp.iter().zip(p).map(|(a, &b)| b * (a - dot)).collect();
+                let mut dq = vec![0.0f32; dh];
+                // dkv block for this head: [len, 2 dh] = (dK | dV).
+                let mut g = vec![0.0f32; len * 2 * dh];
+                for j in 0..len {
+                    dq.iter_mut().zip(key(j)).for_each(|(a, k)| *a += ds[j] * k);
+                    let row = &mut g[j * 2 * dh..][..2 * dh];
+                    row[..dh]
+                        .iter_mut()
+                        .zip(qh)
+                        .for_each(|(a, q)| *a = ds[j] * q);
+                    row[dh..]
+                        .iter_mut()
+                        .zip(dout)
+                        .for_each(|(a, o)| *a = p[j] * o);
+                }
+                (dq, g)
+            })
+            .collect();
+        let mut dkv = vec![0.0f32; t * 2 * d];
+        let mut dq = vec![0.0f32; ns * d];
+        for (task, (dqh, g)) in results.iter().enumerate() {
+            let (sq, head) = (task / h, task % h);
+            let (start, len) = seg.spans[sq];
+            // q was scaled after its projection.
+            dq[sq * d + head * dh..][..dh]
+                .iter_mut()
+                .zip(dqh)
+                .for_each(|(a, b)| *a = b * scale);
+            for j in 0..len {
+                let row = &mut dkv[(start + j) * 2 * d..][..2 * d];
+                let src = &g[j * 2 * dh..][..2 * dh];
+                row[head * dh..][..dh].copy_from_slice(&src[..dh]);
+                row[d + head * dh..][..dh].copy_from_slice(&src[dh..]);
+            }
+        }
+        let mut dx = self.qkv.backward_part(&dkv, t, d..3 * d);
+        let dxq = self.qkv.backward_part(&dq, ns, 0..d);
+        for ((&(start, _), &r), g) in seg.spans.iter().zip(rows).zip(dxq.chunks_exact(d)) {
+            dx[(start + r) * d..][..d]
+                .iter_mut()
+                .zip(g)
+                .for_each(|(a, b)| *a += b);
+        }
+        dx
+    }
+}
+
+/// Row-wise softmax of a `[len, len]` score block, in place; with `causal`, entries above the
+/// diagonal get probability 0 (as adding -inf to the scores would).
+fn softmax_rows(p: &mut [f32], len: usize, causal: bool) {
+    for (i, row) in p.chunks_exact_mut(len).enumerate() {
+        let keep = if causal { i + 1 } else { len };
+        let max = row[..keep].iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
+        let mut sum = 0.0f32;
+        for v in &mut row[..keep] {
+            *v = fast_exp(*v - max);
+            sum += *v;
+        }
+        let inv = 1.0 / sum;
+        row[..keep].iter_mut().for_each(|v| *v *= inv);
+        row[keep..].fill(0.0);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lin(out: usize, inp: usize, seed: usize) -> Linear {
+        Linear::new(
+            (0..out * inp)
+                .map(|i| (((i + seed) * 2654435761usize % 1000) as f32 / 1000.0 - 0.5) * 0.8)
+                .collect(),
+            Some(
+                (0..out)
+                    .map(|i| ((i + seed) % 7) as f32 * 0.05 - 0.15)
+                    .collect(),
+            ),
+            inp,
+            out,
+        )
+    }
+
+    /// Finite differences of `sum(w ⊙ attn(x))` for causal packed segments of different
+    /// lengths. Central differences with h = 1e-2 in f64 of an f32 forward: f32 round-off
+    /// (~1e-7 relative on O(1) outputs) / h ≈ 1e-5 plus O(h²) truncation, so 2e-3 relative.
+    #[test]
+    fn backward_matches_finite_differences() {
+        let d = 6;
+        for causal in [false, true] {
+            let att = Attention {
+                qkv: lin(3 * d, d, 1),
+                out: lin(d, d, 2),
+                num_heads: 2,
+            };
+            let seg = Segments {
+                spans: vec![(0, 3), (3, 1), (4, 4)],
+                causal,
+            };
+            let t = seg.total();
+            let x: Vec<f32> = (0..t * d)
+                .map(|i| ((i * 37 % 23) as f32 - 11.0) / 8.0)
+                .collect();
+            let w: Vec<f32> = (0..t * d)
+                .map(|i| ((i * 11 % 17) as f32 - 8.0) / 8.0)
+                .collect();
+            let loss = |x: &[f32]| -> f64 {
+                let (y, _) = att.forward(x, &seg, false);
+                y.iter().zip(&w).map(|(a, b)| *a as f64 * *b as f64).sum()
+            };
+            let (_, s) = att.forward(&x, &seg, true);
+            let dx = att.backward(&w, &seg, &s.unwrap());
+            let h = 1e-2f32;
+            for i in 0..x.len() {
+                let (mut xp, mut xm) = (x.clone(), x.clone());
+                xp[i] += h;
+                xm[i] -= h;
+                let fd = (loss(&xp) - loss(&xm)) / (2.0 * h as f64);
+                assert!(
+                    (dx[i] as f64 - fd).abs() <= 2e-3 * (1.0 + fd.abs()),
+                    "causal={causal} i={i}: {} vs {fd}",
+                    dx[i]
+                );
+            }
+        }
+    }
+
+    /// The pooled path equals the full one at the query rows, and its backward matches
+    /// finite differences (same tolerance argument as above).
+    #[test]
+    fn pooled_matches_full_and_finite_differences() {
+        let d = 6;
+        for causal in [false, true] {
+            let att = Attention {
+                qkv: lin(3 * d, d, 3),
+                out: lin(d, d, 4),
+                num_heads: 3,
+            };
+            let seg = Segments {
+                spans: vec![(0, 3), (3, 1), (4, 4)],
+                causal,
+            };
+            let rows = [2usize, 0, if causal { 3 } else { 1 }];
+            let t = seg.total();
+            let x: Vec<f32> = (0..t * d)
+                .map(|i| ((i * 29 % 19) as f32 - 9.0) / 7.0)
+                .collect();
+            let (full, _) = att.forward(&x, &seg, false);
+            let (pooled, s) = att.forward_pooled(&x, &seg, &rows, true);
+            for (k, (&(start, _), &r)) in seg.spans.iter().zip(&rows).enumerate() {
+                for c in 0..d {
+                    let (a, b) = (pooled[k * d + c], full[(start + r) * d + c]);
+                    assert!((a - b).abs() < 1e-5, "causal={causal} seq {k}: {a} vs {b}");
+                }
+            }
+            let w: Vec<f32> = (0..3 * d)
+                .map(|i| ((i * 7 % 11) as f32 - 5.0) / 5.0)
+                .collect();
+            let loss = |x: &[f32]| -> f64 {
+                let (y, _) = att.forward_pooled(x, &seg, &rows, false);
+                y.iter().zip(&w).map(|(a, b)| *a as f64 * *b as f64).sum()
+            };
+            let dx = att.backward_pooled(&w, &seg, &rows, &s.unwrap());
+            let h = 1e-2f32;
+            for i in 0..x.len() {
+                let (mut xp, mut xm) = (x.clone(), x.clone());
+                xp[i] += h;
+                xm[i] -= h;
+                let fd = (loss(&xp) - loss(&xm)) / (2.0 * h as f64);
+                assert!(
+                    (dx[i] as f64 - fd).abs() <= 2e-3 * (1.0 + fd.abs()),
+                    "causal={causal} i={i}: {} vs {fd}",
+                    dx[i]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn causal_first_token_sees_only_itself_and_huge_scores_stay_finite() {
+        let mut p = vec![1e30f32, 5.0, -1e30, 2.0, 1.0, 0.0, 3.0, 3.0, 3.0];
+        softmax_rows(&mut p, 3, true);
+        assert_eq!(&p[..3], &[1.0, 0.0, 0.0]);
+        assert!(p.iter().all(|v| v.is_finite()));
+        assert!(((p[3] + p[4]) - 1.0).abs() < 1e-6 && p[5] == 0.0);
+    }
+}

@@ -1,0 +1,522 @@
+//! The building blocks of both towers: linear layers, layer norm and the MLP activations, each
+//! with a forward pass and the backward pass with respect to its *input* only (the weights are
+//! frozen, so no weight gradients are ever formed).
+//!
+//! Tensors are row-major `[rows, features]` f32 slices; `rows` is tokens × sequences.
+
+use std::ops::Range;
+
+use rayon::prelude::*;
+
+use super::config::Activation;
+use super::matmul::{matmul, Mat, Op};
+
+/// `torch.nn.Linear`: `y = x Wᵀ + b`, `W` being `[out, in]` in the checkpoint.
+///
+/// Storage layout is chosen for GEMM speed, measured with `examples/bench_clip.rs`: `gemm` is
+/// ~2.5× slower when the right operand is transposed *and* the inner dimension is long
+/// (150×3072 · (768×3072)ᵀ: 63 GFLOPS against 164 untransposed). Forward contracts over `in`,
+/// backward over `out`, so a layer that widens keeps `W` as `[out, in]` and a layer that
+/// narrows (MLP fc2, patch embedding) stores `Wᵀ` as `[in, out]`: the long contraction is then
+/// always the untransposed one.
+pub struct Linear {
+    /// `[out, in]`, or `[in, out]` when `transposed`.
+    w: Vec<f32>,
+    transposed: bool,
+    /// `[out]`, absent for the bias-free projections.
+    pub b: Option<Vec<f32>>,
+    pub in_dim: usize,
+    pub out_dim: usize,
+}
+
+impl Linear {
+    /// From the checkpoint's `[out, in]` weight.
+    pub fn new(w: Vec<f32>, b: Option<Vec<f32>>, in_dim: usize, out_dim: usize) -> Linear {
+        assert_eq!(w.len(), in_dim * out_dim, "Linear weight size");
+        let transposed = in_dim > out_dim;
+        let w = if transposed {
+            let mut t = vec![0.0; w.len()];
+            for o in 0..out_dim {
+                for i in 0..in_dim {
+                    t[i * out_dim + o] = w[o * in_dim + i];
+                }
+            }
+            t
+        } else {
+            w
+        };
+        Linear {
+            w,
+            transposed,
+            b,
+            in_dim,
+            out_dim,
+        }
+    }
+
+    /// `W` as a GEMM operand for forward (`Wᵀ`, in × out) or backward (`W`, out × in).
+    fn operand(&self, forward: bool) -> (Mat<'_>, Op) {
+        let (ld, stored_is_t) = if self.transposed {
+            (self.out_dim, true)
+        } else {
+            (self.in_dim, false)
+        };
+        // Forward wants Wᵀ: free if Wᵀ is what is stored. Backward wants W.
+        let op = if forward == stored_is_t { Op::N } else { Op::T };
+        (Mat::new(&self.w, ld), op)
+    }
+
+    /// `x: [rows, in]` → `[rows, out]`.
+    pub fn forward(&self, x: &[f32], rows: usize) -> Vec<f32> {
+        debug_assert_eq!(x.len(), rows * self.in_dim);
+        let mut y = match &self.b {
+            Some(b) => {
+                let mut y = Vec::with_capacity(rows * self.out_dim);
+                for _ in 0..rows {
+                    y.extend_from_slice(b);
+                }
+                y
+            }
+            None => vec![0.0; rows * self.out_dim],
+        };
+        let (w, op) = self.operand(true);
+        matmul(
+            &mut y,
+            self.out_dim,
+            Mat::new(x, self.in_dim),
+            Op::N,
+            w,
+            op,
+            rows,
+            self.out_dim,
+            self.in_dim,
+            self.b.is_some(),
+        );
+        y
+    }
+
+    /// Outputs `outs` only: `x: [rows, in]` → `[rows, outs.len()]` (the q or the k|v part of
+    /// a stacked projection).
+    pub fn forward_part(&self, x: &[f32], rows: usize, outs: Range<usize>) -> Vec<f32> {
+        let n = outs.len();
+        let mut y = match &self.b {
+            Some(b) => b[outs.clone()].repeat(rows),
+            None => vec![0.0; rows * n],
+        };
+        let (w, op) = self.part_operand(outs, true);
+        let x = Mat::new(x, self.in_dim);
+        matmul(
+            &mut y,
+            n,
+            x,
+            Op::N,
+            w,
+            op,
+            rows,
+            n,
+            self.in_dim,
+            self.b.is_some(),
+        );
+        y
+    }
+
+    /// Backward of `forward_part`: `dy: [rows, outs.len()]` → `dx: [rows, in]`.
+    pub fn backward_part(&self, dy: &[f32], rows: usize, outs: Range<usize>) -> Vec<f32> {
+        let n = outs.len();
+        let mut dx = vec![0.0; rows * self.in_dim];
+        let (w, op) = self.part_operand(outs, false);
+        let dy = Mat::new(dy, n);
+        matmul(
+            &mut dx,
+            self.in_dim,
+            dy,
+            Op::N,
+            w,
+            op,
+            rows,
+            self.in_dim,
+            n,
+            false,
+        );
+        dx
+    }
+
+    /// The rows `outs` of `W` (stored `[out, in]`), or the columns `outs` of `Wᵀ` (stored
+    /// `[in, out]`), as a GEMM operand.
+    fn part_operand(&self, outs: Range<usize>, forward: bool) -> (Mat<'_>, Op) {
+        let (m, op) = self.operand(forward);
+        let offset = if self.transposed {
+            outs.start
+        } else {
+            outs.start * self.in_dim
+        };
+        (Mat::new(&m.data[offset..], m.ld), op)
+    }
+
+    /// `dy: [rows, out]` → `dx = dy W: [rows, in]`.
+    pub fn backward(&self, dy: &[f32], rows: usize) -> Vec<f32> {
+        debug_assert_eq!(dy.len(), rows * self.out_dim);
+        let mut dx = vec![0.0; rows * self.in_dim];
+        let (w, op) = self.operand(false);
+        matmul(
+            &mut dx,
+            self.in_dim,
+            Mat::new(dy, self.out_dim),
+            Op::N,
+            w,
+            op,
+            rows,
+            self.in_dim,
+            self.out_dim,
+            false,
+        );
+        dx
+    }
+}
+
+/// `torch.nn.LayerNorm` over the last dimension.
+pub struct LayerNorm {
+    pub gamma: Vec<f32>,
+    pub beta: Vec<f32>,
+    pub eps: f32,
+}
+
+/// What layer-norm backward needs: the normalized input and 1/σ per row.
+pub struct LnSaved {
+    /// `[rows, dim]`
+    pub xhat: Vec<f32>,
+    /// `[rows]`
+    pub rstd: Vec<f32>,
+}
+
+impl LayerNorm {
+    pub fn dim(&self) -> usize {
+        self.gamma.len()
+    }
+
+    /// `x: [rows, dim]` → `y: [rows, dim]`, and the saved state when `save`.
+    pub fn forward(&self, x: &[f32], save: bool) -> (Vec<f32>, Option<LnSaved>) {
+        let d = self.dim();
+        let rows = x.len() / d;
+        let mut y = vec![0.0; x.len()];
+        let mut rstd = vec![0.0; rows];
+        let rows_per_task = (CHUNK / d).max(1);
+        y.par_chunks_mut(d)
+            .zip(x.par_chunks(d))
+            .zip(rstd.par_iter_mut())
+            .with_min_len(rows_per_task)
+            .for_each(|((yr, xr), rs)| {
+                // Two passes in f64: exact enough that a constant row (variance 0) gives y = β.
+                let mean = xr.iter().map(|&v| v as f64).sum::<f64>() / d as f64;
+                let var = xr.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / d as f64;
+                let r = 1.0 / (var + self.eps as f64).sqrt();
+                *rs = r as f32;
+                for (yv, &xv) in yr.iter_mut().zip(xr) {
+                    *yv = ((xv as f64 - mean) * r) as f32;
+                }
+            });
+        let saved = save.then(|| LnSaved {
+            xhat: y.clone(),
+            rstd: rstd.clone(),
+        });
+        for yr in y.chunks_exact_mut(d) {
+            for ((yv, g), b) in yr.iter_mut().zip(&self.gamma).zip(&self.beta) {
+                *yv = *yv * g + b;
+            }
+        }
+        (y, saved)
+    }
+
+    /// `dy: [rows, dim]` → `dx`. With x̂ the normalized input and g = dy·γ:
+    /// `dx = rstd · (g − mean(g) − x̂ · mean(g x̂))`.
+    pub fn backward(&self, dy: &[f32], s: &LnSaved) -> Vec<f32> {
+        let d = self.dim();
+        let mut dx = vec![0.0; dy.len()];
+        let rows_per_task = (CHUNK / d).max(1);
+        dx.par_chunks_mut(d)
+            .zip(dy.par_chunks(d))
+            .zip(s.xhat.par_chunks(d))
+            .zip(s.rstd.par_iter())
+            .with_min_len(rows_per_task)
+            .for_each(|(((dxr, dyr), xr), &r)| {
+                let mut sg = 0.0f64;
+                let mut sgx = 0.0f64;
+                for ((&g, &gam), &xh) in dyr.iter().zip(&self.gamma).zip(xr) {
+                    let gg = (g * gam) as f64;
+                    sg += gg;
+                    sgx += gg * xh as f64;
+                }
+                let (mg, mgx) = (sg / d as f64, sgx / d as f64);
+                for (((o, &g), &gam), &xh) in dxr.iter_mut().zip(dyr).zip(&self.gamma).zip(xr) {
+                    *o = (r as f64 * ((g * gam) as f64 - mg - xh as f64 * mgx)) as f32;
+                }
+            });
+        dx
+    }
+}
+
+const SQRT_2_OVER_PI: f32 = 0.797_884_6;
+
+/// Elementwise work is split into chunks of this many values across threads: the MLP
+/// activation of three ViT-B/32 views is 150 × 3072 values, enough exp/erf calls to matter
+/// next to the GEMMs.
+const CHUNK: usize = 8192;
+
+/// Apply the activation in place.
+pub fn activation_forward(act: Activation, x: &mut [f32]) {
+    x.par_chunks_mut(CHUNK)
+        .for_each(|c| c.iter_mut().for_each(|v| *v = act_value(act, *v)));
+}
+
+/// `dy ← dy · act'(pre)` in place, `pre` being the activation's input.
+pub fn activation_backward(act: Activation, pre: &[f32], dy: &mut [f32]) {
+    dy.par_chunks_mut(CHUNK)
+        .zip(pre.par_chunks(CHUNK))
+        .for_each(|(g, p)| {
+            g.iter_mut()
+                .zip(p)
+                .for_each(|(g, &x)| *g *= act_slope(act, x))
+        });
+}
+
+#[inline]
+fn act_value(act: Activation, x: f32) -> f32 {
+    match act {
+        Activation::QuickGelu => x * sigmoid(1.702 * x),
+        Activation::Gelu => 0.5 * x * (1.0 + libm::erff(x * std::f32::consts::FRAC_1_SQRT_2)),
+        Activation::GeluTanh => {
+            let u = SQRT_2_OVER_PI * (x + 0.044715 * x * x * x);
+            0.5 * x * (1.0 + u.tanh())
+        }
+    }
+}
+
+#[inline]
+fn act_slope(act: Activation, x: f32) -> f32 {
+    match act {
+        Activation::QuickGelu => {
+            let s = sigmoid(1.702 * x);
+            s + 1.702 * x * s * (1.0 - s)
+        }
+        Activation::Gelu => {
+            // d/dx [x Φ(x)] = Φ(x) + x φ(x)
+            let cdf = 0.5 * (1.0 + libm::erff(x * std::f32::consts::FRAC_1_SQRT_2));
+            cdf + x * 0.398_942_3 * fast_exp(-0.5 * x * x)
+        }
+        Activation::GeluTanh => {
+            let u = SQRT_2_OVER_PI * (x + 0.044715 * x * x * x);
+            let t = u.tanh();
+            let du = SQRT_2_OVER_PI * (1.0 + 3.0 * 0.044715 * x * x);
+            0.5 * (1.0 + t) + 0.5 * x * (1.0 - t * t) * du
+        }
+    }
+}
+
+/// Logistic function, finite for any input, written without branches so the activation
+/// loops vectorise.
+#[inline]
+fn sigmoid(z: f32) -> f32 {
+    1.0 / (1.0 + fast_exp(-z))
+}
+
+/// e^x to within ~2e-7 relative for x in [−87, 88] (clamped outside, so never inf or NaN
+/// for finite x; NaN stays NaN). Straight-line code that LLVM vectorises: libm's `expf` was
+/// 5 % of the whole benchmark profile (quick_gelu forward and backward, softmax).
+/// e^x = 2^n · e^g with n = round(x log2 e) and g = x − n ln 2 ∈ [−0.347, 0.347], e^g by its
+/// Taylor series to g⁶ (remainder g⁷/7! < 1.3e-7).
+#[inline]
+pub fn fast_exp(x: f32) -> f32 {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    // ln 2 = HI + LO with HI = 355/512 (9 significant bits, so n·HI is exact in f32), the
+    // Cody–Waite reduction.
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    // Adding then subtracting 1.5·2²³ rounds to the nearest integer for |t| < 2²².
+    const ROUND: f32 = 12_582_912.0;
+    let x = x.clamp(-87.0, 88.0);
+    let n = (x * LOG2E + ROUND) - ROUND;
+    let g = (x - n * LN2_HI) - n * LN2_LO;
+    let p = 1.0
+        + g * (1.0
+            + g * (0.5
+                + g * (1.0 / 6.0 + g * (1.0 / 24.0 + g * (1.0 / 120.0 + g * (1.0 / 720.0))))));
+    // 2^n by building the exponent field; n ∈ [−126, 127] after the clamp.
+    let scale = f32::from_bits(((n as i32 + 127) as u32) << 23);
+    p * scale
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Central differences in f64 of a scalar function of an f32 vector.
+    /// Steps of 1e-2 on O(1) inputs: the f32 rounding of the loss (~1e-7 relative) divided by
+    /// the step gives ~1e-5 noise, the truncation error O(h²) ~1e-4 for these smooth
+    /// functions, hence the 2e-3 relative tolerance below.
+    fn fd(f: &dyn Fn(&[f32]) -> f64, x: &[f32], i: usize) -> f64 {
+        let h = 1e-2f32;
+        let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+        xp[i] += h;
+        xm[i] -= h;
+        (f(&xp) - f(&xm)) / (2.0 * h as f64)
+    }
+
+    fn close(a: f64, b: f64, tol: f64) -> bool {
+        (a - b).abs() <= tol * (1.0 + b.abs())
+    }
+
+    #[test]
+    fn activations_match_definitions_and_finite_differences() {
+        let xs: Vec<f32> = (-40..=40).map(|i| i as f32 * 0.1).collect();
+        for act in [
+            Activation::QuickGelu,
+            Activation::Gelu,
+            Activation::GeluTanh,
+        ] {
+            let mut y = xs.clone();
+            activation_forward(act, &mut y);
+            for (&x, &v) in xs.iter().zip(&y) {
+                let x64 = x as f64;
+                let want = match act {
+                    Activation::QuickGelu => x64 / (1.0 + (-1.702 * x64).exp()),
+                    Activation::Gelu => 0.5 * x64 * (1.0 + libm::erf(x64 / 2f64.sqrt())),
+                    Activation::GeluTanh => {
+                        0.5 * x64
+                            * (1.0
+                                + ((2.0 / std::f64::consts::PI).sqrt()
+                                    * (x64 + 0.044715 * x64.powi(3)))
+                                .tanh())
+                    }
+                };
+                assert!(close(v as f64, want, 1e-6), "{act:?} at {x}: {v} vs {want}");
+            }
+            let mut g = vec![1.0; xs.len()];
+            activation_backward(act, &xs, &mut g);
+            for i in 0..xs.len() {
+                let f = |x: &[f32]| {
+                    let mut y = x.to_vec();
+                    activation_forward(act, &mut y);
+                    y[i] as f64
+                };
+                assert!(
+                    close(g[i] as f64, fd(&f, &xs, i), 2e-3),
+                    "{act:?} grad at {}",
+                    xs[i]
+                );
+            }
+        }
+        // Huge inputs stay finite.
+        let mut big = vec![1e30f32, -1e30, 88.0, -88.0];
+        let pre = big.clone();
+        activation_forward(Activation::QuickGelu, &mut big);
+        let mut g = vec![1.0; 4];
+        activation_backward(Activation::QuickGelu, &pre, &mut g);
+        assert!(big.iter().chain(&g).all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn fast_exp_is_accurate_and_finite() {
+        let mut worst = 0.0f64;
+        for i in -86_990..=87_990 {
+            let x = i as f32 * 1e-3;
+            let want = (x as f64).exp();
+            worst = worst.max((fast_exp(x) as f64 - want).abs() / want);
+        }
+        assert!(worst < 3e-7, "worst relative error {worst:e}");
+        for x in [
+            f32::MAX,
+            1e4,
+            -1e4,
+            f32::MIN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ] {
+            assert!(fast_exp(x).is_finite() && fast_exp(x) >= 0.0, "{x}");
+        }
+    }
+
+    #[test]
+    fn layer_norm_backward_matches_finite_differences() {
+        let d = 6;
+        let ln = LayerNorm {
+            gamma: (0..d).map(|i| 0.5 + i as f32 * 0.3).collect(),
+            beta: (0..d).map(|i| i as f32 * 0.1 - 0.2).collect(),
+            eps: 1e-5,
+        };
+        let x: Vec<f32> = (0..2 * d)
+            .map(|i| ((i * 7 % 11) as f32 - 5.0) * 0.4)
+            .collect();
+        let w: Vec<f32> = (0..2 * d)
+            .map(|i| ((i * 5 % 13) as f32 - 6.0) * 0.2)
+            .collect();
+        let loss = |x: &[f32]| -> f64 {
+            let (y, _) = ln.forward(x, false);
+            y.iter().zip(&w).map(|(a, b)| (a * b) as f64).sum()
+        };
+        let (_, s) = ln.forward(&x, true);
+        let dx = ln.backward(&w, &s.unwrap());
+        for (i, &g) in dx.iter().enumerate() {
+            assert!(close(g as f64, fd(&loss, &x, i), 2e-3), "dx[{i}]");
+        }
+        // A constant row normalizes to β with a finite gradient.
+        let (y, s) = ln.forward(&[3.0; 6], true);
+        assert!(y.iter().zip(&ln.beta).all(|(a, b)| (a - b).abs() < 1e-6));
+        assert!(ln
+            .backward(&[1.0; 6], &s.unwrap())
+            .iter()
+            .all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn linear_forward_and_backward() {
+        // [2 out, 3 in]: narrowing, so stored transposed.
+        let l = Linear::new(
+            vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+            Some(vec![0.5, -0.5]),
+            3,
+            2,
+        );
+        assert!(l.transposed);
+        let y = l.forward(&[1.0, 0.0, -1.0, 2.0, 1.0, 0.0], 2);
+        assert_eq!(y, vec![-1.5, -2.5, 4.5, 12.5]);
+        let dx = l.backward(&[1.0, 0.0, 0.0, 2.0], 2);
+        assert_eq!(dx, vec![1.0, 2.0, 3.0, 8.0, 10.0, 12.0]);
+        // [3 out, 2 in] = the transpose of the above: widening, stored as is.
+        let l = Linear::new(vec![1.0, 4.0, 2.0, 5.0, 3.0, 6.0], None, 2, 3);
+        assert!(!l.transposed);
+        assert_eq!(l.forward(&[1.0, 2.0], 1), vec![9.0, 12.0, 15.0]);
+        assert_eq!(l.backward(&[1.0, 0.0, -1.0], 1), vec![-2.0, -2.0]);
+        // Parts agree with the whole, in both storage layouts.
+        for l in [
+            Linear::new(
+                (0..12).map(|v| v as f32 - 5.0).collect(),
+                Some(vec![0.1; 4]),
+                3,
+                4,
+            ),
+            Linear::new(
+                (0..12).map(|v| v as f32 - 5.0).collect(),
+                Some(vec![0.1; 3]),
+                4,
+                3,
+            ),
+        ] {
+            let x: Vec<f32> = (0..2 * l.in_dim).map(|v| v as f32 * 0.5).collect();
+            let full = l.forward(&x, 2);
+            let part = l.forward_part(&x, 2, 1..3);
+            for r in 0..2 {
+                assert_eq!(
+                    &part[r * 2..r * 2 + 2],
+                    &full[r * l.out_dim + 1..r * l.out_dim + 3]
+                );
+            }
+            let dy_part = [1.0, -1.0, 0.5, 2.0];
+            let mut dy = vec![0.0; 2 * l.out_dim];
+            for r in 0..2 {
+                dy[r * l.out_dim + 1..r * l.out_dim + 3]
+                    .copy_from_slice(&dy_part[r * 2..r * 2 + 2]);
+            }
+            assert_eq!(l.backward_part(&dy_part, 2, 1..3), l.backward(&dy, 2));
+        }
+    }
+}

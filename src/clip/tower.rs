@@ -1,0 +1,123 @@
+//! A stack of encoder layers read from `{prefix}.encoder.layers.{i}` (`transformers`
+//! modeling_clip.py `CLIPEncoder`), with q/k/v projections stacked into one matrix so a layer's
+//! input projection is a single GEMM.
+
+use super::attention::{Attention, Segments};
+use super::config::TowerConfig;
+use super::encoder::{EncoderLayer, LayerSaved, PooledLayerSaved};
+use super::layers::Linear;
+use super::source::TensorSource;
+use super::ClipError;
+
+/// A projection's checkpoint tensors before stacking.
+struct Raw {
+    weight: Vec<f32>,
+    bias: Vec<f32>,
+}
+
+pub struct Tower {
+    pub layers: Vec<EncoderLayer>,
+}
+
+impl Tower {
+    pub fn load(src: &dyn TensorSource, prefix: &str, c: &TowerConfig) -> Result<Tower, ClipError> {
+        let d = c.hidden_size;
+        let mut layers = Vec::with_capacity(c.num_layers);
+        for i in 0..c.num_layers {
+            let p = format!("{prefix}.encoder.layers.{i}");
+            let raw = |name: &str| -> Result<Raw, ClipError> {
+                let pre = format!("{p}.self_attn.{name}");
+                Ok(Raw {
+                    weight: src.tensor(&format!("{pre}.weight"), &[d, d])?,
+                    bias: src.tensor(&format!("{pre}.bias"), &[d])?,
+                })
+            };
+            let (q, k, v) = (raw("q_proj")?, raw("k_proj")?, raw("v_proj")?);
+            let qkv = Linear::new(
+                [q.weight, k.weight, v.weight].concat(),
+                Some([q.bias, k.bias, v.bias].concat()),
+                d,
+                3 * d,
+            );
+            layers.push(EncoderLayer {
+                ln1: src.layer_norm(&format!("{p}.layer_norm1"), d, c.layer_norm_eps)?,
+                attn: Attention {
+                    qkv,
+                    out: src.linear(&format!("{p}.self_attn.out_proj"), d, d, true)?,
+                    num_heads: c.num_heads,
+                },
+                ln2: src.layer_norm(&format!("{p}.layer_norm2"), d, c.layer_norm_eps)?,
+                fc1: src.linear(&format!("{p}.mlp.fc1"), c.intermediate_size, d, true)?,
+                fc2: src.linear(&format!("{p}.mlp.fc2"), d, c.intermediate_size, true)?,
+                act: c.act,
+            });
+        }
+        Ok(Tower { layers })
+    }
+
+    /// Run the stack on `x: [T, D]` and return the final states of the pooled tokens only
+    /// (`rows[s]` within sequence s), `[S, D]`: every layer but the last runs on all tokens, the
+    /// last one only produces the pooled rows (its other outputs would be discarded).
+    pub fn forward_pooled(
+        &self,
+        mut x: Vec<f32>,
+        seg: &Segments,
+        rows: &[usize],
+        save: bool,
+    ) -> (Vec<f32>, TowerSaved) {
+        let mut saved = TowerSaved {
+            layers: Vec::new(),
+            last: None,
+        };
+        let Some((last, body)) = self.layers.split_last() else {
+            let d = x.len() / seg.total().max(1);
+            return (gather(&x, seg, rows, d), saved);
+        };
+        for l in body {
+            if let Some(s) = l.forward(&mut x, seg, save) {
+                saved.layers.push(s);
+            }
+        }
+        let (y, s) = last.forward_pooled(&x, seg, rows, save);
+        saved.last = s;
+        (y, saved)
+    }
+
+    /// Backward of `forward_pooled` (which must have run with `save`): `dy: [S, D]` →
+    /// `dx: [T, D]`. `d` is the width, needed only for a tower without layers.
+    pub fn backward_pooled(
+        &self,
+        dy: &[f32],
+        seg: &Segments,
+        rows: &[usize],
+        saved: &TowerSaved,
+        d: usize,
+    ) -> Vec<f32> {
+        let (Some((last, body)), Some(ls)) = (self.layers.split_last(), saved.last.as_ref()) else {
+            let mut dx = vec![0.0; seg.total() * d];
+            for ((&(start, _), &r), g) in seg.spans.iter().zip(rows).zip(dy.chunks_exact(d)) {
+                dx[(start + r) * d..][..d].copy_from_slice(g);
+            }
+            return dx;
+        };
+        let mut dx = last.backward_pooled(dy, seg, rows, ls);
+        for (l, s) in body.iter().zip(&saved.layers).rev() {
+            l.backward(&mut dx, seg, s);
+        }
+        dx
+    }
+}
+
+/// Saved activations of a whole tower.
+pub struct TowerSaved {
+    layers: Vec<LayerSaved>,
+    last: Option<PooledLayerSaved>,
+}
+
+fn gather(x: &[f32], seg: &Segments, rows: &[usize], d: usize) -> Vec<f32> {
+    seg.spans
+        .iter()
+        .zip(rows)
+        .flat_map(|(&(start, _), &r)| x[(start + r) * d..][..d].iter().copied())
+        .collect()
+}

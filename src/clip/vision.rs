@@ -1,0 +1,235 @@
+//! Vision tower, `transformers` modeling_clip.py `CLIPVisionEmbeddings` + `CLIPVisionTransformer`
+//! + `CLIPModel.visual_projection`, with a backward pass to the input pixels.
+//!
+//! Forward for B images of S×S pixels, patch p, g = S/p, n = g² + 1 tokens, width D:
+//! pixels → CLIP mean/std normalisation → patch embedding (the stride-p convolution as one GEMM
+//! `[B g², 3p²] · [3p², D]`) → prepend class embedding, add position embeddings `[B n, D]` →
+//! pre layer norm → transformer → post layer norm of each class token `[B, D]` → projection
+//! `[B, P]`.
+
+use super::attention::Segments;
+use super::config::VisionConfig;
+use super::layers::{LayerNorm, Linear, LnSaved};
+use super::source::TensorSource;
+use super::tower::{Tower, TowerSaved};
+use super::ClipError;
+use crate::image::Image;
+
+/// OpenAI CLIP's pixel statistics (`image_mean` / `image_std` of CLIPImageProcessor), written
+/// with the digits published in preprocessor_config.json.
+#[allow(clippy::excessive_precision)]
+pub const MEAN: [f32; 3] = [0.481_454_66, 0.457_827_5, 0.408_210_73];
+#[allow(clippy::excessive_precision)]
+pub const STD: [f32; 3] = [0.268_629_54, 0.261_302_58, 0.275_777_11];
+
+pub struct VisionModel {
+    pub cfg: VisionConfig,
+    /// Convolution weight `[D, 3, p, p]` viewed as a linear map `[D, 3p²]`, no bias.
+    patch_embedding: Linear,
+    /// `[D]`
+    class_embedding: Vec<f32>,
+    /// `[n, D]`
+    position_embedding: Vec<f32>,
+    pre_ln: LayerNorm,
+    tower: Tower,
+    post_ln: LayerNorm,
+    /// `[P, D]`, no bias
+    projection: Linear,
+}
+
+/// The activations `VisionModel::backward` needs, from one `forward` call.
+pub struct ImageCache {
+    images: usize,
+    pre_ln: LnSaved,
+    layers: TowerSaved,
+    post_ln: LnSaved,
+}
+
+impl ImageCache {
+    /// How many images the forward pass encoded.
+    pub fn len(&self) -> usize {
+        self.images
+    }
+    pub fn is_empty(&self) -> bool {
+        self.images == 0
+    }
+}
+
+impl VisionModel {
+    pub fn load(
+        src: &dyn TensorSource,
+        cfg: &VisionConfig,
+        proj: usize,
+    ) -> Result<VisionModel, ClipError> {
+        let d = cfg.tower.hidden_size;
+        let p = cfg.patch_size;
+        let pe = src.tensor(
+            "vision_model.embeddings.patch_embedding.weight",
+            &[d, 3, p, p],
+        )?;
+        Ok(VisionModel {
+            cfg: cfg.clone(),
+            patch_embedding: Linear::new(pe, None, 3 * p * p, d),
+            class_embedding: src.tensor("vision_model.embeddings.class_embedding", &[d])?,
+            position_embedding: src.tensor(
+                "vision_model.embeddings.position_embedding.weight",
+                &[cfg.num_tokens(), d],
+            )?,
+            // "pre_layrnorm" is the checkpoint's spelling.
+            pre_ln: src.layer_norm("vision_model.pre_layrnorm", d, cfg.tower.layer_norm_eps)?,
+            tower: Tower::load(src, "vision_model", &cfg.tower)?,
+            post_ln: src.layer_norm("vision_model.post_layernorm", d, cfg.tower.layer_norm_eps)?,
+            projection: src.linear("visual_projection", proj, d, false)?,
+        })
+    }
+
+    fn check(&self, images: &[Image]) -> Result<(), ClipError> {
+        let s = self.cfg.image_size;
+        for (i, im) in images.iter().enumerate() {
+            if im.width != s || im.height != s || im.data.len() != s * s * 3 {
+                return Err(ClipError::Input(format!(
+                    "image {i} is {}x{}, this CLIP takes {s}x{s} (use clip::preprocess)",
+                    im.width, im.height
+                )));
+            }
+            if let Some(k) = im.data.iter().position(|v| !v.is_finite()) {
+                return Err(ClipError::Input(format!(
+                    "image {i} has a non-finite value at pixel {} channel {}",
+                    k / 3,
+                    k % 3
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// `images`: B images of S×S RGB in [0, 1] → projected embeddings `[B][P]` and the cache
+    /// for `backward`.
+    pub fn forward(&self, images: &[Image]) -> Result<(Vec<Vec<f32>>, ImageCache), ClipError> {
+        self.check(images)?;
+        let (b, d, p, g, n) = self.dims(images.len());
+        let s = self.cfg.image_size;
+        let k = 3 * p * p;
+        // Patch matrix [B g², 3p²], columns ordered (channel, ky, kx) like the conv weight.
+        let mut patches = vec![0.0f32; b * g * g * k];
+        for (bi, im) in images.iter().enumerate() {
+            for gy in 0..g {
+                for gx in 0..g {
+                    let row = &mut patches[((bi * g + gy) * g + gx) * k..][..k];
+                    for ky in 0..p {
+                        for kx in 0..p {
+                            let px = ((gy * p + ky) * s + gx * p + kx) * 3;
+                            for c in 0..3 {
+                                row[c * p * p + ky * p + kx] = (im.data[px + c] - MEAN[c]) / STD[c];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let pe = self.patch_embedding.forward(&patches, b * g * g);
+        // x [B n, D]: class token then patches, plus position embeddings.
+        let mut x = vec![0.0f32; b * n * d];
+        for bi in 0..b {
+            for t in 0..n {
+                let row = &mut x[(bi * n + t) * d..][..d];
+                let src = if t == 0 {
+                    &self.class_embedding[..]
+                } else {
+                    &pe[(bi * g * g + t - 1) * d..][..d]
+                };
+                let pos = &self.position_embedding[t * d..][..d];
+                for ((r, a), q) in row.iter_mut().zip(src).zip(pos) {
+                    *r = a + q;
+                }
+            }
+        }
+        let (x, pre_saved) = self.pre_ln.forward(&x, true);
+        let seg = Segments::uniform(b, n, false);
+        let (cls, layers) = self.tower.forward_pooled(x, &seg, &vec![0; b], true);
+        let (pooled, post_saved) = self.post_ln.forward(&cls, true);
+        let out = self.projection.forward(&pooled, b);
+        let emb = out
+            .chunks_exact(self.projection.out_dim)
+            .map(<[f32]>::to_vec)
+            .collect();
+        let cache = ImageCache {
+            images: b,
+            pre_ln: pre_saved.expect("saved"),
+            layers,
+            post_ln: post_saved.expect("saved"),
+        };
+        Ok((emb, cache))
+    }
+
+    /// Gradient of a scalar loss with respect to the input pixels (in [0, 1] units, through the
+    /// mean/std normalisation), given its gradient `d_embeddings [B][P]` with respect to the
+    /// projected embeddings `forward` returned.
+    pub fn backward(
+        &self,
+        cache: &ImageCache,
+        d_embeddings: &[Vec<f32>],
+    ) -> Result<Vec<Image>, ClipError> {
+        let (b, d, p, g, n) = self.dims(cache.images);
+        let proj = self.projection.out_dim;
+        if d_embeddings.len() != b || d_embeddings.iter().any(|v| v.len() != proj) {
+            return Err(ClipError::Input(format!(
+                "image_backward needs {b} gradients of length {proj} (one per encoded image)"
+            )));
+        }
+        if d_embeddings.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(ClipError::Input(
+                "image_backward got a non-finite gradient".into(),
+            ));
+        }
+        let de: Vec<f32> = d_embeddings.concat();
+        let d_pooled = self.projection.backward(&de, b);
+        let d_cls = self.post_ln.backward(&d_pooled, &cache.post_ln);
+        let seg = Segments::uniform(b, n, false);
+        let dx = self
+            .tower
+            .backward_pooled(&d_cls, &seg, &vec![0; b], &cache.layers, d);
+        let dx = self.pre_ln.backward(&dx, &cache.pre_ln);
+        // Patch rows only (the class token has no pixels behind it).
+        let mut d_pe = vec![0.0f32; b * g * g * d];
+        for bi in 0..b {
+            for t in 1..n {
+                d_pe[(bi * g * g + t - 1) * d..][..d].copy_from_slice(&dx[(bi * n + t) * d..][..d]);
+            }
+        }
+        let d_patches = self.patch_embedding.backward(&d_pe, b * g * g);
+        let s = self.cfg.image_size;
+        let k = 3 * p * p;
+        let mut out = Vec::with_capacity(b);
+        for bi in 0..b {
+            let mut im = Image::new(s, s);
+            for gy in 0..g {
+                for gx in 0..g {
+                    let row = &d_patches[((bi * g + gy) * g + gx) * k..][..k];
+                    for ky in 0..p {
+                        for kx in 0..p {
+                            let px = ((gy * p + ky) * s + gx * p + kx) * 3;
+                            for c in 0..3 {
+                                im.data[px + c] = row[c * p * p + ky * p + kx] / STD[c];
+                            }
+                        }
+                    }
+                }
+            }
+            out.push(im);
+        }
+        Ok(out)
+    }
+
+    /// (B, D, p, g, n)
+    fn dims(&self, b: usize) -> (usize, usize, usize, usize, usize) {
+        let c = &self.cfg;
+        (
+            b,
+            c.tower.hidden_size,
+            c.patch_size,
+            c.grid(),
+            c.num_tokens(),
+        )
+    }
+}
