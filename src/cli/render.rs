@@ -1,9 +1,111 @@
-//! `t2tf render` (being written).
+//! `t2tf render`: one view, or a sheet of orbiting views, of a volume with a TF preset.
 
-/// Placeholder arguments until the command lands.
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+
+use crate::background;
+use crate::camera::{Camera, Orbit, UpAxis};
+use crate::cli::VolumeArgs;
+use crate::formats::load_tf;
+use crate::render::{self, RenderOptions, DEFAULT_STEP};
+
+/// Number of LUT entries the CLI renders with (the optimizer uses the same).
+pub const LUT_SIZE: usize = 1024;
+
 #[derive(clap::Args, Debug)]
-pub struct RenderArgs {}
+#[command(after_help = "Examples:\n  \
+    t2tf render ../shared/data/volumes/neghip_64x64x64_uint8.raw --tf out/neghip.json --out view.png\n  \
+    t2tf render head.vti --tf bone.json --out sheet.png --orbit 8 --size 256 --up -z\n\n\
+    The preset's opacity is read with its own ScalarOpacityUnitDistance (t2tf writes it into \
+    every file) or --unit-distance; without either, the volume's mean voxel spacing.")]
+pub struct RenderArgs {
+    /// Volume file (.raw, .vti, .vtk).
+    pub volume: PathBuf,
+    #[command(flatten)]
+    pub read: VolumeArgs,
+    /// Transfer function: ParaView JSON preset (.json), ParaView XML (.xml) or VisIt (.ct).
+    #[arg(long, value_name = "PRESET")]
+    pub tf: PathBuf,
+    /// Output PNG.
+    #[arg(long, value_name = "IMG.png")]
+    pub out: PathBuf,
+    /// Camera yaw around the up axis, degrees.
+    #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
+    pub yaw: f64,
+    /// Camera pitch above the orbit plane, degrees (the optimizer samples ±12.9°).
+    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
+    pub pitch: f64,
+    /// Camera distance from the box centre in bounding radii (the optimizer samples 2 to 4).
+    #[arg(long, default_value_t = 2.5)]
+    pub distance: f64,
+    /// World axis pointing up on screen: x, y, z, -x, -y or -z.
+    #[arg(long, default_value = "z", allow_hyphen_values = true)]
+    pub up: UpAxis,
+    /// Image width and height in pixels (one view).
+    #[arg(long, default_value_t = 512)]
+    pub size: usize,
+    /// Background: gray, gray:V, white, black, checkerboard, noise, fourier.
+    #[arg(long, default_value = "gray:0.3")]
+    pub background: String,
+    /// Seed for random backgrounds.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Step between samples in voxels of the rendered mip level.
+    #[arg(long, default_value_t = DEFAULT_STEP)]
+    pub step_size: f32,
+    /// Force a mip level (0 = full resolution); default: picked from the pixel footprint.
+    #[arg(long)]
+    pub level: Option<usize>,
+    /// ScalarOpacityUnitDistance to read the preset's opacity with (world units).
+    #[arg(long)]
+    pub unit_distance: Option<f64>,
+    /// Render N views on a ring (yaw evenly spaced, same pitch and distance) into one sheet.
+    #[arg(long, value_name = "N")]
+    pub orbit: Option<usize>,
+}
 
-pub fn run(_args: RenderArgs) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+pub fn run(args: RenderArgs) -> Result<()> {
+    if args.size == 0 || args.size > 8192 {
+        bail!("--size {} must be between 1 and 8192", args.size);
+    }
+    if !(args.step_size.is_finite() && args.step_size > 0.0) {
+        bail!("--step-size {} must be a positive number", args.step_size);
+    }
+    let volume = args.read.load(&args.volume)?;
+    let cp = load_tf(&args.tf, &volume, args.unit_distance)?;
+    let lut = cp.to_lut(LUT_SIZE);
+    let bg = background::from_name(&args.background, args.size, args.size, args.seed)
+        .context("--background")?;
+    let opts = RenderOptions {
+        step: args.step_size,
+        level: args.level,
+        ..RenderOptions::default()
+    };
+    let (pitch, distance) = (args.pitch.to_radians(), args.distance);
+    let image = match args.orbit {
+        Some(0) => bail!("--orbit needs at least one view"),
+        Some(n) => {
+            let cams = Camera::ring(&volume.geometry, n, pitch, distance, args.up)?;
+            render::orbit_sheet(&volume, &lut, &cams, &bg, &opts)?
+        }
+        None => {
+            let orbit = Orbit {
+                yaw: args.yaw.to_radians(),
+                pitch,
+                distance,
+                up: args.up,
+            };
+            let cam = Camera::orbit(&volume.geometry, orbit)?;
+            render::forward(&volume, &lut, &cam, &bg, &opts)?.image
+        }
+    };
+    image.save_png(&args.out)?;
+    eprintln!(
+        "wrote {} ({}x{})",
+        args.out.display(),
+        image.width,
+        image.height
+    );
+    Ok(())
 }
