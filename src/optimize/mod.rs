@@ -16,6 +16,7 @@ pub mod captions;
 mod error;
 pub mod init;
 pub mod loss;
+pub mod reference;
 pub mod report;
 pub mod schedule;
 pub mod settings;
