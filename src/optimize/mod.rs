@@ -13,6 +13,7 @@
 //! averaged over views → SGD with momentum.
 
 pub mod captions;
+pub mod driver;
 mod error;
 pub mod init;
 pub mod loss;
