@@ -3,7 +3,7 @@
 mod clip_score;
 mod convert;
 mod info;
-mod optimize;
+pub mod optimize;
 mod render;
 mod volume_args;
 

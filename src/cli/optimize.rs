@@ -4,12 +4,19 @@
 //! the renderer and CLIP (wired in by the lead once those land).
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
 
 use anyhow::{bail, Context, Result};
 
 use super::VolumeArgs;
-use crate::optimize::captions::{self, CaptionPool};
+use crate::image::Image;
+use crate::optimize::captions::{self, CacheOutcome, CaptionPool};
+use crate::optimize::driver::{self, Job, Positive, TextEncoder};
+use crate::optimize::report::{ModelInfo, Report, StepLog, VolumeInfo};
 use crate::optimize::settings::{defaults, Settings};
+use crate::optimize::{ImageEncoder, Parameterization, Renderer};
+use crate::tf::ControlPoints;
 
 /// Default CLIP model (Hugging Face repo id).
 pub const DEFAULT_MODEL: &str = "openai/clip-vit-base-patch32";
@@ -220,6 +227,166 @@ fn slug(text: &str) -> String {
     } else {
         s
     }
+}
+
+/// What `execute` needs to know about the loaded volume and model.
+#[derive(Clone, Debug)]
+pub struct Loaded {
+    /// `Volume::histogram`.
+    pub histogram: Vec<u64>,
+    pub volume: VolumeInfo,
+    pub model: ModelInfo,
+    /// SHA-256 of the weights file: key of the caption-embedding cache (`None`: no cache).
+    pub weights_hash: Option<Vec<u8>>,
+    /// CLIP's input size.
+    pub image_size: usize,
+    /// Renderer settings for the report (step size, level, threads, …).
+    pub render: serde_json::Value,
+    /// Views in preview.png.
+    pub preview_views: usize,
+}
+
+/// Writes the TF files (`NAME.json`, `NAME.xml`, `NAME.ct`, scripts) into the folder and
+/// returns the names written. `crate::formats` provides them.
+pub type Exporter<'a> = dyn FnMut(&Path, &str, &ControlPoints) -> Result<Vec<String>> + 'a;
+
+/// The Ctrl-C flag: installed once per process; raising it ends the loop after the current
+/// step with that step's TF.
+pub fn stop_flag() -> Arc<AtomicBool> {
+    static FLAG: OnceLock<Arc<AtomicBool>> = OnceLock::new();
+    FLAG.get_or_init(|| {
+        let flag = Arc::new(AtomicBool::new(false));
+        let f = flag.clone();
+        if let Err(e) = ctrlc::set_handler(move || {
+            if f.swap(true, Ordering::SeqCst) {
+                // Second Ctrl-C: the user does not want to wait for the step to finish.
+                std::process::exit(130);
+            }
+        }) {
+            eprintln!("warning: Ctrl-C will not stop cleanly: {e}");
+        }
+        flag
+    })
+    .clone()
+}
+
+/// Progress bar on stderr (hidden when stderr is not a terminal): step, loss, ETA.
+fn progress_bar(steps: usize) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(steps as u64);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{elapsed_precise} [{bar:30}] step {pos}/{len}  {msg}  ETA {eta}",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar
+}
+
+/// The whole command once the volume and model are loaded: validate, run Algorithm 1 with a
+/// progress bar and Ctrl-C handling, export the TF (`export`), then write tf.png,
+/// preview.png and report.json. Returns the report.
+pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization>(
+    args: &OptimizeArgs,
+    ctx: &Loaded,
+    renderer: &R,
+    image_encoder: &E,
+    text_encoder: &T,
+    tf: &P,
+    export: &mut Exporter,
+) -> Result<Report> {
+    let (pool, user) = args.validate()?;
+    let name = args.tf_name()?;
+    let settings = args.settings();
+    let reference = match &args.reference_image {
+        Some(p) => Some(Image::load_png(p)?),
+        None => None,
+    };
+    let positive = match (&reference, &args.prompt) {
+        (Some(im), _) => Positive::Image(im),
+        (None, Some(p)) => Positive::Prompt(p),
+        (None, None) => bail!("give --prompt TEXT or --reference-image PNG"),
+    };
+    let cache_dir = captions::cache_dir();
+    let cache = match (&cache_dir, &ctx.weights_hash) {
+        (Some(d), Some(h)) => Some((d.as_path(), h.as_slice())),
+        _ => None,
+    };
+    let job = Job {
+        settings: &settings,
+        positive,
+        user_negatives: &user,
+        pool: &pool,
+        cache,
+        histogram: &ctx.histogram,
+        logit_scale: ctx.model.logit_scale,
+        image_size: ctx.image_size,
+        preview_views: ctx.preview_views,
+    };
+    let stop = stop_flag();
+    stop.store(false, Ordering::SeqCst);
+    let bar = progress_bar(settings.steps);
+    let mut on_step = |log: &StepLog, _total: usize| {
+        bar.set_message(format!(
+            "loss {:.4} (clip {:.4}, p(prompt) {:.3})",
+            log.total, log.clip, log.prompt_probability
+        ));
+        bar.inc(1);
+    };
+    let finished = driver::run_job(
+        &job,
+        renderer,
+        image_encoder,
+        text_encoder,
+        tf,
+        &stop,
+        &mut on_step,
+    )
+    .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
+    bar.finish_and_clear();
+    if finished.outcome.interrupted {
+        eprintln!(
+            "stopped after {} of {} steps: writing the TF of the last step",
+            finished.outcome.steps.len(),
+            settings.steps
+        );
+    }
+    if let Some(CacheOutcome::NotStored(why)) = &finished.cache {
+        eprintln!("warning: caption embeddings not cached: {why}");
+    }
+    if !finished.init.reached {
+        eprintln!(
+            "warning: even the densest TF leaves mean transmittance {:.3} above rho = {}: the volume is thin from this view",
+            finished.init.mean_transmittance, settings.rho
+        );
+    }
+
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("{}: cannot create the output folder", args.out.display()))?;
+    let mut report = Report::new(settings);
+    report.prompt = args.prompt.clone();
+    report.reference_image = args
+        .reference_image
+        .as_ref()
+        .map(|p| p.display().to_string());
+    report.negatives = user;
+    report.caption_pool = match &args.negatives_file {
+        Some(f) => f.display().to_string(),
+        None => "builtin".into(),
+    };
+    report.caption_pool_size = pool.len();
+    report.model = ctx.model.clone();
+    report.volume = ctx.volume.clone();
+    report.render = ctx.render.clone();
+    finished.fill_report(&mut report);
+    let t0 = std::time::Instant::now();
+    report.outputs = export(&args.out, &name, &finished.outcome.control_points)?;
+    report.timings.output += t0.elapsed().as_secs_f64();
+    driver::write_outputs(&args.out, &mut report, &finished, &ctx.histogram)?;
+    eprintln!(
+        "wrote {} files to {}",
+        report.outputs.len(),
+        args.out.display()
+    );
+    Ok(report)
 }
 
 /// Validate the arguments; the optimization loop is wired in once the renderer and CLIP land.
