@@ -10,6 +10,7 @@ use clap::Parser;
 use optimize_toy::*;
 use t2tf::cli::optimize::{execute, Loaded, OptimizeArgs};
 use t2tf::optimize::report::{ModelInfo, VolumeInfo};
+use t2tf::optimize::tf_plot::Curve;
 
 fn t2tf(args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_t2tf"))
@@ -112,6 +113,9 @@ fn loaded() -> Loaded {
         image_size: SIDE,
         render: serde_json::json!({"step_size": 0.5}),
         preview_views: 4,
+        tf_curve: Curve::Opacity {
+            unit_over_length: 1.0 / 6.0,
+        },
     }
 }
 

@@ -11,6 +11,7 @@ use t2tf::image::Image;
 use t2tf::optimize::captions::{CacheOutcome, CaptionPool};
 use t2tf::optimize::driver::{self, Finished, Job, Positive};
 use t2tf::optimize::report::Report;
+use t2tf::optimize::tf_plot::Curve;
 use t2tf::optimize::{OptimizeError, Renderer, Settings};
 
 const PROMPT: &str = "a red and yellow thing";
@@ -167,7 +168,10 @@ fn full_run_writes_every_output_and_caches_the_pool() {
     report.prompt = Some(PROMPT.into());
     report.outputs.push("a-red-and-yellow-thing.json".into());
     done.fill_report(&mut report);
-    driver::write_outputs(&dir, &mut report, &done, &hist).unwrap();
+    let curve = Curve::Opacity {
+        unit_over_length: 0.01,
+    };
+    driver::write_outputs(&dir, &mut report, &done, &hist, curve).unwrap();
     let tf = Image::load_png(&dir.join("tf.png")).unwrap();
     assert_eq!((tf.width, tf.height), (512, 256));
     let preview = Image::load_png(&dir.join("preview.png")).unwrap();

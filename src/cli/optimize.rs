@@ -15,6 +15,7 @@ use crate::optimize::captions::{self, CacheOutcome, CaptionPool};
 use crate::optimize::driver::{self, Job, Positive, TextEncoder};
 use crate::optimize::report::{ModelInfo, Report, StepLog, VolumeInfo};
 use crate::optimize::settings::{defaults, Settings};
+use crate::optimize::tf_plot::Curve;
 use crate::optimize::{ImageEncoder, Parameterization, Renderer};
 use crate::tf::ControlPoints;
 
@@ -244,6 +245,9 @@ pub struct Loaded {
     pub render: serde_json::Value,
     /// Views in preview.png.
     pub preview_views: usize,
+    /// What tf.png plots: `Curve::Opacity { unit_over_length: u / L }` with the exported
+    /// ScalarOpacityUnitDistance u and `Geometry::longest_side()` L.
+    pub tf_curve: Curve,
 }
 
 /// Writes the TF files (`NAME.json`, `NAME.xml`, `NAME.ct`, scripts) into the folder and
@@ -380,7 +384,13 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
     let t0 = std::time::Instant::now();
     report.outputs = export(&args.out, &name, &finished.outcome.control_points)?;
     report.timings.output += t0.elapsed().as_secs_f64();
-    driver::write_outputs(&args.out, &mut report, &finished, &ctx.histogram)?;
+    driver::write_outputs(
+        &args.out,
+        &mut report,
+        &finished,
+        &ctx.histogram,
+        ctx.tf_curve,
+    )?;
     eprintln!(
         "wrote {} files to {}",
         report.outputs.len(),

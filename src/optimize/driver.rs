@@ -270,22 +270,21 @@ impl Finished {
 
 /// Write `tf.png`, `preview.png` and (last) `report.json` into `dir` (created if missing),
 /// each atomically. `report.outputs` gets these names appended (keep the caller's TF files
-/// listed before calling) and `timings.output` the time spent here.
+/// listed before calling) and `timings.output` the time spent here. `curve`: what tf.png
+/// plots (opacity for the exported unit distance, so it matches ParaView).
 pub fn write_outputs(
     dir: &Path,
     report: &mut Report,
     finished: &Finished,
     histogram: &[u64],
+    curve: super::tf_plot::Curve,
 ) -> anyhow::Result<()> {
     use anyhow::Context;
     let t0 = Instant::now();
     std::fs::create_dir_all(dir)
         .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;
-    super::tf_plot::save(
-        &dir.join("tf.png"),
-        &finished.outcome.control_points,
-        histogram,
-    )?;
+    let cp = &finished.outcome.control_points;
+    super::tf_plot::save(&dir.join("tf.png"), cp, histogram, curve)?;
     finished.preview.save_png(&dir.join("preview.png"))?;
     report
         .outputs
