@@ -107,6 +107,19 @@ pub fn contrastive(
     })
 }
 
+/// Cosine similarity of two embeddings in f64 (errors as in [`contrastive`]).
+pub fn cosine(a: &[f32], b: &[f32]) -> Result<f64, OptimizeError> {
+    if a.len() != b.len() {
+        return Err(OptimizeError::Embedding(format!(
+            "embeddings of different lengths ({} and {}) cannot be compared",
+            a.len(),
+            b.len()
+        )));
+    }
+    let (u, v) = (unit(a, "image embedding")?, unit(b, "text embedding")?);
+    Ok(u.iter().zip(&v).map(|(x, y)| x * y).sum())
+}
+
 fn norm(v: &[f32]) -> f64 {
     v.iter()
         .map(|&x| (x as f64) * (x as f64))
@@ -279,6 +292,16 @@ mod tests {
             assert!((c.loss - s).abs() < 1e-9 * s, "{} vs {s}", c.loss);
             assert!(c.d_image.iter().all(|g| g.is_finite()));
         }
+    }
+
+    #[test]
+    fn cosine_matches_contrastive_and_rejects_mismatch() {
+        let (a, b, c) = ([3.0f32, 4.0, 0.0], [0.0f32, 5.0, 12.0], [1.0f32, 0.0, 0.0]);
+        assert!((cosine(&a, &b).unwrap() - 20.0 / 65.0).abs() < 1e-15);
+        let r = contrastive(&a, &[&b, &c], 100.0).unwrap();
+        assert_eq!(r.cosines[0], cosine(&a, &b).unwrap());
+        assert!(cosine(&a, &[1.0, 2.0]).is_err());
+        assert!(cosine(&a, &[0.0; 3]).is_err());
     }
 
     #[test]

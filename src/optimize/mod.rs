@@ -453,11 +453,10 @@ pub fn scores<R: Renderer, E: ImageEncoder>(
     let mut out = vec![(0.0, 0.0); classes.len()];
     let n = emb.len().max(1) as f64;
     for e in &emb {
-        // With the prompt plus one copy of itself the loss is defined; we only want cosines.
         for (k, c) in classes.iter().enumerate() {
-            let r = loss::contrastive(e, &[c, c], logit_scale)?;
-            out[k].0 += r.cosines[0] / n;
-            out[k].1 += r.logits[0] / n;
+            let cos = loss::cosine(e, c)?;
+            out[k].0 += cos / n;
+            out[k].1 += logit_scale * cos / n;
         }
     }
     Ok(out)
