@@ -246,6 +246,15 @@ pub fn step_gradient<R: Renderer, E: ImageEncoder, P: Parameterization>(
     }
     lap(&mut times.clip_backward);
 
+    if let Some(i) = (0..images.len()).find(|&i| d_images[i].data.len() != images[i].data.len()) {
+        return Err(OptimizeError::Encoder(
+            format!(
+                "backward returned a {}×{} gradient for a {}×{} image",
+                d_images[i].width, d_images[i].height, images[i].width, images[i].height
+            )
+            .into(),
+        ));
+    }
     let mut lut_grad = LutGrad::zeros(lut.entries.len());
     for ((view, di), dt) in plan.views.iter().zip(&d_images).zip(&d_trans) {
         let g = renderer
