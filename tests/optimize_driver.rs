@@ -179,7 +179,7 @@ fn full_run_writes_every_output_and_caches_the_pool() {
     // The preview's first tile is the first orbit view's render of the final TF.
     let lut = done.outcome.control_points.to_lut(LUT_N);
     let v0 = &t2tf::optimize::View::orbit(&s, 4)[0];
-    let (im, _) = f.toy.render(&lut, v0).unwrap();
+    let (im, _, _) = f.toy.render(&lut, v0).unwrap();
     for y in 0..SIDE {
         for x in 0..SIDE {
             let (a, b) = (im.pixel(x, y), preview.pixel(x, y));
@@ -230,7 +230,7 @@ fn reference_image_mode_moves_towards_the_picture() {
     let s = settings();
     // The target's render at twice the size (as a user's picture would be larger than CLIP's
     // input): the driver shrinks it back like CLIP's image processor.
-    let (small, _) = f
+    let (small, _, _) = f
         .toy
         .render(&target().to_lut(LUT_N), &target_view())
         .unwrap();

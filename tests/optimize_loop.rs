@@ -11,8 +11,8 @@ use optimize_toy::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use t2tf::optimize::{
-    self, schedule, Background, OptimizeError, Parameterization, PhaseTimes, Settings, Targets,
-    View,
+    self, schedule, Background, OptimizeError, Parameterization, PhaseTimes, Renderer, Settings,
+    Targets, View,
 };
 use t2tf::tf::ControlPoints;
 
@@ -329,7 +329,6 @@ fn initialization_reaches_rho_on_a_renderer() {
 #[test]
 fn final_scores_rank_the_target_first() {
     let f = Fixture::new();
-    let s = settings();
     let target = ControlPoints {
         x: TanhTf::x(),
         sigma: vec![5.0, 200.0, 20.0, 150.0, 0.0],
@@ -341,24 +340,19 @@ fn final_scores_rank_the_target_first() {
             [0.5; 3],
         ],
     };
-    let views = vec![View {
+    let views = [View {
         yaw: 0.3,
         pitch: 0.0,
         distance: 3.0,
         background: Background::Gray { level: 0.5 },
     }];
     let classes: Vec<&[f32]> = vec![&f.positive, &f.pool[0], &f.user[0]];
-    let sc = optimize::scores(
-        &f.toy,
-        &f.enc,
-        &target.to_lut(LUT_N),
-        &views,
-        &classes,
-        100.0,
-    )
-    .unwrap();
+    let images: Vec<_> = views
+        .iter()
+        .map(|v| f.toy.render(&target.to_lut(LUT_N), v).unwrap().0)
+        .collect();
+    let sc = optimize::scores(&f.enc, &images, &classes, 100.0).unwrap();
     assert!((sc[0].0 - 1.0).abs() < 1e-6, "{sc:?}");
     assert!((sc[0].1 - 100.0).abs() < 1e-4);
     assert!(sc[1].0 < sc[0].0 && sc[2].0 < sc[0].0);
-    let _ = s;
 }

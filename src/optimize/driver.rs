@@ -189,14 +189,11 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
     let views = View::orbit(s, job.preview_views.max(1));
     let mut classes: Vec<&[f32]> = vec![&positive];
     classes.extend(user.iter().map(Vec::as_slice));
-    let sc = scores(
-        renderer,
-        image_encoder,
-        &lut,
-        &views,
-        &classes,
-        job.logit_scale,
-    )?;
+    let mut images = Vec::with_capacity(views.len());
+    for v in &views {
+        images.push(renderer.render(&lut, v).map_err(OptimizeError::Renderer)?.0);
+    }
+    let sc = scores(image_encoder, &images, &classes, job.logit_scale)?;
     let mut names = vec![match job.positive {
         Positive::Prompt(p) => p.to_owned(),
         Positive::Image(_) => "reference image".to_owned(),
@@ -211,10 +208,6 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
             logit,
         })
         .collect();
-    let mut images = Vec::with_capacity(views.len());
-    for v in &views {
-        images.push(renderer.render(&lut, v).map_err(OptimizeError::Renderer)?.0);
-    }
     let preview = tile(&images);
     times.other += t0.elapsed().as_secs_f64();
 

@@ -38,16 +38,21 @@ use crate::tf::{ControlPoints, Lut, LutGrad};
 
 /// The volume renderer as the loop sees it (the volume and render options live inside).
 pub trait Renderer {
-    /// Render `view` with `lut`: the image (the encoder's input size, RGB in [0, 1]) and the
-    /// final transmittance T_N of each pixel (row-major, H·W).
-    fn render(&self, lut: &Lut, view: &View) -> Result<(Image, Vec<f32>), BoxError>;
+    /// What a forward pass keeps for the backward pass of the same view (e.g. the camera and
+    /// the forward's result, so the backward need not march the rays twice; `()` if nothing).
+    type Tape;
+
+    /// Render `view` with `lut`: the image (the encoder's input size, RGB in [0, 1]), the
+    /// final transmittance T_N of each pixel (row-major, H·W), and the tape.
+    fn render(&self, lut: &Lut, view: &View) -> Result<(Image, Vec<f32>, Self::Tape), BoxError>;
 
     /// Gradient of a loss with respect to the LUT, given d loss / d image (H·W·3) and
-    /// d loss / d T_N (H·W) of the same view.
+    /// d loss / d T_N (H·W) of the view `tape` was rendered for, with the same `lut`.
     fn backward(
         &self,
         lut: &Lut,
         view: &View,
+        tape: &Self::Tape,
         d_image: &[f32],
         d_transmittance: &[f32],
     ) -> Result<LutGrad, BoxError>;
@@ -163,8 +168,9 @@ pub fn step_gradient<R: Renderer, E: ImageEncoder, P: Parameterization>(
 
     let mut images = Vec::with_capacity(plan.views.len());
     let mut trans = Vec::with_capacity(plan.views.len());
+    let mut tapes = Vec::with_capacity(plan.views.len());
     for view in &plan.views {
-        let (im, t) = renderer
+        let (im, t, tape) = renderer
             .render(&lut, view)
             .map_err(OptimizeError::Renderer)?;
         if t.len() != im.width * im.height {
@@ -180,6 +186,7 @@ pub fn step_gradient<R: Renderer, E: ImageEncoder, P: Parameterization>(
         }
         images.push(im);
         trans.push(t);
+        tapes.push(tape);
     }
     lap(&mut times.render);
 
@@ -256,9 +263,9 @@ pub fn step_gradient<R: Renderer, E: ImageEncoder, P: Parameterization>(
         ));
     }
     let mut lut_grad = LutGrad::zeros(lut.entries.len());
-    for ((view, di), dt) in plan.views.iter().zip(&d_images).zip(&d_trans) {
+    for (((view, tape), di), dt) in plan.views.iter().zip(&tapes).zip(&d_images).zip(&d_trans) {
         let g = renderer
-            .backward(&lut, view, &di.data, dt)
+            .backward(&lut, view, tape, &di.data, dt)
             .map_err(OptimizeError::Renderer)?;
         if g.entries.len() != lut.entries.len() {
             return Err(OptimizeError::Renderer(
@@ -391,7 +398,7 @@ pub fn mean_transmittance<R: Renderer>(
     lut: &Lut,
     view: &View,
 ) -> Result<f64, OptimizeError> {
-    let (_, t) = renderer
+    let (_, t, _) = renderer
         .render(lut, view)
         .map_err(OptimizeError::Renderer)?;
     if t.is_empty() {
@@ -444,21 +451,15 @@ pub fn initialize<R: Renderer, P: Parameterization>(
     Ok((params, found))
 }
 
-/// Mean cosine similarity (and logit) of the renders of `views` with each class: the final
-/// CLIP scores of `report.json`.
-pub fn scores<R: Renderer, E: ImageEncoder>(
-    renderer: &R,
+/// Mean cosine similarity (and logit) over `images` with each class: the final CLIP scores
+/// of `report.json`.
+pub fn scores<E: ImageEncoder>(
     encoder: &E,
-    lut: &Lut,
-    views: &[View],
+    images: &[Image],
     classes: &[&[f32]],
     logit_scale: f64,
 ) -> Result<Vec<(f64, f64)>, OptimizeError> {
-    let mut images = Vec::with_capacity(views.len());
-    for v in views {
-        images.push(renderer.render(lut, v).map_err(OptimizeError::Renderer)?.0);
-    }
-    let (emb, _) = encoder.encode(&images).map_err(OptimizeError::Encoder)?;
+    let (emb, _) = encoder.encode(images).map_err(OptimizeError::Encoder)?;
     let mut out = vec![(0.0, 0.0); classes.len()];
     let n = emb.len().max(1) as f64;
     for e in &emb {

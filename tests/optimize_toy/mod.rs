@@ -121,7 +121,9 @@ impl Toy {
 }
 
 impl Renderer for Toy {
-    fn render(&self, lut: &Lut, view: &View) -> Result<(Image, Vec<f32>), BoxError> {
+    type Tape = ();
+
+    fn render(&self, lut: &Lut, view: &View) -> Result<(Image, Vec<f32>, ()), BoxError> {
         let n = self.calls.get();
         self.calls.set(n + 1);
         let (t, m, _, _, bg) = self.parts(lut, view);
@@ -134,13 +136,14 @@ impl Renderer for Toy {
         if self.nan_after.is_some_and(|k| n >= k) {
             im.data[5] = f32::NAN;
         }
-        Ok((im, t.iter().map(|&x| x as f32).collect()))
+        Ok((im, t.iter().map(|&x| x as f32).collect(), ()))
     }
 
     fn backward(
         &self,
         lut: &Lut,
         view: &View,
+        _tape: &(),
         d_image: &[f32],
         d_t: &[f32],
     ) -> Result<LutGrad, BoxError> {
@@ -316,13 +319,13 @@ impl Fixture {
             distance: 3.0,
             background: Background::Gray { level: 0.5 },
         };
-        let (im, _) = toy.render(&target.to_lut(LUT_N), &v).unwrap();
+        let (im, _, _) = toy.render(&target.to_lut(LUT_N), &v).unwrap();
         let positive = enc.encode(&[im]).unwrap().0.remove(0);
         // Negatives are renders too (random TFs, and a blank one as the user's "a blank
         // image"), so telling the prompt apart takes a TF close to the target.
         let mut r = ChaCha8Rng::seed_from_u64(3);
         let embed = |cp: &ControlPoints| -> Vec<f32> {
-            let (im, _) = toy.render(&cp.to_lut(LUT_N), &v).unwrap();
+            let (im, _, _) = toy.render(&cp.to_lut(LUT_N), &v).unwrap();
             enc.encode(&[im]).unwrap().0.remove(0)
         };
         let pool = (0..40)
