@@ -110,7 +110,6 @@ fn loaded() -> Loaded {
             logit_scale: 100.0,
         },
         weights_hash: Some(b"toy weights".to_vec()),
-        image_size: SIDE,
         render: serde_json::json!({"step_size": 0.5}),
         preview_views: 4,
         tf_curve: Curve::Opacity {

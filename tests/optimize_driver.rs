@@ -68,7 +68,6 @@ fn run(
         cache,
         histogram: hist,
         logit_scale: 100.0,
-        image_size: SIDE,
         preview_views: 4,
     };
     driver::run_job(
@@ -228,13 +227,18 @@ fn reference_image_mode_moves_towards_the_picture() {
     let p = pool();
     let t = text(&f, &p);
     let s = settings();
-    // The target's render at twice the size (as a user's picture would be larger than CLIP's
-    // input): the driver shrinks it back like CLIP's image processor.
+    // The target's render at twice the size (a user's picture is larger than CLIP's input):
+    // the driver has the encoder prepare it (the toy's box filter undoes the doubling).
     let (small, _, _) = f
         .toy
         .render(&target().to_lut(LUT_N), &target_view())
         .unwrap();
-    let picture = t2tf::optimize::reference::resize(&small, 2 * SIDE, 2 * SIDE);
+    let mut picture = Image::new(2 * SIDE, 2 * SIDE);
+    for y in 0..2 * SIDE {
+        for x in 0..2 * SIDE {
+            picture.set_pixel(x, y, small.pixel(x / 2, y / 2));
+        }
+    }
     let user = vec!["a blank image".to_string()];
     let hist = histogram();
     let zero = Settings {

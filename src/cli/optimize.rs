@@ -239,8 +239,6 @@ pub struct Loaded {
     pub model: ModelInfo,
     /// SHA-256 of the weights file: key of the caption-embedding cache (`None`: no cache).
     pub weights_hash: Option<Vec<u8>>,
-    /// CLIP's input size.
-    pub image_size: usize,
     /// Renderer settings for the report (step size, level, threads, …).
     pub render: serde_json::Value,
     /// Views in preview.png.
@@ -322,7 +320,6 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
         cache,
         histogram: &ctx.histogram,
         logit_scale: ctx.model.logit_scale,
-        image_size: ctx.image_size,
         preview_views: ctx.preview_views,
     };
     let stop = stop_flag();

@@ -11,8 +11,8 @@ use super::captions::{self, CacheOutcome, CaptionPool};
 use super::init::Initialization;
 use super::report::{InitInfo, PhaseTimes, Report, Score, StepLog};
 use super::{
-    initialize, optimize, reference, scores, BoxError, ImageEncoder, OptimizeError, Outcome,
-    Parameterization, Renderer, Settings, Targets, View,
+    initialize, optimize, scores, BoxError, ImageEncoder, OptimizeError, Outcome, Parameterization,
+    Renderer, Settings, Targets, View,
 };
 use crate::image::Image;
 
@@ -49,8 +49,6 @@ pub struct Job<'a> {
     pub histogram: &'a [u64],
     /// CLIP's logit scale.
     pub logit_scale: f64,
-    /// CLIP's input size (for the reference image).
-    pub image_size: usize,
     /// Views in preview.png and in the final scores.
     pub preview_views: usize,
 }
@@ -125,7 +123,7 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
             encode_batched(text_encoder, &[p.to_owned()])?.remove(0)
         }
         Positive::Image(im) => {
-            let prepared = reference::clip_preprocess(im, job.image_size);
+            let prepared = image_encoder.prepare(im);
             let (mut e, _) = image_encoder
                 .encode(&[prepared])
                 .map_err(OptimizeError::Encoder)?;

@@ -17,7 +17,6 @@ pub mod driver;
 mod error;
 pub mod init;
 pub mod loss;
-pub mod reference;
 pub mod report;
 pub mod schedule;
 pub mod settings;
@@ -72,6 +71,10 @@ pub trait ImageEncoder {
         cache: &Self::Cache,
         d_embeddings: &[Vec<f32>],
     ) -> Result<Vec<Image>, BoxError>;
+
+    /// An arbitrary picture (`--reference-image`) brought to the encoder's input, as the
+    /// model's own image processor does it (CLIP: `Clip::preprocess`).
+    fn prepare(&self, picture: &Image) -> Image;
 }
 
 /// Gradient of the terms that act on control points directly (L1 and L2).

@@ -220,6 +220,27 @@ impl ImageEncoder for LinearEncoder {
             })
             .collect())
     }
+
+    /// Box-filter any picture of at least SIDE × SIDE down to SIDE × SIDE.
+    fn prepare(&self, picture: &Image) -> Image {
+        let mut out = Image::new(SIDE, SIDE);
+        let (fx, fy) = (picture.width / SIDE, picture.height / SIDE);
+        for y in 0..SIDE {
+            for x in 0..SIDE {
+                let mut acc = [0.0f32; 3];
+                for dy in 0..fy {
+                    for dx in 0..fx {
+                        let p = picture.pixel(x * fx + dx, y * fy + dy);
+                        for c in 0..3 {
+                            acc[c] += p[c] / (fx * fy) as f32;
+                        }
+                    }
+                }
+                out.set_pixel(x, y, acc);
+            }
+        }
+        out
+    }
 }
 
 /// The paper's σ = 255 (tanh p + 1)/2, rgb = (tanh q + 1)/2 at K fixed, evenly spaced points
