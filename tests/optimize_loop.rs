@@ -345,6 +345,7 @@ fn final_scores_rank_the_target_first() {
         pitch: 0.0,
         distance: 3.0,
         background: Background::Gray { level: 0.5 },
+        seed: 0,
     }];
     let classes: Vec<&[f32]> = vec![&f.positive, &f.pool[0], &f.user[0]];
     let images: Vec<_> = views

@@ -50,6 +50,9 @@ pub struct View {
     /// `Geometry::bounding_radius()` for world units).
     pub distance: f64,
     pub background: Background,
+    /// Seed for any randomness of the renderer in this view (e.g. per-ray sample jitter;
+    /// forward and backward of the view must use the same one).
+    pub seed: u64,
 }
 
 impl View {
@@ -61,6 +64,7 @@ impl View {
             pitch: 0.0,
             distance: 0.5 * (settings.distance[0] + settings.distance[1]),
             background: Background::Gray { level: 0.5 },
+            seed: 0,
         }
     }
 
@@ -73,6 +77,7 @@ impl View {
                 pitch: 0.0,
                 distance: 0.5 * (settings.distance[0] + settings.distance[1]),
                 background: Background::Gray { level: 1.0 },
+                seed: 0,
             })
             .collect()
     }
@@ -127,6 +132,7 @@ pub fn plan(settings: &Settings, pool_size: usize, step: usize) -> StepPlan {
                 pitch,
                 distance,
                 background,
+                seed: rng.random(),
             }
         })
         .collect();

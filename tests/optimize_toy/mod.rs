@@ -339,6 +339,7 @@ impl Fixture {
             pitch: 0.0,
             distance: 3.0,
             background: Background::Gray { level: 0.5 },
+            seed: 0,
         };
         let (im, _, _) = toy.render(&target.to_lut(LUT_N), &v).unwrap();
         let positive = enc.encode(&[im]).unwrap().0.remove(0);
@@ -428,6 +429,7 @@ pub fn target_view() -> View {
         pitch: 0.0,
         distance: 3.0,
         background: Background::Gray { level: 0.5 },
+        seed: 0,
     }
 }
 
