@@ -311,7 +311,7 @@ fn initialization_reaches_rho_on_a_renderer() {
     let (params, found) = optimize::initialize(&f.toy, &TanhTf, &hist, &s).unwrap();
     assert!(found.reached);
     let lut = TanhTf.control_points(&params).unwrap().to_lut(LUT_N);
-    let t = optimize::mean_transmittance(&f.toy, &lut, &View::initial(&s)).unwrap();
+    let t = optimize::mean_transmittance(&f.toy, &lut, &View::initial(&s), None).unwrap();
     // The tanh round trip moves σ by ~1e-9 relative: the measured T stays within the 2 %.
     assert!((t - 0.05).abs() <= 0.02 * 0.05 + 1e-6, "{t}");
     // Colours from the seed, in [0.3, 0.7]; density lowest where the histogram peaks.
@@ -356,4 +356,78 @@ fn final_scores_rank_the_target_first() {
     assert!((sc[0].0 - 1.0).abs() < 1e-6, "{sc:?}");
     assert!((sc[0].1 - 100.0).abs() < 1e-4);
     assert!(sc[1].0 < sc[0].0 && sc[2].0 < sc[0].0);
+}
+
+/// The toy with the first half of the pixels outside the volume: T = 1, image = background.
+struct HalfMissing(Toy);
+
+impl Renderer for HalfMissing {
+    type Tape = ();
+
+    fn render(
+        &self,
+        lut: &t2tf::tf::Lut,
+        view: &View,
+    ) -> Result<(t2tf::image::Image, Vec<f32>, ()), optimize::BoxError> {
+        let (mut im, mut t, _) = self.0.render(lut, view)?;
+        let bg = Toy::background(view);
+        for p in 0..NPIX / 2 {
+            t[p] = 1.0;
+            for c in 0..3 {
+                im.data[p * 3 + c] = bg[p * 3 + c] as f32;
+            }
+        }
+        Ok((im, t, ()))
+    }
+
+    fn backward(
+        &self,
+        _: &t2tf::tf::Lut,
+        _: &View,
+        _: &(),
+        _: &[f32],
+        _: &[f32],
+    ) -> Result<t2tf::tf::LutGrad, optimize::BoxError> {
+        unreachable!("initialization renders forward only")
+    }
+}
+
+#[test]
+fn initialization_averages_over_rays_that_see_the_volume() {
+    let r = HalfMissing(Toy::new(1));
+    let s = settings();
+    let (params, found) = optimize::initialize(&r, &TanhTf, &[10u64; 256], &s).unwrap();
+    assert!(found.reached, "{found:?}");
+    let lut = TanhTf.control_points(&params).unwrap().to_lut(LUT_N);
+    let v0 = View::initial(&s);
+    let all = optimize::mean_transmittance(&r, &lut, &v0, None).unwrap();
+    let mask: Vec<bool> = (0..NPIX).map(|p| p >= NPIX / 2).collect();
+    let hit = optimize::mean_transmittance(&r, &lut, &v0, Some(&mask)).unwrap();
+    assert!((hit - 0.05).abs() <= 0.02 * 0.05 + 1e-6, "{hit}");
+    // Over the whole frame the same TF reads (1 + 0.05) / 2: ρ would have been unreachable.
+    assert!((all - (1.0 + hit) / 2.0).abs() < 1e-6, "{all}");
+    // A view in which nothing is visible is a clear error.
+    struct Blind;
+    impl Renderer for Blind {
+        type Tape = ();
+        fn render(
+            &self,
+            _: &t2tf::tf::Lut,
+            _: &View,
+        ) -> Result<(t2tf::image::Image, Vec<f32>, ()), optimize::BoxError> {
+            Ok((t2tf::image::Image::new(2, 2), vec![1.0; 4], ()))
+        }
+        fn backward(
+            &self,
+            _: &t2tf::tf::Lut,
+            _: &View,
+            _: &(),
+            _: &[f32],
+            _: &[f32],
+        ) -> Result<t2tf::tf::LutGrad, optimize::BoxError> {
+            unreachable!()
+        }
+    }
+    let e = optimize::initialize(&Blind, &TanhTf, &[10u64; 256], &s).unwrap_err();
+    assert!(e.to_string().contains("sees the volume"), "{e}");
 }
