@@ -3,7 +3,7 @@
 mod clip_score;
 mod convert;
 mod info;
-mod optimize;
+pub mod optimize;
 mod render;
 mod volume_args;
 
@@ -19,6 +19,8 @@ pub struct Cli {
     pub command: Command,
 }
 
+// Parsed once per process: the size gap between subcommands' flag structs costs nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Print a volume's dimensions, spacing, origin, type, value range and histogram.

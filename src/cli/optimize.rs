@@ -1,9 +1,519 @@
-//! `t2tf optimize` (being written).
+//! `t2tf optimize`: the flags of Algorithm 1 with the paper's defaults, and their validation.
+//!
+//! The loop itself is `crate::optimize::optimize`; `run` validates everything it can without
+//! the renderer and CLIP (wired in by the lead once those land).
 
-/// Placeholder arguments until the command lands.
-#[derive(clap::Args, Debug)]
-pub struct OptimizeArgs {}
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
 
-pub fn run(_args: OptimizeArgs) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+use anyhow::{bail, Context, Result};
+
+use super::VolumeArgs;
+use crate::image::Image;
+use crate::optimize::captions::{self, CacheOutcome, CaptionPool};
+use crate::optimize::driver::{self, Job, Positive, TextEncoder};
+use crate::optimize::report::{ModelInfo, Report, StepLog, VolumeInfo};
+use crate::optimize::settings::{defaults, Settings};
+use crate::optimize::tf_plot::Curve;
+use crate::optimize::{ImageEncoder, Parameterization, Renderer};
+use crate::tf::ControlPoints;
+
+/// Default CLIP model (Hugging Face repo id).
+pub const DEFAULT_MODEL: &str = "openai/clip-vit-base-patch32";
+
+/// Optimize a transfer function so renderings of VOLUME match a text prompt.
+#[derive(clap::Args, Debug, Clone)]
+#[command(
+    after_help = "Example: t2tf optimize bonsai_256x256x256_uint8.raw --prompt \"a potted tree\" --out bonsai-tf"
+)]
+pub struct OptimizeArgs {
+    /// The volume (.vti, legacy .vtk, or .raw named NAME_XxYxZ_DTYPE.raw).
+    pub volume: PathBuf,
+
+    #[command(flatten)]
+    pub volume_args: VolumeArgs,
+
+    /// What the renderings should show, e.g. "a potted tree".
+    #[arg(long, required_unless_present = "reference_image")]
+    pub prompt: Option<String>,
+
+    /// What to suppress (repeatable); default: "a blank image".
+    #[arg(long = "negative", value_name = "TEXT")]
+    pub negatives: Vec<String>,
+
+    /// Output folder (created if missing).
+    #[arg(long, default_value = "t2tf-output")]
+    pub out: PathBuf,
+
+    /// Base name of the TF files; default: made from the prompt.
+    #[arg(long)]
+    pub name: Option<String>,
+
+    /// CLIP model: Hugging Face repo id or a local folder with model.safetensors,
+    /// config.json and tokenizer.json.
+    #[arg(long, value_name = "REPO_ID|DIR", default_value = DEFAULT_MODEL)]
+    pub model: String,
+
+    /// Optimization steps.
+    #[arg(long, default_value_t = defaults::STEPS)]
+    pub steps: usize,
+
+    /// Random views per step (their gradients are averaged).
+    #[arg(long, default_value_t = defaults::VIEWS)]
+    pub views: usize,
+
+    /// Initial learning rate (annealed linearly to 0).
+    #[arg(long, default_value_t = defaults::LR)]
+    pub lr: f64,
+
+    /// SGD momentum.
+    #[arg(long, default_value_t = defaults::MOMENTUM)]
+    pub momentum: f64,
+
+    /// Weight of the Beta prior on final transmittance (data dependent).
+    #[arg(long, default_value_t = defaults::PRIOR_WEIGHT)]
+    pub prior_weight: f64,
+
+    /// a = b of the Beta(a, b) prior; below 1 favours clear or opaque rays.
+    #[arg(long, default_value_t = defaults::PRIOR_AB)]
+    pub prior_ab: f64,
+
+    /// First step (0-based) with the prior switched on.
+    #[arg(long, default_value_t = defaults::PRIOR_START)]
+    pub prior_start: usize,
+
+    /// λ1: L1 weight on control-point densities.
+    #[arg(long, default_value_t = defaults::L1)]
+    pub l1: f64,
+
+    /// λ2: L2 weight of colours towards 0.5.
+    #[arg(long, default_value_t = defaults::L2)]
+    pub l2: f64,
+
+    /// Control points of the transfer function.
+    #[arg(long, value_name = "N", default_value_t = defaults::CONTROL_POINTS)]
+    pub control_points: usize,
+
+    /// Caption file (one per line) replacing the built-in negative pool.
+    #[arg(long, value_name = "FILE")]
+    pub negatives_file: Option<PathBuf>,
+
+    /// Negatives drawn from the pool per step.
+    #[arg(long, default_value_t = defaults::NEGATIVES_PER_STEP)]
+    pub negatives_per_step: usize,
+
+    /// Seed of views, backgrounds, negatives and initial colours (same seed and threads ⇒
+    /// same TF).
+    #[arg(long, default_value_t = defaults::SEED)]
+    pub seed: u64,
+
+    /// Use the CLIP embedding of this picture as the positive instead of a prompt.
+    #[arg(long, value_name = "PNG", conflicts_with = "prompt")]
+    pub reference_image: Option<PathBuf>,
+
+    /// Ray-marching step in voxels of the level used; default: the renderer's.
+    #[arg(long)]
+    pub step_size: Option<f64>,
+
+    /// Mip level to render from (0 = full resolution); default: chosen from the pixel size.
+    #[arg(long)]
+    pub level: Option<usize>,
+
+    /// Worker threads; default: all cores.
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+impl OptimizeArgs {
+    /// The optimizer settings these flags describe.
+    pub fn settings(&self) -> Settings {
+        Settings {
+            steps: self.steps,
+            views: self.views,
+            lr: self.lr,
+            momentum: self.momentum,
+            prior_weight: self.prior_weight,
+            prior_a: self.prior_ab,
+            prior_b: self.prior_ab,
+            prior_start: self.prior_start,
+            l1: self.l1,
+            l2: self.l2,
+            control_points: self.control_points,
+            negatives_per_step: self.negatives_per_step,
+            seed: self.seed,
+            ..Settings::default()
+        }
+    }
+
+    /// The TF base name: `--name`, or a slug of the prompt (or the reference image's stem).
+    pub fn tf_name(&self) -> Result<String> {
+        if let Some(n) = &self.name {
+            let ok = !n.is_empty()
+                && n != "."
+                && n != ".."
+                && n.chars().all(|c| !c.is_control() && c != '/' && c != '\\');
+            if !ok {
+                bail!("--name {n:?}: must be a plain file name (no slashes, not empty)");
+            }
+            return Ok(n.clone());
+        }
+        let source = match (&self.prompt, &self.reference_image) {
+            (Some(p), _) => p.clone(),
+            (None, Some(r)) => r
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            (None, None) => String::new(),
+        };
+        Ok(slug(&source))
+    }
+
+    /// Everything that can be checked before loading the volume and the model. Returns the
+    /// caption pool and the user's negatives.
+    pub fn validate(&self) -> Result<(CaptionPool, Vec<String>)> {
+        self.settings().validate()?;
+        if let Some(p) = &self.prompt {
+            if p.trim().is_empty() {
+                bail!("--prompt is empty: say what the renderings should show");
+            }
+        }
+        if let Some(r) = &self.reference_image {
+            if !r.is_file() {
+                bail!("{}: --reference-image is not a readable file", r.display());
+            }
+        }
+        if let Some(s) = self.step_size {
+            if !(s.is_finite() && s > 0.0) {
+                bail!("--step-size must be a positive number of voxels, got {s}");
+            }
+        }
+        if self.threads == Some(0) {
+            bail!("--threads must be at least 1");
+        }
+        if self.out.exists() && !self.out.is_dir() {
+            bail!("{}: --out exists and is not a folder", self.out.display());
+        }
+        self.tf_name()?;
+        let pool = match &self.negatives_file {
+            Some(f) => CaptionPool::from_file(f)?,
+            None => CaptionPool::builtin(),
+        };
+        let user = captions::user_negatives(&self.negatives)?;
+        if self.negatives_per_step.min(pool.len()) + user.len() == 0 {
+            bail!("no negative prompts: the contrastive loss needs at least one");
+        }
+        Ok((pool, user))
+    }
+}
+
+/// Lower-case words of letters and digits joined by '-', at most 48 characters; "tf" if none.
+fn slug(text: &str) -> String {
+    let mut s = String::new();
+    for word in text
+        .split(|c: char| !c.is_alphanumeric())
+        .filter(|w| !w.is_empty())
+    {
+        let w = word.to_lowercase();
+        if s.len() + w.len() + 1 > 48 {
+            break;
+        }
+        if !s.is_empty() {
+            s.push('-');
+        }
+        s.push_str(&w);
+    }
+    if s.is_empty() {
+        "tf".into()
+    } else {
+        s
+    }
+}
+
+/// What `execute` needs to know about the loaded volume and model.
+#[derive(Clone, Debug)]
+pub struct Loaded {
+    /// `Volume::histogram`.
+    pub histogram: Vec<u64>,
+    pub volume: VolumeInfo,
+    pub model: ModelInfo,
+    /// SHA-256 of the weights file: key of the caption-embedding cache (`None`: no cache).
+    pub weights_hash: Option<Vec<u8>>,
+    /// Renderer settings for the report (step size, level, threads, …).
+    pub render: serde_json::Value,
+    /// Views in preview.png.
+    pub preview_views: usize,
+    /// What tf.png plots: `Curve::Opacity { unit_over_length: u / L }` with the exported
+    /// ScalarOpacityUnitDistance u and `Geometry::longest_side()` L.
+    pub tf_curve: Curve,
+}
+
+/// Writes the TF files (`NAME.json`, `NAME.xml`, `NAME.ct`, scripts) into the folder and
+/// returns the names written. `crate::formats` provides them.
+pub type Exporter<'a> = dyn FnMut(&Path, &str, &ControlPoints) -> Result<Vec<String>> + 'a;
+
+/// The Ctrl-C flag: installed once per process; raising it ends the loop after the current
+/// step with that step's TF.
+pub fn stop_flag() -> Arc<AtomicBool> {
+    static FLAG: OnceLock<Arc<AtomicBool>> = OnceLock::new();
+    FLAG.get_or_init(|| {
+        let flag = Arc::new(AtomicBool::new(false));
+        let f = flag.clone();
+        if let Err(e) = ctrlc::set_handler(move || {
+            if f.swap(true, Ordering::SeqCst) {
+                // Second Ctrl-C: the user does not want to wait for the step to finish.
+                std::process::exit(130);
+            }
+        }) {
+            eprintln!("warning: Ctrl-C will not stop cleanly: {e}");
+        }
+        flag
+    })
+    .clone()
+}
+
+/// Progress bar on stderr (hidden when stderr is not a terminal): step, loss, ETA.
+fn progress_bar(steps: usize) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(steps as u64);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{elapsed_precise} [{bar:30}] step {pos}/{len}  {msg}  ETA {eta}",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar
+}
+
+/// The whole command once the volume and model are loaded: validate, run Algorithm 1 with a
+/// progress bar and Ctrl-C handling, export the TF (`export`), then write tf.png,
+/// preview.png and report.json. Returns the report.
+pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization>(
+    args: &OptimizeArgs,
+    ctx: &Loaded,
+    renderer: &R,
+    image_encoder: &E,
+    text_encoder: &T,
+    tf: &P,
+    export: &mut Exporter,
+) -> Result<Report> {
+    let (pool, user) = args.validate()?;
+    let name = args.tf_name()?;
+    let settings = args.settings();
+    let reference = match &args.reference_image {
+        Some(p) => Some(Image::load_png(p)?),
+        None => None,
+    };
+    let positive = match (&reference, &args.prompt) {
+        (Some(im), _) => Positive::Image(im),
+        (None, Some(p)) => Positive::Prompt(p),
+        (None, None) => bail!("give --prompt TEXT or --reference-image PNG"),
+    };
+    let cache_dir = captions::cache_dir();
+    let cache = match (&cache_dir, &ctx.weights_hash) {
+        (Some(d), Some(h)) => Some((d.as_path(), h.as_slice())),
+        _ => None,
+    };
+    let job = Job {
+        settings: &settings,
+        positive,
+        user_negatives: &user,
+        pool: &pool,
+        cache,
+        histogram: &ctx.histogram,
+        logit_scale: ctx.model.logit_scale,
+        preview_views: ctx.preview_views,
+    };
+    let stop = stop_flag();
+    stop.store(false, Ordering::SeqCst);
+    let bar = progress_bar(settings.steps);
+    let mut on_step = |log: &StepLog, _total: usize| {
+        bar.set_message(format!(
+            "loss {:.4} (clip {:.4}, p(prompt) {:.3})",
+            log.total, log.clip, log.prompt_probability
+        ));
+        bar.inc(1);
+    };
+    let finished = driver::run_job(
+        &job,
+        renderer,
+        image_encoder,
+        text_encoder,
+        tf,
+        &stop,
+        &mut on_step,
+    )
+    .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
+    bar.finish_and_clear();
+    if finished.outcome.interrupted {
+        eprintln!(
+            "stopped after {} of {} steps: writing the TF of the last step",
+            finished.outcome.steps.len(),
+            settings.steps
+        );
+    }
+    if let Some(CacheOutcome::NotStored(why)) = &finished.cache {
+        eprintln!("warning: caption embeddings not cached: {why}");
+    }
+    if !finished.init.reached {
+        eprintln!(
+            "warning: even the densest TF leaves mean transmittance {:.3} above rho = {}: the volume is thin from this view",
+            finished.init.mean_transmittance, settings.rho
+        );
+    }
+
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("{}: cannot create the output folder", args.out.display()))?;
+    let mut report = Report::new(settings);
+    report.prompt = args.prompt.clone();
+    report.reference_image = args
+        .reference_image
+        .as_ref()
+        .map(|p| p.display().to_string());
+    report.negatives = user;
+    report.caption_pool = match &args.negatives_file {
+        Some(f) => f.display().to_string(),
+        None => "builtin".into(),
+    };
+    report.caption_pool_size = pool.len();
+    report.model = ctx.model.clone();
+    report.volume = ctx.volume.clone();
+    report.render = ctx.render.clone();
+    finished.fill_report(&mut report);
+    let t0 = std::time::Instant::now();
+    report.outputs = export(&args.out, &name, &finished.outcome.control_points)?;
+    report.timings.output += t0.elapsed().as_secs_f64();
+    driver::write_outputs(
+        &args.out,
+        &mut report,
+        &finished,
+        &ctx.histogram,
+        ctx.tf_curve,
+    )?;
+    eprintln!(
+        "wrote {} files to {}",
+        report.outputs.len(),
+        args.out.display()
+    );
+    Ok(report)
+}
+
+/// Validate the arguments; the optimization loop is wired in once the renderer and CLIP land.
+pub fn run(args: OptimizeArgs) -> Result<()> {
+    if !Path::new(&args.volume).exists() {
+        bail!("{}: volume file not found", args.volume.display());
+    }
+    args.validate()
+        .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
+    bail!(
+        "t2tf optimize is not wired yet: the optimizer is ready, the renderer and CLIP adapters are not"
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Wrap {
+        #[command(flatten)]
+        a: OptimizeArgs,
+    }
+
+    fn parse(args: &[&str]) -> Result<OptimizeArgs, clap::Error> {
+        let mut v = vec!["t2tf", "vol.raw"];
+        v.extend_from_slice(args);
+        Wrap::try_parse_from(v).map(|w| w.a)
+    }
+
+    #[test]
+    fn defaults_are_the_papers() {
+        let a = parse(&["--prompt", "a potted tree"]).unwrap();
+        assert_eq!(a.settings(), Settings::default());
+        assert_eq!(a.model, DEFAULT_MODEL);
+        assert_eq!(a.tf_name().unwrap(), "a-potted-tree");
+    }
+
+    #[test]
+    fn flags_reach_the_settings() {
+        let a = parse(&[
+            "--prompt",
+            "x",
+            "--steps",
+            "50",
+            "--views",
+            "1",
+            "--lr",
+            "5",
+            "--momentum",
+            "0.5",
+            "--prior-weight",
+            "0.1",
+            "--prior-ab",
+            "0.3",
+            "--prior-start",
+            "10",
+            "--l1",
+            "0",
+            "--l2",
+            "1e-3",
+            "--control-points",
+            "8",
+            "--negatives-per-step",
+            "16",
+            "--seed",
+            "9",
+            "--negative",
+            "a human skull",
+            "--negative",
+            "a human face",
+        ])
+        .unwrap();
+        let s = a.settings();
+        assert_eq!((s.steps, s.views, s.lr, s.momentum), (50, 1, 5.0, 0.5));
+        assert_eq!(
+            (s.prior_weight, s.prior_a, s.prior_b, s.prior_start),
+            (0.1, 0.3, 0.3, 10)
+        );
+        assert_eq!(
+            (s.l1, s.l2, s.control_points, s.negatives_per_step, s.seed),
+            (0.0, 1e-3, 8, 16, 9)
+        );
+        assert_eq!(a.negatives.len(), 2);
+    }
+
+    #[test]
+    fn prompt_or_reference_image_is_required_not_both() {
+        assert!(parse(&[]).is_err());
+        assert!(parse(&["--reference-image", "a.png"]).is_ok());
+        assert!(parse(&["--prompt", "x", "--reference-image", "a.png"]).is_err());
+    }
+
+    #[test]
+    fn validation_gives_clear_errors() {
+        let m = |args: &[&str]| format!("{:#}", parse(args).unwrap().validate().unwrap_err());
+        assert!(m(&["--prompt", "  "]).contains("--prompt is empty"));
+        assert!(m(&["--prompt", "x", "--views", "0"]).contains("--views"));
+        assert!(m(&["--prompt", "x", "--momentum", "1.5"]).contains("--momentum"));
+        assert!(m(&["--prompt", "x", "--control-points", "1"]).contains("--control-points"));
+        assert!(m(&["--prompt", "x", "--negative", " "]).contains("negative"));
+        assert!(m(&["--prompt", "x", "--name", "a/b"]).contains("--name"));
+        assert!(m(&["--prompt", "x", "--step-size", "0"]).contains("--step-size"));
+        assert!(m(&["--reference-image", "missing.png"]).contains("missing.png"));
+        assert!(
+            m(&["--prompt", "x", "--negatives-file", "no-such-captions.txt"])
+                .contains("no-such-captions.txt")
+        );
+        // --steps 0 is valid: the result is the initialization.
+        parse(&["--prompt", "x", "--steps", "0"])
+            .unwrap()
+            .validate()
+            .unwrap();
+    }
+
+    #[test]
+    fn slugs() {
+        assert_eq!(slug("The teeth of a CT head!"), "the-teeth-of-a-ct-head");
+        assert_eq!(slug("  ...  "), "tf");
+        assert!(slug(&"word ".repeat(40)).len() <= 48);
+    }
 }

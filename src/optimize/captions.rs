@@ -1,0 +1,408 @@
+//! The negative-caption pool and the on-disk cache of its text embeddings.
+//!
+//! The paper samples 128 negatives per step from LAION captions, which cannot ship; the pool
+//! built into the binary is the project's own (`data/captions.txt`, written by
+//! `data/make_captions.py`). `--negatives-file` replaces it. The embeddings of the whole pool
+//! are computed once per model and caption list and cached under the user cache directory.
+
+use std::collections::HashSet;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use rand::Rng;
+use sha2::{Digest, Sha256};
+
+use super::OptimizeError;
+
+/// The project's caption pool, one caption per line.
+pub const BUILTIN_CAPTIONS: &str = include_str!("../../data/captions.txt");
+
+/// The user negative used when none is given (the paper's "a blank image").
+pub const DEFAULT_USER_NEGATIVE: &str = "a blank image";
+
+/// A deduplicated list of captions to draw negatives from.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CaptionPool {
+    captions: Vec<String>,
+}
+
+impl CaptionPool {
+    /// The pool shipped with t2tf.
+    pub fn builtin() -> CaptionPool {
+        CaptionPool::parse(BUILTIN_CAPTIONS)
+    }
+
+    /// Captions from text: one per line, surrounding space trimmed, blank lines skipped,
+    /// duplicates dropped (first occurrence kept, so the order of the file is kept).
+    pub fn parse(text: &str) -> CaptionPool {
+        let mut seen = HashSet::new();
+        let captions = text
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty() && seen.insert(*l))
+            .map(str::to_owned)
+            .collect();
+        CaptionPool { captions }
+    }
+
+    /// Read a caption file (`--negatives-file`). An unreadable, non-UTF-8 or empty file is an
+    /// error naming the file.
+    pub fn from_file(path: &Path) -> Result<CaptionPool, OptimizeError> {
+        let bytes = std::fs::read(path).map_err(|e| {
+            OptimizeError::Captions(format!("{}: cannot read caption file: {e}", path.display()))
+        })?;
+        let text = String::from_utf8(bytes).map_err(|e| {
+            OptimizeError::Captions(format!(
+                "{}: not UTF-8 text (invalid byte at offset {})",
+                path.display(),
+                e.utf8_error().valid_up_to()
+            ))
+        })?;
+        let pool = CaptionPool::parse(&text);
+        if pool.is_empty() {
+            return Err(OptimizeError::Captions(format!(
+                "{}: holds no captions (one per line expected)",
+                path.display()
+            )));
+        }
+        Ok(pool)
+    }
+
+    pub fn captions(&self) -> &[String] {
+        &self.captions
+    }
+
+    pub fn len(&self) -> usize {
+        self.captions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.captions.is_empty()
+    }
+}
+
+/// `k` distinct indices into a pool of `n`, uniformly without replacement (all of them,
+/// shuffled, when k ≥ n). Deterministic for a seeded `rng`.
+pub fn sample_indices(n: usize, k: usize, rng: &mut impl Rng) -> Vec<usize> {
+    rand::seq::index::sample(rng, n, k.min(n)).into_vec()
+}
+
+/// The user's negatives, or the default one when none were given. Blank ones are an error
+/// (an empty prompt has no meaning to compare against).
+pub fn user_negatives(given: &[String]) -> Result<Vec<String>, OptimizeError> {
+    if given.is_empty() {
+        return Ok(vec![DEFAULT_USER_NEGATIVE.to_owned()]);
+    }
+    given
+        .iter()
+        .map(|s| {
+            let t = s.trim();
+            if t.is_empty() {
+                Err(OptimizeError::Setting {
+                    name: "negative",
+                    message: "a negative prompt is empty".into(),
+                })
+            } else {
+                Ok(t.to_owned())
+            }
+        })
+        .collect()
+}
+
+/// The cache directory of t2tf: `$XDG_CACHE_HOME/t2tf`, else `$HOME/.cache/t2tf`.
+pub fn cache_dir() -> Option<PathBuf> {
+    let nonempty = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
+    if let Some(x) = nonempty("XDG_CACHE_HOME") {
+        return Some(PathBuf::from(x).join("t2tf"));
+    }
+    nonempty("HOME").map(|h| PathBuf::from(h).join(".cache").join("t2tf"))
+}
+
+/// SHA-256 of a file's bytes (the model weights), read in 1 MiB chunks.
+pub fn hash_file(path: &Path) -> Result<[u8; 32], OptimizeError> {
+    let err = |e: std::io::Error| {
+        OptimizeError::Captions(format!("{}: cannot read to hash it: {e}", path.display()))
+    };
+    let mut f = std::fs::File::open(path).map_err(err)?;
+    let mut h = Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = f.read(&mut buf).map_err(err)?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+    }
+    Ok(h.finalize().into())
+}
+
+/// The cache key of (model, caption list): SHA-256 over the model hash and every caption,
+/// each caption prefixed by its byte length so that no two lists share a key by concatenation.
+pub fn cache_key(model_hash: &[u8], captions: &[String]) -> [u8; 32] {
+    let mut h = Sha256::new();
+    h.update(b"t2tf text embeddings v1\0");
+    h.update((model_hash.len() as u64).to_le_bytes());
+    h.update(model_hash);
+    h.update((captions.len() as u64).to_le_bytes());
+    for c in captions {
+        h.update((c.len() as u64).to_le_bytes());
+        h.update(c.as_bytes());
+    }
+    h.finalize().into()
+}
+
+const MAGIC: &[u8; 8] = b"T2TFEMB1";
+const HEADER: usize = 8 + 32 + 8 + 8;
+
+/// Where the embeddings for `key` live inside the cache directory `dir`.
+pub fn cache_path(dir: &Path, key: &[u8; 32]) -> PathBuf {
+    let hex: String = key.iter().map(|b| format!("{b:02x}")).collect();
+    dir.join("text-embeddings").join(format!("{hex}.bin"))
+}
+
+/// Serialize embeddings: magic, key, count (u64), dimension (u64), then count × dim f32, all
+/// little-endian.
+fn encode(key: &[u8; 32], embeddings: &[Vec<f32>]) -> Vec<u8> {
+    let dim = embeddings.first().map_or(0, Vec::len);
+    let mut out = Vec::with_capacity(HEADER + embeddings.len() * dim * 4);
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(key);
+    out.extend_from_slice(&(embeddings.len() as u64).to_le_bytes());
+    out.extend_from_slice(&(dim as u64).to_le_bytes());
+    for e in embeddings {
+        for v in e {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Parse a cache file; `None` for anything that does not match `key` and `count` exactly
+/// (other model, other list, truncated or foreign file, non-finite values).
+fn decode(bytes: &[u8], key: &[u8; 32], count: usize) -> Option<Vec<Vec<f32>>> {
+    if bytes.len() < HEADER || &bytes[..8] != MAGIC || &bytes[8..40] != key {
+        return None;
+    }
+    let n = u64::from_le_bytes(bytes[40..48].try_into().ok()?) as usize;
+    let dim = u64::from_le_bytes(bytes[48..56].try_into().ok()?) as usize;
+    if n != count
+        || dim == 0
+        || bytes.len() != HEADER.checked_add(n.checked_mul(dim)?.checked_mul(4)?)?
+    {
+        return None;
+    }
+    let values: Vec<f32> = bytes[HEADER..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    if values.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    Some(values.chunks_exact(dim).map(<[f32]>::to_vec).collect())
+}
+
+/// How [`cached_embeddings`] got its result.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CacheOutcome {
+    /// Read from the cache file.
+    Hit(PathBuf),
+    /// Computed and written to the cache file.
+    Stored(PathBuf),
+    /// Computed; the cache could not be written (the reason, for a warning). Not an error:
+    /// a read-only home must not stop an optimization.
+    NotStored(String),
+}
+
+/// The embeddings of `captions` under the model with hash `model_hash`: from the cache in
+/// `dir` when a matching file is there, else from `compute` (then stored atomically).
+/// A cache file that does not match is recomputed and replaced, never an error.
+pub fn cached_embeddings<E>(
+    dir: Option<&Path>,
+    model_hash: &[u8],
+    captions: &[String],
+    compute: impl FnOnce(&[String]) -> Result<Vec<Vec<f32>>, E>,
+) -> Result<(Vec<Vec<f32>>, CacheOutcome), E> {
+    let key = cache_key(model_hash, captions);
+    let path = dir.map(|d| cache_path(d, &key));
+    if let Some(p) = &path {
+        if let Some(e) = std::fs::read(p)
+            .ok()
+            .and_then(|b| decode(&b, &key, captions.len()))
+        {
+            return Ok((e, CacheOutcome::Hit(p.clone())));
+        }
+    }
+    let emb = compute(captions)?;
+    let outcome = match path {
+        None => CacheOutcome::NotStored(
+            "no cache directory (neither XDG_CACHE_HOME nor HOME is set)".into(),
+        ),
+        Some(p) => match store(&p, &key, &emb) {
+            Ok(()) => CacheOutcome::Stored(p),
+            Err(e) => CacheOutcome::NotStored(format!("{e:#}")),
+        },
+    };
+    Ok((emb, outcome))
+}
+
+fn store(path: &Path, key: &[u8; 32], emb: &[Vec<f32>]) -> anyhow::Result<()> {
+    let dim = emb.first().map_or(0, Vec::len);
+    if dim == 0 || emb.iter().any(|e| e.len() != dim) {
+        anyhow::bail!(
+            "{}: embeddings have unequal or zero length; not cached",
+            path.display()
+        );
+    }
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent)
+            .map_err(|e| anyhow::anyhow!("{}: cannot create: {e}", parent.display()))?;
+    }
+    crate::formats::atomic_write_bytes(path, &encode(key, emb))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn builtin_pool_is_large_deduplicated_and_short() {
+        let pool = CaptionPool::builtin();
+        assert!(pool.len() >= 5000, "{}", pool.len());
+        let lines = BUILTIN_CAPTIONS.lines().count();
+        assert_eq!(
+            lines,
+            pool.len(),
+            "the shipped file must already be deduplicated"
+        );
+        // CLIP's context is 77 tokens; every caption is well inside it (≤ 80 characters).
+        assert!(pool
+            .captions()
+            .iter()
+            .all(|c| c.len() <= 80 && !c.is_empty()));
+        let words: HashSet<&str> = pool.captions().iter().flat_map(|c| c.split(' ')).collect();
+        assert!(words.len() > 300, "vocabulary too small: {}", words.len());
+    }
+
+    #[test]
+    fn parse_trims_skips_blank_and_dedups_in_order() {
+        let p = CaptionPool::parse("b cat\n\n  a dog \r\nb cat\n a dog\n");
+        assert_eq!(p.captions(), &["b cat".to_string(), "a dog".to_string()]);
+    }
+
+    #[test]
+    fn file_errors_name_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let empty = dir.path().join("empty.txt");
+        std::fs::write(&empty, "\n  \n").unwrap();
+        let m = CaptionPool::from_file(&empty).unwrap_err().to_string();
+        assert!(m.contains("empty.txt") && m.contains("no captions"), "{m}");
+        let bin = dir.path().join("bin.txt");
+        std::fs::write(&bin, [b'a', 0xff, b'b']).unwrap();
+        let m = CaptionPool::from_file(&bin).unwrap_err().to_string();
+        assert!(m.contains("bin.txt") && m.contains("UTF-8"), "{m}");
+        let m = CaptionPool::from_file(&dir.path().join("missing.txt"))
+            .unwrap_err()
+            .to_string();
+        assert!(m.contains("missing.txt"), "{m}");
+        let ok = dir.path().join("ok.txt");
+        std::fs::write(&ok, "one\ntwo\n").unwrap();
+        assert_eq!(CaptionPool::from_file(&ok).unwrap().len(), 2);
+    }
+
+    #[test]
+    fn sampling_is_seeded_distinct_and_bounded() {
+        let a = sample_indices(6000, 128, &mut ChaCha8Rng::seed_from_u64(3));
+        let b = sample_indices(6000, 128, &mut ChaCha8Rng::seed_from_u64(3));
+        let c = sample_indices(6000, 128, &mut ChaCha8Rng::seed_from_u64(4));
+        assert_eq!(a, b);
+        assert_ne!(a, c);
+        assert_eq!(a.iter().collect::<HashSet<_>>().len(), 128);
+        assert!(a.iter().all(|&i| i < 6000));
+        let mut all = sample_indices(5, 128, &mut ChaCha8Rng::seed_from_u64(3));
+        all.sort();
+        assert_eq!(all, vec![0, 1, 2, 3, 4]);
+        assert!(sample_indices(0, 128, &mut ChaCha8Rng::seed_from_u64(3)).is_empty());
+    }
+
+    #[test]
+    fn user_negatives_default_and_blank() {
+        assert_eq!(user_negatives(&[]).unwrap(), vec!["a blank image"]);
+        assert_eq!(
+            user_negatives(&[" a human skull ".into()]).unwrap(),
+            vec!["a human skull"]
+        );
+        assert!(user_negatives(&["  ".into()]).is_err());
+    }
+
+    #[test]
+    fn cache_round_trips_and_recomputes_on_mismatch() {
+        let dir = tempfile::tempdir().unwrap();
+        let caps: Vec<String> = vec!["a dog".into(), "a cat".into()];
+        let emb = vec![vec![1.0f32, -2.5, 3.25], vec![0.0, 1e-30, -7.0]];
+        let calls = std::cell::Cell::new(0);
+        let compute = |c: &[String]| -> Result<Vec<Vec<f32>>, ()> {
+            calls.set(calls.get() + 1);
+            assert_eq!(c.len(), 2);
+            Ok(emb.clone())
+        };
+        let (e1, o1) = cached_embeddings(Some(dir.path()), b"model A", &caps, compute).unwrap();
+        assert!(matches!(o1, CacheOutcome::Stored(_)), "{o1:?}");
+        let (e2, o2) = cached_embeddings(Some(dir.path()), b"model A", &caps, compute).unwrap();
+        assert!(matches!(o2, CacheOutcome::Hit(_)), "{o2:?}");
+        assert_eq!(e1, emb);
+        assert_eq!(e2, emb);
+        assert_eq!(calls.get(), 1);
+        // Another model or another caption list: a different key, so a recompute.
+        cached_embeddings(Some(dir.path()), b"model B", &caps, compute).unwrap();
+        let other: Vec<String> = vec!["a dog".into(), "a cow".into()];
+        cached_embeddings(Some(dir.path()), b"model A", &other, compute).unwrap();
+        assert_eq!(calls.get(), 3);
+        // A corrupt file under the right name is recomputed and replaced.
+        let p = cache_path(dir.path(), &cache_key(b"model A", &caps));
+        let mut bytes = std::fs::read(&p).unwrap();
+        bytes.truncate(bytes.len() - 1);
+        std::fs::write(&p, &bytes).unwrap();
+        let (e3, o3) = cached_embeddings(Some(dir.path()), b"model A", &caps, compute).unwrap();
+        assert!(matches!(o3, CacheOutcome::Stored(_)));
+        assert_eq!(e3, emb);
+        assert_eq!(calls.get(), 4);
+        assert_eq!(std::fs::read(&p).unwrap().len(), HEADER + 2 * 3 * 4);
+    }
+
+    #[test]
+    fn cache_key_separates_concatenations() {
+        let a = cache_key(b"m", &["ab".into(), "c".into()]);
+        let b = cache_key(b"m", &["a".into(), "bc".into()]);
+        assert_ne!(a, b);
+    }
+
+    #[test]
+    fn unwritable_cache_is_a_warning_not_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("not-a-dir");
+        std::fs::write(&file, "x").unwrap();
+        let caps: Vec<String> = vec!["a dog".into()];
+        let (e, o) = cached_embeddings(Some(&file), b"m", &caps, |_| {
+            Ok::<_, ()>(vec![vec![1.0f32]])
+        })
+        .unwrap();
+        assert_eq!(e, vec![vec![1.0]]);
+        assert!(matches!(o, CacheOutcome::NotStored(_)), "{o:?}");
+    }
+
+    #[test]
+    fn hash_file_matches_known_sha256() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("w.bin");
+        std::fs::write(&p, b"abc").unwrap();
+        let h = hash_file(&p).unwrap();
+        let hex: String = h.iter().map(|b| format!("{b:02x}")).collect();
+        assert_eq!(
+            hex,
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        assert!(hash_file(&dir.path().join("none")).is_err());
+    }
+}

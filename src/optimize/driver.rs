@@ -1,0 +1,285 @@
+//! A whole `t2tf optimize` run on top of the loop: text embeddings (pool cached on disk),
+//! initialization, Algorithm 1, final CLIP scores and the preview, then the files this module
+//! owns (`tf.png`, `preview.png`, `report.json`). The TF exports (`NAME.json`, …) belong to
+//! `crate::formats` and are written by the caller.
+
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use super::captions::{self, CacheOutcome, CaptionPool};
+use super::init::Initialization;
+use super::report::{InitInfo, PhaseTimes, Report, Score, StepLog};
+use super::{
+    initialize, optimize, scores, BoxError, ImageEncoder, OptimizeError, Outcome, Parameterization,
+    Renderer, Settings, Targets, View,
+};
+use crate::image::Image;
+
+/// CLIP's text tower as the driver sees it.
+pub trait TextEncoder {
+    /// Projected (not normalized) embeddings, one per text. Empty texts and texts longer than
+    /// the model's context are the encoder's to reject with a clear error.
+    fn encode_text(&self, texts: &[&str]) -> Result<Vec<Vec<f32>>, BoxError>;
+}
+
+/// What the renders should match.
+#[derive(Clone, Copy, Debug)]
+pub enum Positive<'a> {
+    /// A text prompt.
+    Prompt(&'a str),
+    /// A picture (any size; prepared like CLIP's image processor).
+    Image(&'a Image),
+}
+
+/// Captions are encoded in batches of this many (bounds the text tower's activations).
+pub const TEXT_BATCH: usize = 256;
+
+/// Everything a run needs besides the models.
+#[derive(Clone, Copy, Debug)]
+pub struct Job<'a> {
+    pub settings: &'a Settings,
+    pub positive: Positive<'a>,
+    /// The user's negatives (already defaulted, see `captions::user_negatives`).
+    pub user_negatives: &'a [String],
+    pub pool: &'a CaptionPool,
+    /// Cache directory and model-weights hash for the pool embeddings; `None`: no cache.
+    pub cache: Option<(&'a Path, &'a [u8])>,
+    /// The volume's histogram (`Volume::histogram`).
+    pub histogram: &'a [u64],
+    /// CLIP's logit scale.
+    pub logit_scale: f64,
+    /// Views in preview.png and in the final scores.
+    pub preview_views: usize,
+}
+
+/// The result of [`run_job`].
+#[derive(Clone, Debug)]
+pub struct Finished {
+    pub outcome: Outcome,
+    pub init: Initialization,
+    /// Positive first (caption "reference image" in image mode), then the user's negatives.
+    pub scores: Vec<Score>,
+    /// Phases of the whole run (output time is added by [`write_outputs`]).
+    pub times: PhaseTimes,
+    /// How the pool embeddings were obtained (`None` when no pool negatives are drawn).
+    pub cache: Option<CacheOutcome>,
+    /// The final TF from `preview_views` orbit views, tiled.
+    pub preview: Image,
+}
+
+fn encode_batched<T: TextEncoder>(
+    text: &T,
+    captions: &[String],
+) -> Result<Vec<Vec<f32>>, OptimizeError> {
+    let mut out = Vec::with_capacity(captions.len());
+    for chunk in captions.chunks(TEXT_BATCH) {
+        let refs: Vec<&str> = chunk.iter().map(String::as_str).collect();
+        let e = text.encode_text(&refs).map_err(OptimizeError::Encoder)?;
+        if e.len() != refs.len() {
+            return Err(OptimizeError::Encoder(
+                format!(
+                    "text encoder returned {} embeddings for {} texts",
+                    e.len(),
+                    refs.len()
+                )
+                .into(),
+            ));
+        }
+        out.extend(e);
+    }
+    Ok(out)
+}
+
+/// Run Algorithm 1 for `job`. `progress` sees every step; raising `stop` ends the run after
+/// the current step with the TF of that step (`outcome.interrupted`).
+#[allow(clippy::too_many_arguments)]
+pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization>(
+    job: &Job,
+    renderer: &R,
+    image_encoder: &E,
+    text_encoder: &T,
+    tf: &P,
+    stop: &AtomicBool,
+    progress: &mut dyn FnMut(&StepLog, usize),
+) -> Result<Finished, OptimizeError> {
+    let s = job.settings;
+    s.validate()?;
+    if job.pool.len().min(s.negatives_per_step) + job.user_negatives.len() == 0 {
+        return Err(OptimizeError::NoNegatives);
+    }
+    let mut times = PhaseTimes::default();
+
+    // Text side: the positive, the user's negatives, the pool (cached).
+    let t0 = Instant::now();
+    let positive = match job.positive {
+        Positive::Prompt(p) => {
+            if p.trim().is_empty() {
+                return Err(OptimizeError::Setting {
+                    name: "prompt",
+                    message: "is empty: say what the renderings should show".into(),
+                });
+            }
+            encode_batched(text_encoder, &[p.to_owned()])?.remove(0)
+        }
+        Positive::Image(im) => {
+            let prepared = image_encoder.prepare(im);
+            let (mut e, _) = image_encoder
+                .encode(&[prepared])
+                .map_err(OptimizeError::Encoder)?;
+            if e.len() != 1 {
+                return Err(OptimizeError::Encoder(
+                    "no embedding for the reference image".into(),
+                ));
+            }
+            e.remove(0)
+        }
+    };
+    let user = encode_batched(text_encoder, job.user_negatives)?;
+    let (pool, cache) = if s.negatives_per_step == 0 || job.pool.is_empty() {
+        (Vec::new(), None)
+    } else {
+        let (dir, hash) = match job.cache {
+            Some((d, h)) => (Some(d), h),
+            None => (None, &[][..]),
+        };
+        if job.cache.is_some() {
+            let (e, o) = captions::cached_embeddings(dir, hash, job.pool.captions(), |c| {
+                encode_batched(text_encoder, c)
+            })?;
+            (e, Some(o))
+        } else {
+            (encode_batched(text_encoder, job.pool.captions())?, None)
+        }
+    };
+    times.text = t0.elapsed().as_secs_f64();
+
+    let t0 = Instant::now();
+    let (params, init) = initialize(renderer, tf, job.histogram, s)?;
+    times.init = t0.elapsed().as_secs_f64();
+
+    let targets = Targets {
+        positive: &positive,
+        pool: &pool,
+        user_negatives: &user,
+        logit_scale: job.logit_scale,
+    };
+    let outcome = optimize(
+        renderer,
+        image_encoder,
+        tf,
+        &targets,
+        s,
+        params,
+        stop,
+        progress,
+    )?;
+    let lp = &outcome.times;
+    times.render = lp.render;
+    times.clip_forward = lp.clip_forward;
+    times.clip_backward = lp.clip_backward;
+    times.render_backward = lp.render_backward;
+    times.other = lp.other;
+
+    // Final scores and the preview from the same fixed orbit.
+    let t0 = Instant::now();
+    let lut = outcome.control_points.to_lut(tf.lut_size());
+    let views = View::orbit(s, job.preview_views.max(1));
+    let mut classes: Vec<&[f32]> = vec![&positive];
+    classes.extend(user.iter().map(Vec::as_slice));
+    let mut images = Vec::with_capacity(views.len());
+    for v in &views {
+        images.push(renderer.render(&lut, v).map_err(OptimizeError::Renderer)?.0);
+    }
+    let sc = scores(image_encoder, &images, &classes, job.logit_scale)?;
+    let mut names = vec![match job.positive {
+        Positive::Prompt(p) => p.to_owned(),
+        Positive::Image(_) => "reference image".to_owned(),
+    }];
+    names.extend(job.user_negatives.iter().cloned());
+    let scores = names
+        .into_iter()
+        .zip(sc)
+        .map(|(caption, (cosine, logit))| Score {
+            caption,
+            cosine,
+            logit,
+        })
+        .collect();
+    let preview = tile(&images);
+    times.other += t0.elapsed().as_secs_f64();
+
+    Ok(Finished {
+        outcome,
+        init,
+        scores,
+        times,
+        cache,
+        preview,
+    })
+}
+
+/// Images side by side in rows of ⌈√n⌉ (all of the first image's size; others are skipped
+/// if they differ). Empty input gives a 1 × 1 black image.
+pub fn tile(images: &[Image]) -> Image {
+    let Some(first) = images.first() else {
+        return Image::new(1, 1);
+    };
+    let (w, h) = (first.width, first.height);
+    let cols = (images.len() as f64).sqrt().ceil() as usize;
+    let rows = images.len().div_ceil(cols);
+    let mut out = Image::new(w * cols, h * rows);
+    for (i, im) in images.iter().enumerate() {
+        if im.width != w || im.height != h {
+            continue;
+        }
+        let (ox, oy) = ((i % cols) * w, (i / cols) * h);
+        for y in 0..h {
+            let dst = ((oy + y) * out.width + ox) * 3;
+            out.data[dst..dst + w * 3].copy_from_slice(&im.data[y * w * 3..(y + 1) * w * 3]);
+        }
+    }
+    out
+}
+
+impl Finished {
+    /// Copy the run's results into `report` (steps, scores, timings, initialization).
+    pub fn fill_report(&self, report: &mut Report) {
+        report.steps = self.outcome.steps.clone();
+        report.steps_run = self.outcome.steps.len();
+        report.interrupted = self.outcome.interrupted;
+        report.final_scores = self.scores.clone();
+        report.timings = self.times.clone();
+        report.initialization = InitInfo {
+            scale: self.init.scale,
+            mean_transmittance: self.init.mean_transmittance,
+            evaluations: self.init.evaluations,
+            reached: self.init.reached,
+        };
+    }
+}
+
+/// Write `tf.png`, `preview.png` and (last) `report.json` into `dir` (created if missing),
+/// each atomically. `report.outputs` gets these names appended (keep the caller's TF files
+/// listed before calling) and `timings.output` the time spent here. `curve`: what tf.png
+/// plots (opacity for the exported unit distance, so it matches ParaView).
+pub fn write_outputs(
+    dir: &Path,
+    report: &mut Report,
+    finished: &Finished,
+    histogram: &[u64],
+    curve: super::tf_plot::Curve,
+) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let t0 = Instant::now();
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;
+    let cp = &finished.outcome.control_points;
+    super::tf_plot::save(&dir.join("tf.png"), cp, histogram, curve)?;
+    finished.preview.save_png(&dir.join("preview.png"))?;
+    report
+        .outputs
+        .extend(["tf.png", "preview.png", "report.json"].map(String::from));
+    report.timings.output += t0.elapsed().as_secs_f64();
+    report.write(&dir.join("report.json"))
+}

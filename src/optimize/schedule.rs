@@ -1,0 +1,232 @@
+//! The per-step plan of Algorithm 1: views, backgrounds, negatives, prior on/off and learning
+//! rate, all drawn from a seeded RNG.
+//!
+//! Each step has its own random stream (ChaCha8 seeded with the run's seed, stream = step
+//! index), so step i's plan depends only on (seed, i, settings) and not on how many steps ran
+//! before it or whether the run was interrupted: same seed ⇒ same plan.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::captions::sample_indices;
+use super::settings::Settings;
+use super::sgd::linear_lr;
+
+/// Background behind one rendered view.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum Background {
+    /// Constant gray of this level in [0, 1] (the first `gray_steps` steps).
+    Gray { level: f64 },
+    /// Checkerboard with colours, size and phase from `seed`.
+    Checkerboard { seed: u64 },
+    /// Noise image from `seed`.
+    Noise { seed: u64 },
+    /// Random Fourier features from `seed`.
+    Fourier { seed: u64 },
+}
+
+impl Background {
+    /// The background kind's name (as the renderer's background module names it).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Background::Gray { .. } => "gray",
+            Background::Checkerboard { .. } => "checkerboard",
+            Background::Noise { .. } => "noise",
+            Background::Fourier { .. } => "fourier",
+        }
+    }
+}
+
+/// One camera and its background. Angles in radians; the camera orbits the volume centre.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct View {
+    /// In [0, 2π).
+    pub yaw: f64,
+    /// In [−pitch_limit, pitch_limit].
+    pub pitch: f64,
+    /// Distance from the volume centre in bounding radii (multiply by
+    /// `Geometry::bounding_radius()` for world units).
+    pub distance: f64,
+    pub background: Background,
+    /// Seed for any randomness of the renderer in this view (e.g. per-ray sample jitter;
+    /// forward and backward of the view must use the same one).
+    pub seed: u64,
+}
+
+impl View {
+    /// The fixed view V0 of the initialization: front (yaw 0, pitch 0) at the middle of the
+    /// distance range, on mid gray (the background does not affect T_N).
+    pub fn initial(settings: &Settings) -> View {
+        View {
+            yaw: 0.0,
+            pitch: 0.0,
+            distance: 0.5 * (settings.distance[0] + settings.distance[1]),
+            background: Background::Gray { level: 0.5 },
+            seed: 0,
+        }
+    }
+
+    /// `n` views evenly spaced in yaw at pitch 0 and mid distance on white: for preview.png
+    /// and the final CLIP scores (fixed, so runs are comparable).
+    pub fn orbit(settings: &Settings, n: usize) -> Vec<View> {
+        (0..n)
+            .map(|i| View {
+                yaw: std::f64::consts::TAU * i as f64 / n.max(1) as f64,
+                pitch: 0.0,
+                distance: 0.5 * (settings.distance[0] + settings.distance[1]),
+                background: Background::Gray { level: 1.0 },
+                seed: 0,
+            })
+            .collect()
+    }
+}
+
+/// Everything random about one step.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StepPlan {
+    /// 0-based step index.
+    pub step: usize,
+    /// Learning rate of this step (linear annealing).
+    pub lr: f64,
+    pub views: Vec<View>,
+    /// Indices into the caption pool (distinct).
+    pub negatives: Vec<usize>,
+    /// Whether the Beta prior is on.
+    pub prior: bool,
+}
+
+/// The plan of step `step` for a pool of `pool_size` captions.
+pub fn plan(settings: &Settings, pool_size: usize, step: usize) -> StepPlan {
+    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+    rng.set_stream(step as u64);
+    let views = (0..settings.views)
+        .map(|_| {
+            let yaw = rng.random_range(0.0..std::f64::consts::TAU);
+            let pitch = if settings.pitch_limit > 0.0 {
+                rng.random_range(-settings.pitch_limit..=settings.pitch_limit)
+            } else {
+                0.0
+            };
+            let [d0, d1] = settings.distance;
+            let distance = if d1 > d0 {
+                rng.random_range(d0..=d1)
+            } else {
+                d0
+            };
+            let background = if step < settings.gray_steps {
+                Background::Gray {
+                    level: rng.random_range(0.0..=1.0),
+                }
+            } else {
+                let seed = rng.random();
+                match rng.random_range(0..3) {
+                    0 => Background::Checkerboard { seed },
+                    1 => Background::Noise { seed },
+                    _ => Background::Fourier { seed },
+                }
+            };
+            View {
+                yaw,
+                pitch,
+                distance,
+                background,
+                seed: rng.random(),
+            }
+        })
+        .collect();
+    let negatives = sample_indices(pool_size, settings.negatives_per_step, &mut rng);
+    StepPlan {
+        step,
+        lr: linear_lr(settings.lr, step, settings.steps),
+        views,
+        negatives,
+        prior: step >= settings.prior_start,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashSet;
+
+    #[test]
+    fn same_seed_same_plan_other_seed_other_plan() {
+        let s = Settings::default();
+        for step in [0, 24, 25, 99, 100, 299] {
+            assert_eq!(plan(&s, 6000, step), plan(&s, 6000, step));
+        }
+        let t = Settings {
+            seed: 1,
+            ..Settings::default()
+        };
+        assert_ne!(plan(&s, 6000, 5).views, plan(&t, 6000, 5).views);
+        // Steps differ from each other.
+        assert_ne!(plan(&s, 6000, 5).views, plan(&s, 6000, 6).views);
+        // A step's plan does not depend on the total step count except through lr.
+        let short = Settings {
+            steps: 50,
+            ..Settings::default()
+        };
+        let (a, b) = (plan(&s, 6000, 7), plan(&short, 6000, 7));
+        assert_eq!((a.views, a.negatives), (b.views, b.negatives));
+    }
+
+    #[test]
+    fn ranges_and_phases_follow_the_paper() {
+        let s = Settings::default();
+        let mut kinds = HashSet::new();
+        for step in 0..s.steps {
+            let p = plan(&s, 6000, step);
+            assert_eq!(p.views.len(), 3);
+            assert_eq!(p.negatives.len(), 128);
+            assert_eq!(p.negatives.iter().collect::<HashSet<_>>().len(), 128);
+            assert_eq!(p.prior, step >= 100);
+            assert!((p.lr - 10.0 * (1.0 - step as f64 / 300.0)).abs() < 1e-12);
+            for v in &p.views {
+                assert!((0.0..std::f64::consts::TAU).contains(&v.yaw));
+                assert!(v.pitch.abs() <= std::f64::consts::PI / 14.0);
+                assert!((2.0..=4.0).contains(&v.distance));
+                let gray = matches!(v.background, Background::Gray { .. });
+                assert_eq!(gray, step < 25, "step {step}: {:?}", v.background);
+                if let Background::Gray { level } = v.background {
+                    assert!((0.0..=1.0).contains(&level));
+                }
+                kinds.insert(v.background.name());
+            }
+        }
+        assert_eq!(kinds.len(), 4, "{kinds:?}");
+    }
+
+    #[test]
+    fn augmented_backgrounds_are_roughly_uniform() {
+        let s = Settings::default();
+        let mut counts = [0usize; 3];
+        for step in 25..2025 {
+            for v in plan(&s, 10, step).views {
+                counts[match v.background {
+                    Background::Checkerboard { .. } => 0,
+                    Background::Noise { .. } => 1,
+                    Background::Fourier { .. } => 2,
+                    Background::Gray { .. } => unreachable!(),
+                }] += 1;
+            }
+        }
+        // 6000 draws, p = 1/3: sd = sqrt(6000 · 2/9) ≈ 36.5; ±200 is > 5 sd.
+        for c in counts {
+            assert!((1800..=2200).contains(&c), "{counts:?}");
+        }
+    }
+
+    #[test]
+    fn small_pools_and_fixed_views() {
+        let s = Settings::default();
+        assert_eq!(plan(&s, 5, 0).negatives.len(), 5);
+        assert!(plan(&s, 0, 0).negatives.is_empty());
+        let v0 = View::initial(&s);
+        assert_eq!((v0.yaw, v0.pitch, v0.distance), (0.0, 0.0, 3.0));
+        let o = View::orbit(&s, 4);
+        assert!((o[1].yaw - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
+    }
+}

@@ -1,0 +1,201 @@
+//! Every setting of the optimization, with the paper's defaults (Appendix A; DESIGN.md).
+//!
+//! The constants in [`defaults`] are the single source: `Settings::default()` and the clap
+//! flags of `t2tf optimize` both read them, so `--help` prints what the code uses.
+
+use serde::{Deserialize, Serialize};
+
+use super::OptimizeError;
+
+/// The paper's settings.
+pub mod defaults {
+    /// SGD steps (paper: 300).
+    pub const STEPS: usize = 300;
+    /// Random views rendered per step, gradients averaged (paper: 3).
+    pub const VIEWS: usize = 3;
+    /// Initial learning rate, annealed linearly to 0 (paper: 10).
+    pub const LR: f64 = 10.0;
+    /// SGD momentum (paper: 0.75).
+    pub const MOMENTUM: f64 = 0.75;
+    /// Weight of the Beta prior on T_N (paper: data dependent; 0.02 in DESIGN.md).
+    pub const PRIOR_WEIGHT: f64 = 0.02;
+    /// a = b of the Beta prior; < 1 biases rays towards fully opaque or fully clear.
+    pub const PRIOR_AB: f64 = 0.5;
+    /// First step (0-based) with the prior switched on (paper: 100).
+    pub const PRIOR_START: usize = 100;
+    /// λ1, L1 on control-point densities (paper: 2e-5).
+    pub const L1: f64 = 2e-5;
+    /// λ2, L2 of colours towards 0.5 (paper: 8e-4).
+    pub const L2: f64 = 8e-4;
+    /// Control points of the TF. The paper does not state its count; 32 points resolve
+    /// features 1/31 of the value range wide (8 histogram bins), and the L1 term keeps
+    /// unused points at zero density, so the exported TF stays small enough to edit by hand.
+    pub const CONTROL_POINTS: usize = 32;
+    /// Negatives drawn from the caption pool per step (paper: 128).
+    pub const NEGATIVES_PER_STEP: usize = 128;
+    /// Steps with a constant gray background before background augmentation (paper: 25).
+    pub const GRAY_STEPS: usize = 25;
+    /// Target mean transmittance of view V0 after initialization (paper: ρ = 0.05).
+    pub const RHO: f64 = 0.05;
+    /// Seed of every random choice (views, backgrounds, negatives, initial colours).
+    pub const SEED: u64 = 0;
+    /// Pitch limit of random views, ±π/14 (paper).
+    pub const PITCH_LIMIT: f64 = std::f64::consts::PI / 14.0;
+    /// Camera distance range in bounding radii (paper: 2 to 4).
+    pub const DISTANCE: [f64; 2] = [2.0, 4.0];
+}
+
+/// All numeric settings of one optimization run (what `report.json` records).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Settings {
+    pub steps: usize,
+    pub views: usize,
+    pub lr: f64,
+    pub momentum: f64,
+    pub prior_weight: f64,
+    /// Beta(a, b) parameters.
+    pub prior_a: f64,
+    pub prior_b: f64,
+    pub prior_start: usize,
+    pub l1: f64,
+    pub l2: f64,
+    pub control_points: usize,
+    pub negatives_per_step: usize,
+    pub gray_steps: usize,
+    pub rho: f64,
+    pub seed: u64,
+    pub pitch_limit: f64,
+    /// [min, max] camera distance in bounding radii.
+    pub distance: [f64; 2],
+}
+
+impl Default for Settings {
+    fn default() -> Settings {
+        use defaults::*;
+        Settings {
+            steps: STEPS,
+            views: VIEWS,
+            lr: LR,
+            momentum: MOMENTUM,
+            prior_weight: PRIOR_WEIGHT,
+            prior_a: PRIOR_AB,
+            prior_b: PRIOR_AB,
+            prior_start: PRIOR_START,
+            l1: L1,
+            l2: L2,
+            control_points: CONTROL_POINTS,
+            negatives_per_step: NEGATIVES_PER_STEP,
+            gray_steps: GRAY_STEPS,
+            rho: RHO,
+            seed: SEED,
+            pitch_limit: PITCH_LIMIT,
+            distance: DISTANCE,
+        }
+    }
+}
+
+impl Settings {
+    /// Check every setting; the error names the flag. `steps = 0` is valid (the result is
+    /// the initialization).
+    pub fn validate(&self) -> Result<(), OptimizeError> {
+        let bad =
+            |name: &'static str, message: String| Err(OptimizeError::Setting { name, message });
+        let finite_nonneg = |v: f64| v.is_finite() && v >= 0.0;
+        if self.views == 0 {
+            return bad("views", "must be at least 1".into());
+        }
+        if !finite_nonneg(self.lr) {
+            return bad("lr", format!("must be finite and ≥ 0, got {}", self.lr));
+        }
+        if !(0.0..1.0).contains(&self.momentum) {
+            return bad(
+                "momentum",
+                format!("must be in [0, 1), got {}", self.momentum),
+            );
+        }
+        if !finite_nonneg(self.prior_weight) {
+            return bad(
+                "prior-weight",
+                format!("must be finite and ≥ 0, got {}", self.prior_weight),
+            );
+        }
+        for v in [self.prior_a, self.prior_b] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad("prior-ab", format!("must be finite and > 0, got {v}"));
+            }
+        }
+        if !finite_nonneg(self.l1) {
+            return bad("l1", format!("must be finite and ≥ 0, got {}", self.l1));
+        }
+        if !finite_nonneg(self.l2) {
+            return bad("l2", format!("must be finite and ≥ 0, got {}", self.l2));
+        }
+        if self.control_points < 2 {
+            return bad(
+                "control-points",
+                format!("must be at least 2, got {}", self.control_points),
+            );
+        }
+        if !(self.rho > 0.0 && self.rho < 1.0) {
+            return bad("rho", format!("must be in (0, 1), got {}", self.rho));
+        }
+        if !(self.pitch_limit.is_finite()
+            && (0.0..std::f64::consts::FRAC_PI_2).contains(&self.pitch_limit))
+        {
+            return bad(
+                "pitch",
+                format!("limit must be in [0, π/2), got {}", self.pitch_limit),
+            );
+        }
+        let [d0, d1] = self.distance;
+        if !(d0.is_finite() && d1.is_finite() && d0 > 0.0 && d1 >= d0) {
+            return bad(
+                "distance",
+                format!("range must be 0 < min ≤ max, got [{d0}, {d1}]"),
+            );
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_papers_and_valid() {
+        let s = Settings::default();
+        assert_eq!((s.steps, s.views, s.lr, s.momentum), (300, 3, 10.0, 0.75));
+        assert_eq!(
+            (s.prior_start, s.prior_weight, s.prior_a, s.prior_b),
+            (100, 0.02, 0.5, 0.5)
+        );
+        assert_eq!(
+            (s.l1, s.l2, s.negatives_per_step, s.gray_steps),
+            (2e-5, 8e-4, 128, 25)
+        );
+        assert_eq!(s.rho, 0.05);
+        s.validate().unwrap();
+    }
+
+    #[test]
+    fn invalid_settings_name_the_flag() {
+        let check = |f: fn(&mut Settings), flag: &str| {
+            let mut s = Settings::default();
+            f(&mut s);
+            let m = s.validate().unwrap_err().to_string();
+            assert!(m.contains(flag), "{m} should name {flag}");
+        };
+        check(|s| s.views = 0, "--views");
+        check(|s| s.lr = f64::NAN, "--lr");
+        check(|s| s.momentum = 1.0, "--momentum");
+        check(|s| s.prior_a = 0.0, "--prior-ab");
+        check(|s| s.l1 = -1.0, "--l1");
+        check(|s| s.control_points = 1, "--control-points");
+        let s = Settings {
+            steps: 0,
+            ..Settings::default()
+        };
+        s.validate().unwrap();
+    }
+}
