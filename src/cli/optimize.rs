@@ -55,6 +55,14 @@ pub struct OptimizeArgs {
     #[arg(long, value_name = "REPO_ID|DIR", default_value = DEFAULT_MODEL)]
     pub model: String,
 
+    /// tokenizer.json to use instead of the model's own (e.g. `../shared/data/clip/tokenizer.json`).
+    #[arg(long, value_name = "PATH")]
+    pub tokenizer: Option<PathBuf>,
+
+    /// World axis pointing up in the views: x, y, z, -x, -y or -z (the orbit turns around it).
+    #[arg(long, default_value = "z", allow_hyphen_values = true)]
+    pub up: crate::camera::UpAxis,
+
     /// Optimization steps.
     #[arg(long, default_value_t = defaults::STEPS)]
     pub steps: usize,
@@ -396,16 +404,106 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
     Ok(report)
 }
 
-/// Validate the arguments; the optimization loop is wired in once the renderer and CLIP land.
+/// Entries of the LUT the renderer samples (one per histogram bin).
+const LUT_SIZE: usize = 256;
+
+/// Load the volume and CLIP, run Algorithm 1, write every output.
 pub fn run(args: OptimizeArgs) -> Result<()> {
+    use crate::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer};
     if !Path::new(&args.volume).exists() {
         bail!("{}: volume file not found", args.volume.display());
     }
     args.validate()
         .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
-    bail!(
-        "t2tf optimize is not wired yet: the optimizer is ready, the renderer and CLIP adapters are not"
-    )
+    if let Some(t) = args.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+            .context("--threads: cannot start the thread pool")?;
+    }
+    let volume = args.volume_args.load(&args.volume)?;
+    let files = crate::clip::load::resolve(&args.model, args.tokenizer.as_deref())?;
+    let clip = crate::clip::Clip::load_with_tokenizer(&args.model, args.tokenizer.as_deref())?;
+    let weights_hash = captions::hash_file(&files.weights)?;
+    let hex: String = weights_hash.iter().map(|b| format!("{b:02x}")).collect();
+    let g = volume.geometry;
+    let unit = crate::tf::default_unit_distance(&g);
+    let options = crate::render::RenderOptions {
+        step: args
+            .step_size
+            .map_or(crate::render::DEFAULT_STEP, |s| s as f32),
+        level: args.level,
+        ..Default::default()
+    };
+    let renderer = VolumeRenderer {
+        volume: &volume,
+        options,
+        up: args.up,
+        size: clip.image_size(),
+        jitter: false,
+    };
+    let ctx = Loaded {
+        histogram: volume.histogram.clone(),
+        volume: VolumeInfo {
+            path: args.volume.display().to_string(),
+            dims: g.dims,
+            spacing: g.spacing,
+            range: volume.range,
+            non_finite_voxels: volume.non_finite,
+        },
+        model: ModelInfo {
+            id: args.model.clone(),
+            weights_sha256: Some(hex),
+            logit_scale: clip.logit_scale() as f64,
+        },
+        weights_hash: Some(weights_hash.to_vec()),
+        render: serde_json::json!({
+            "step_voxels": options.step,
+            "level": options.level,
+            "image_size": clip.image_size(),
+            "lut_size": LUT_SIZE,
+            "threads": rayon::current_num_threads(),
+        }),
+        preview_views: 4,
+        tf_curve: Curve::Opacity {
+            unit_over_length: unit / g.longest_side(),
+        },
+    };
+    let settings = args.settings();
+    let first = crate::optimize::View::orbit(&settings, ctx.preview_views)[0].clone();
+    let cam = crate::camera::Camera::orbit(
+        &g,
+        crate::camera::Orbit {
+            yaw: first.yaw,
+            pitch: first.pitch,
+            distance: first.distance,
+            up: renderer.up,
+        },
+    )?
+    .paraview();
+    let view = crate::formats::ScriptView {
+        position: cam.position,
+        focal_point: cam.focal_point,
+        view_up: cam.view_up,
+        view_angle_deg: cam.view_angle,
+    };
+    let mut export = |dir: &Path, name: &str, cp: &ControlPoints| -> Result<Vec<String>> {
+        let w = crate::formats::write_all(dir, name, cp, &volume, &view, [1.0; 3], Some(unit))?;
+        let mut names = vec![w.json, w.xml, w.ct];
+        names.extend(w.paraview_script);
+        names.extend(w.visit_script);
+        Ok(names
+            .iter()
+            .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .collect())
+    };
+    let model = ClipModel(&clip);
+    let tf = PaperTf {
+        k: args.control_points,
+        lut_size: LUT_SIZE,
+    };
+    execute(&args, &ctx, &renderer, &model, &model, &tf, &mut export)?;
+    Ok(())
 }
 
 #[cfg(test)]

@@ -12,6 +12,7 @@
 //! CLIP backward → renderer backward → + L1/L2 at the control points → parameter gradient,
 //! averaged over views → SGD with momentum.
 
+pub mod adapters;
 pub mod captions;
 pub mod driver;
 mod error;
