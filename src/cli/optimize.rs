@@ -424,6 +424,16 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     let volume = args.volume_args.load(&args.volume)?;
     let files = crate::clip::load::resolve(&args.model, args.tokenizer.as_deref())?;
     let clip = crate::clip::Clip::load_with_tokenizer(&args.model, args.tokenizer.as_deref())?;
+    if let Some(prompt) = args.prompt.as_deref() {
+        // CLIP reads at most its context length; a prompt that fills it was cut (the tokenizer
+        // truncates as transformers does). Say so rather than optimize for half a sentence.
+        let context = clip.config().text.max_positions;
+        if clip.tokenize(&[prompt])?[0].len() >= context {
+            eprintln!(
+                "t2tf: warning: --prompt fills CLIP's {context}-token context; words beyond it are ignored"
+            );
+        }
+    }
     let weights_hash = captions::hash_file(&files.weights)?;
     let hex: String = weights_hash.iter().map(|b| format!("{b:02x}")).collect();
     let g = volume.geometry;
