@@ -498,7 +498,11 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         view_angle_deg: cam.view_angle,
     };
     let mut export = |dir: &Path, name: &str, cp: &ControlPoints| -> Result<Vec<String>> {
-        let w = crate::formats::write_all(dir, name, cp, &volume, &view, [1.0; 3], Some(unit))?;
+        // Export the TF the renderer sampled (its LUT), not the raw control points: they
+        // differ where points collapsed within one LUT cell; simplification keeps it small.
+        let sampled = cp.to_lut(LUT_SIZE).to_control_points();
+        let w =
+            crate::formats::write_all(dir, name, &sampled, &volume, &view, [1.0; 3], Some(unit))?;
         let mut names = vec![w.json, w.xml, w.ct];
         names.extend(w.paraview_script);
         names.extend(w.visit_script);

@@ -20,6 +20,26 @@ impl ControlPointsGrad {
     }
 }
 
+impl Lut {
+    /// The piecewise-linear TF the renderer actually samples: one control point per entry.
+    /// Exporting this (then simplifying) reproduces what was rendered even when control
+    /// points collapse within one LUT cell, where `ControlPoints` and their LUT differ.
+    pub fn to_control_points(&self) -> ControlPoints {
+        let n = self.entries.len().max(2);
+        let at = |j: usize| self.entries[j.min(self.entries.len() - 1)];
+        ControlPoints {
+            x: (0..n).map(|j| j as f64 / (n - 1) as f64).collect(),
+            sigma: (0..n).map(|j| at(j)[0] as f64).collect(),
+            rgb: (0..n)
+                .map(|j| {
+                    let e = at(j);
+                    [e[1] as f64, e[2] as f64, e[3] as f64]
+                })
+                .collect(),
+        }
+    }
+}
+
 /// Where LUT entry `t` falls among the control points: `Left`/`Right` of all of them
 /// (constant extension), or inside the segment from point `k - 1` to `k` at weight `w`.
 enum Span {
@@ -133,6 +153,24 @@ mod tests {
             rgb: (0..k)
                 .map(|_| std::array::from_fn(|_| rng.random()))
                 .collect(),
+        }
+    }
+
+    #[test]
+    fn lut_as_control_points_resamples_to_the_same_lut() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut cp = random_cp(&mut rng, 12);
+        // Two points inside one cell of a 64-entry LUT: their LUT is not the exact TF.
+        cp.x[5] = cp.x[4] + 1e-4;
+        let lut = cp.to_lut(64);
+        let back = lut.to_control_points().to_lut(64);
+        for (a, b) in lut.entries.iter().zip(&back.entries) {
+            for c in 0..4 {
+                assert!(
+                    (a[c] - b[c]).abs() <= 1e-6 * a[c].abs().max(1.0),
+                    "{a:?} {b:?}"
+                );
+            }
         }
     }
 
