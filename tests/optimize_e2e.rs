@@ -354,6 +354,16 @@ fn same_seed_and_threads_give_identical_tf_files() {
         );
         assert!(a == b, "{f} differs between two runs with the same seed");
     }
+    // …and the equality is not vacuous: another seed gives another TF.
+    let other = dir.path().join("c");
+    let mut seed8 = args.to_vec();
+    *seed8.last_mut().unwrap() = "8";
+    run_ok(vol, &other, &seed8);
+    let f = format!("{name}.json");
+    assert!(
+        std::fs::read(other.join(&f)).unwrap() != std::fs::read(runs[0].0.join(&f)).unwrap(),
+        "seed 8 gave the TF of seed 7"
+    );
     // The logged losses agree too (all but the wall-clock `seconds`).
     assert_eq!(without_seconds(&runs[0].1), without_seconds(&runs[1].1));
 }
@@ -487,6 +497,17 @@ fn hard_cases_give_finite_results_or_one_line_errors() {
     );
     check_outputs(Path::new(&o), &r, 30);
     assert_eq!(r["negatives"], serde_json::json!(["a blank image"]));
+
+    // A learning rate that saturates every parameter on the first step: softplus / tanh keep
+    // the control points in range (σ at 0 or 255, colours at 0 or 1), the gradient vanishes
+    // there, and every number stays finite.
+    let o = out("saturated");
+    let r = run_ok(
+        &nan,
+        Path::new(&o),
+        &[&["--prompt", "x", "--lr", "1e300"][..], &steps].concat(),
+    );
+    check_outputs(Path::new(&o), &r, 30);
 
     // --steps 0: the initialization is the result; every file is written.
     let o = out("zero");
