@@ -18,9 +18,11 @@ const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
 const NEGHIP: &str = "../shared/data/volumes/neghip_64x64x64_uint8.raw";
 const NUCLEON: &str = "../shared/data/volumes/nucleon_41x41x41_uint8.raw";
 
-/// Run `t2tf optimize VOLUME --model tiny --tokenizer real --threads 2 EXTRA…`.
-fn optimize(volume: &Path, extra: &[&str]) -> (bool, String) {
+/// Run `t2tf optimize VOLUME --model tiny --tokenizer real --threads 2 EXTRA…`, with the
+/// caption-embedding cache in `cache` (a test's temporary folder, not the user's cache).
+fn optimize(volume: &Path, extra: &[&str], cache: &Path) -> (bool, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_t2tf"))
+        .env("XDG_CACHE_HOME", cache)
         .arg("optimize")
         .arg(volume)
         .args(["--model", MODEL, "--tokenizer", TOKENIZER, "--threads", "2"])
@@ -35,10 +37,12 @@ fn optimize(volume: &Path, extra: &[&str]) -> (bool, String) {
     (out.status.success(), text)
 }
 
+/// A successful run into `out`; the cache is `out/../cache`, shared by the runs of one test
+/// (so the second of two equal runs reads the pool embeddings the first one computed).
 fn run_ok(volume: &Path, out: &Path, extra: &[&str]) -> Value {
     let mut args = vec!["--out", out.to_str().unwrap()];
     args.extend_from_slice(extra);
-    let (ok, text) = optimize(volume, &args);
+    let (ok, text) = optimize(volume, &args, &out.parent().unwrap().join("cache"));
     assert!(
         ok,
         "t2tf optimize {} {args:?} failed: {text}",
@@ -47,9 +51,10 @@ fn run_ok(volume: &Path, out: &Path, extra: &[&str]) -> Value {
     serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
 }
 
-/// A failed run's message: one line, naming what is wrong.
+/// A failed run's message: one line, naming what is wrong (`volume` is in a temporary
+/// folder, which holds the cache).
 fn run_err(volume: &Path, extra: &[&str]) -> String {
-    let (ok, text) = optimize(volume, extra);
+    let (ok, text) = optimize(volume, extra, &volume.parent().unwrap().join("cache"));
     assert!(!ok, "expected an error from {extra:?}, got: {text}");
     let text = text.trim().to_owned();
     assert_eq!(text.lines().count(), 1, "not one line: {text}");
@@ -354,6 +359,9 @@ fn same_seed_and_threads_give_identical_tf_files() {
         );
         assert!(a == b, "{f} differs between two runs with the same seed");
     }
+    // The pool embeddings went to the test's cache (the second run read them back).
+    let cached = dir.path().join("cache/t2tf/text-embeddings");
+    assert_eq!(std::fs::read_dir(&cached).unwrap().count(), 1);
     // …and the equality is not vacuous: another seed gives another TF.
     let other = dir.path().join("c");
     let mut seed8 = args.to_vec();
