@@ -24,6 +24,8 @@
 //!     --quick                       a smoke test: reference 20 steps × 1 view, one 10-step row
 //!     --threads N                   rayon threads (default: rayon's choice)
 //!     --out DIR                     write the held-out renders of every row as PNGs
+//!     --reference-tf FILE           save the default run's TF there, or, if FILE exists, read
+//!                                   it instead of running the default again
 //!
 //! Timings on a shared machine are noisy: the CPU column (user + system of this process,
 //! from /proc) divided by the thread count estimates the wall time on an idle machine.
@@ -210,6 +212,42 @@ fn tf_distance(a: &ControlPoints, b: &ControlPoints, u_over_l: f64) -> (f64, f64
     ((so / n).sqrt(), (sc / n).sqrt())
 }
 
+/// The reference TF as JSON (x, sigma, rgb; f64 round-trips exactly).
+fn write_tf(path: &Path, cp: &ControlPoints) -> anyhow::Result<()> {
+    let v = serde_json::json!({ "x": cp.x, "sigma": cp.sigma, "rgb": cp.rgb });
+    std::fs::write(path, serde_json::to_string(&v)?)
+        .map_err(|e| anyhow::anyhow!("{}: cannot write the reference TF: {e}", path.display()))
+}
+
+fn read_tf(path: &Path) -> anyhow::Result<ControlPoints> {
+    let bad = |what: &str| anyhow::anyhow!("{}: not a reference TF: {what}", path.display());
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| anyhow::anyhow!("{}: cannot read: {e}", path.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(&e.to_string()))?;
+    let floats = |key: &str| -> anyhow::Result<Vec<f64>> {
+        v[key]
+            .as_array()
+            .ok_or_else(|| bad(key))?
+            .iter()
+            .map(|x| x.as_f64().ok_or_else(|| bad(key)))
+            .collect()
+    };
+    let rgb = v["rgb"]
+        .as_array()
+        .ok_or_else(|| bad("rgb"))?
+        .iter()
+        .map(|c| {
+            let c: Vec<f64> = serde_json::from_value(c.clone()).map_err(|e| bad(&e.to_string()))?;
+            <[f64; 3]>::try_from(c).map_err(|_| bad("rgb entries need 3 values"))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let (x, sigma) = (floats("x")?, floats("sigma")?);
+    if x.len() != sigma.len() || x.len() != rgb.len() || x.len() < 2 {
+        return Err(bad("x, sigma and rgb differ in length"));
+    }
+    Ok(ControlPoints { x, sigma, rgb })
+}
+
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let has = |f: &str| args.iter().any(|a| a == f);
@@ -220,6 +258,11 @@ fn main() -> anyhow::Result<()> {
             .num_threads(t[0])
             .build_global()?;
     }
+    let reference_tf: Option<PathBuf> = args
+        .iter()
+        .position(|a| a == "--reference-tf")
+        .and_then(|i| args.get(i + 1))
+        .map(PathBuf::from);
     let out: Option<PathBuf> = args
         .iter()
         .position(|a| a == "--out")
@@ -253,20 +296,28 @@ fn main() -> anyhow::Result<()> {
             }
         }
     }
-    for s in list::<f32>(&args, "--step-sizes").map_err(err)?.unwrap_or_default() {
+    for s in list::<f32>(&args, "--step-sizes")
+        .map_err(err)?
+        .unwrap_or_default()
+    {
         rows.push(Row {
             step: s,
             ..reference.clone()
         });
     }
-    for l in list::<usize>(&args, "--levels").map_err(err)?.unwrap_or_default() {
+    for l in list::<usize>(&args, "--levels")
+        .map_err(err)?
+        .unwrap_or_default()
+    {
         rows.push(Row {
             level: Some(l),
             ..reference.clone()
         });
     }
     if let Some(i) = args.iter().position(|a| a == "--runs") {
-        let spec = args.get(i + 1).ok_or_else(|| err("--runs needs a value".into()))?;
+        let spec = args
+            .get(i + 1)
+            .ok_or_else(|| err("--runs needs a value".into()))?;
         for r in spec.split(';').filter(|s| !s.trim().is_empty()) {
             rows.push(Row::parse(r).map_err(err)?);
         }
@@ -338,6 +389,22 @@ fn main() -> anyhow::Result<()> {
     let model = ClipModel(&clip);
     let u_over_l = default_unit_distance(&volume.geometry) / volume.geometry.longest_side();
 
+    // Held-out renders always with the default render options, so the error is the TF's.
+    let render_held_out = |cp: &ControlPoints| -> anyhow::Result<Vec<Image>> {
+        let eval = VolumeRenderer {
+            volume: &volume,
+            options: RenderOptions::default(),
+            up: UpAxis::Z,
+            size: clip.image_size(),
+            jitter: false,
+        };
+        let lut = cp.to_lut(LUT_SIZE);
+        held_out_views(&Settings::default())
+            .iter()
+            .map(|v| eval.render(&lut, v).map(|r| r.0))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| anyhow::anyhow!("held-out render: {e}"))
+    };
     let run = |row: &Row| -> anyhow::Result<Result1> {
         let settings = row.settings();
         let renderer = VolumeRenderer {
@@ -386,24 +453,23 @@ fn main() -> anyhow::Result<()> {
         let cp = &outcome.control_points;
         eprintln!(
             "  final σ at the control points: {:?}",
-            cp.sigma.iter().map(|s| format!("{s:.2}")).collect::<Vec<_>>()
+            cp.sigma
+                .iter()
+                .map(|s| format!("{s:.2}"))
+                .collect::<Vec<_>>()
         );
         let mut times = outcome.times.clone();
         times.init = init;
-        // Held-out renders always with the default render options, so the error is the TF's.
-        let eval = VolumeRenderer {
-            options: RenderOptions::default(),
-            ..renderer
-        };
-        let lut = outcome.control_points.to_lut(LUT_SIZE);
-        let held_out = held_out_views(&settings)
+        let held_out = render_held_out(&outcome.control_points)?;
+        let n = outcome.steps.len().clamp(1, 25);
+        let final_clip = outcome
+            .steps
             .iter()
-            .map(|v| eval.render(&lut, v).map(|r| r.0))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(|e| anyhow::anyhow!("held-out render: {e}"))?;
-        let n = outcome.steps.len().min(25).max(1);
-        let final_clip =
-            outcome.steps.iter().rev().take(n).map(|s| s.clip).sum::<f64>() / n as f64;
+            .rev()
+            .take(n)
+            .map(|s| s.clip)
+            .sum::<f64>()
+            / n as f64;
         Ok(Result1 {
             cp: outcome.control_points,
             times,
@@ -414,40 +480,65 @@ fn main() -> anyhow::Result<()> {
         })
     };
 
-    eprintln!("reference run: {reference:?}");
-    let r0 = run(&reference)?;
-    let t = &r0.times;
-    let steps = reference.steps as f64;
-    println!(
-        "\n### Default run ({} steps × {} views), load average after it {}\n",
-        reference.steps,
-        reference.views,
-        load_avg()
-    );
-    println!("| phase | wall (s) | per step (s) | share |");
-    println!("|---|---|---|---|");
-    let loop_total = t.render + t.clip_forward + t.clip_backward + t.render_backward + t.other;
-    for (name, v) in [
-        ("initialization (density scale search)", t.init),
-        ("render forward", t.render),
-        ("CLIP image forward", t.clip_forward),
-        ("CLIP image backward", t.clip_backward),
-        ("render backward", t.render_backward),
-        ("other (loss, TF, SGD)", t.other),
-    ] {
+    let saved = reference_tf.as_ref().filter(|p| p.exists());
+    let (r0, ran) = if let Some(p) = saved {
+        let cp = read_tf(p)?;
         println!(
-            "| {name} | {v:.1} | {:.3} | {:.1} % |",
-            v / steps,
-            100.0 * v / (loop_total + t.init)
+            "\nReference TF read from {} (written by an earlier run of the same default settings)",
+            p.display()
+        );
+        let held_out = render_held_out(&cp)?;
+        let r = Result1 {
+            cp,
+            times: PhaseTimes::default(),
+            wall: f64::NAN,
+            cpu: f64::NAN,
+            final_clip: f64::NAN,
+            held_out,
+        };
+        (r, false)
+    } else {
+        eprintln!("reference run: {reference:?}");
+        let r = run(&reference)?;
+        if let Some(p) = &reference_tf {
+            write_tf(p, &r.cp)?;
+        }
+        (r, true)
+    };
+    if ran {
+        let t = &r0.times;
+        let steps = reference.steps as f64;
+        println!(
+            "\n### Default run ({} steps × {} views), load average after it {}\n",
+            reference.steps,
+            reference.views,
+            load_avg()
+        );
+        println!("| phase | wall (s) | per step (s) | share |");
+        println!("|---|---|---|---|");
+        let loop_total = t.render + t.clip_forward + t.clip_backward + t.render_backward + t.other;
+        for (name, v) in [
+            ("initialization (density scale search)", t.init),
+            ("render forward", t.render),
+            ("CLIP image forward", t.clip_forward),
+            ("CLIP image backward", t.clip_backward),
+            ("render backward", t.render_backward),
+            ("other (loss, TF, SGD)", t.other),
+        ] {
+            println!(
+                "| {name} | {v:.1} | {:.3} | {:.1} % |",
+                v / steps,
+                100.0 * v / (loop_total + t.init)
+            );
+        }
+        println!(
+            "| **total** (init + loop) | **{:.1}** | {:.3} | CPU {:.1} s = {:.1} s on {threads} idle cores |",
+            r0.wall,
+            r0.wall / steps,
+            r0.cpu,
+            r0.cpu / threads as f64
         );
     }
-    println!(
-        "| **total** (init + loop) | **{:.1}** | {:.3} | CPU {:.1} s = {:.1} s on {threads} idle cores |",
-        r0.wall,
-        r0.wall / steps,
-        r0.cpu,
-        r0.cpu / threads as f64
-    );
     if let Some(d) = &out {
         std::fs::create_dir_all(d)?;
         t2tf::optimize::driver::tile(&r0.held_out).save_png(&d.join("reference.png"))?;
@@ -470,13 +561,16 @@ fn main() -> anyhow::Result<()> {
             r.final_clip
         );
     };
-    line(&reference, &r0);
+    if ran {
+        line(&reference, &r0);
+    }
     for (i, row) in rows.iter().enumerate() {
         eprintln!("row {}/{}: {row:?}", i + 1, rows.len());
         let r = run(row)?;
         line(row, &r);
         if let Some(d) = &out {
-            t2tf::optimize::driver::tile(&r.held_out).save_png(&d.join(format!("row{}.png", i + 1)))?;
+            t2tf::optimize::driver::tile(&r.held_out)
+                .save_png(&d.join(format!("row{}.png", i + 1)))?;
         }
     }
     println!("\nload average at the end: {}", load_avg());
