@@ -11,6 +11,9 @@
 //!
 //! Without pvpython these tests say so and pass, unless T2TF_REQUIRE_PARAVIEW=1.
 
+mod paraview_util;
+
+use paraview_util::{floats, paraview_available, psnr, pvpython, repo};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -20,67 +23,6 @@ use t2tf::image::Image;
 use t2tf::render::{self, RenderOptions};
 use t2tf::tf::ControlPoints;
 use t2tf::volume::{load, ReadOptions, Volume};
-
-/// Whether pvpython and xvfb-run are here; panics if they are required but missing.
-fn paraview_available(test: &str) -> bool {
-    let found = ["pvpython", "xvfb-run"].iter().all(|exe| {
-        Command::new("sh")
-            .args(["-c", &format!("command -v {exe}")])
-            .output()
-            .map(|o| o.status.success())
-            .unwrap_or(false)
-    });
-    if !found {
-        if std::env::var("T2TF_REQUIRE_PARAVIEW").as_deref() == Ok("1") {
-            panic!("{test}: pvpython/xvfb-run not found but T2TF_REQUIRE_PARAVIEW=1");
-        }
-        // Straight to stderr: the test harness captures eprintln! of passing tests.
-        use std::io::Write;
-        let _ = writeln!(
-            std::io::stderr(),
-            "{test}: SKIPPED, pvpython or xvfb-run not found (set T2TF_REQUIRE_PARAVIEW=1 to fail)"
-        );
-    }
-    found
-}
-
-/// One pvpython at a time: `xvfb-run -a` picks a free display number by probing, and two
-/// starting at once can pick the same one ("bad X server connection", SIGABRT).
-static PVPYTHON: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-/// Run `xvfb-run -a pvpython --dr SCRIPT ARGS...`, panicking with its output on failure.
-/// A failure to reach the X server (another process on this machine won the same display)
-/// is retried twice; anything else fails at once.
-fn pvpython(script: &Path, args: &[&str]) -> String {
-    let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
-    let mut attempt = 0;
-    loop {
-        attempt += 1;
-        let out = Command::new("xvfb-run")
-            .args(["-a", "pvpython", "--dr"])
-            .arg(script)
-            .args(args)
-            .output()
-            .expect("run xvfb-run");
-        let text = format!(
-            "{}\n{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        if out.status.success() {
-            return text;
-        }
-        if attempt < 3 && text.contains("bad X server connection") {
-            eprintln!("pvpython could not reach Xvfb (attempt {attempt}); retrying");
-            continue;
-        }
-        panic!("pvpython {} failed:\n{text}", script.display());
-    }
-}
-
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 fn neghip_path() -> PathBuf {
     repo().join("../shared/data/volumes/neghip_64x64x64_uint8.raw")
@@ -109,19 +51,6 @@ fn script_float(script: &str, name: &str) -> f64 {
         .unwrap_or_else(|| panic!("script assigns no {name}"));
     line.parse()
         .unwrap_or_else(|e| panic!("{name} = {line}: {e}"))
-}
-
-/// PSNR in dB between two images of the same size (RGB in [0, 1]).
-fn psnr(a: &Image, b: &Image) -> f64 {
-    assert_eq!((a.width, a.height), (b.width, b.height));
-    let mse = a
-        .data
-        .iter()
-        .zip(&b.data)
-        .map(|(x, y)| ((x - y) as f64).powi(2))
-        .sum::<f64>()
-        / a.data.len() as f64;
-    10.0 * (1.0 / mse.max(1e-20)).log10()
 }
 
 /// Pixel rectangle (x0, y0, x1, y1) covering the projected box for `cam` and a `w`×`h` image
@@ -174,14 +103,6 @@ fn our_render(
     render::forward(volume, &cp.to_lut(lut_size), cam, &background, &opts)
         .expect("render")
         .image
-}
-
-fn floats(v: &serde_json::Value) -> Vec<f64> {
-    v.as_array()
-        .unwrap_or_else(|| panic!("not an array: {v}"))
-        .iter()
-        .map(|x| x.as_f64().expect("number"))
-        .collect()
 }
 
 const PRESET_CHECK: &str = r#"
