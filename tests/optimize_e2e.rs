@@ -244,7 +244,13 @@ fn check_outputs(dir: &Path, report: &Value, steps: usize) -> String {
         &name,
         [finite(&range[0], "range"), finite(&range[1], "range")],
     );
-    check_png(&dir.join("preview.png"));
+    let preview = check_png(&dir.join("preview.png"));
+    // Views are drawn for people at PREVIEW_SIZE even though the tiny CLIP sees 32 px.
+    assert!(
+        preview.width >= t2tf::optimize::adapters::PREVIEW_SIZE,
+        "preview.png is {} px wide",
+        preview.width
+    );
     check_png(&dir.join("tf.png"));
     name
 }

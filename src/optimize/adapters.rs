@@ -12,6 +12,9 @@ use crate::volume::Volume;
 use super::driver::TextEncoder;
 use super::{Background, BoxError, ImageEncoder, Parameterization, PointGrad, Renderer, View};
 
+/// Side of each view in preview.png when CLIP's input is smaller.
+pub const PREVIEW_SIZE: usize = 256;
+
 /// The differentiable renderer on one volume, at CLIP's image size.
 pub struct VolumeRenderer<'a> {
     pub volume: &'a Volume,
@@ -42,13 +45,17 @@ impl VolumeRenderer<'_> {
     }
 
     fn background(&self, view: &View) -> Image {
+        self.background_sized(view, self.size)
+    }
+
+    fn background_sized(&self, view: &View, size: usize) -> Image {
         let (kind, seed) = match view.background {
             Background::Gray { level } => (BackgroundKind::Gray(Some(level as f32)), 0),
             Background::Checkerboard { seed } => (BackgroundKind::Checkerboard, seed),
             Background::Noise { seed } => (BackgroundKind::Noise, seed),
             Background::Fourier { seed } => (BackgroundKind::Fourier, seed),
         };
-        background::generate(kind, self.size, self.size, seed)
+        background::generate(kind, size, size, seed)
     }
 }
 
@@ -60,6 +67,14 @@ impl Renderer for VolumeRenderer<'_> {
         let bg = self.background(view);
         let r = render::forward(self.volume, lut, &camera, &bg, &self.options(view))?;
         Ok((r.image.clone(), r.transmittance.clone(), (camera, r)))
+    }
+
+    /// preview.png views at least `PREVIEW_SIZE` pixels wide, whatever CLIP's input size.
+    fn render_preview(&self, lut: &Lut, view: &View) -> Result<Image, BoxError> {
+        let size = self.size.max(PREVIEW_SIZE);
+        let camera = self.camera(view)?;
+        let bg = self.background_sized(view, size);
+        Ok(render::forward(self.volume, lut, &camera, &bg, &self.options(view))?.image)
     }
 
     fn backward(

@@ -206,7 +206,15 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
             logit,
         })
         .collect();
-    let preview = tile(&images);
+    let mut pictures = Vec::with_capacity(views.len());
+    for v in &views {
+        pictures.push(
+            renderer
+                .render_preview(&lut, v)
+                .map_err(OptimizeError::Renderer)?,
+        );
+    }
+    let preview = tile(&pictures);
     times.other += t0.elapsed().as_secs_f64();
 
     Ok(Finished {

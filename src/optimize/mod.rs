@@ -56,6 +56,12 @@ pub trait Renderer {
         d_image: &[f32],
         d_transmittance: &[f32],
     ) -> Result<LutGrad, BoxError>;
+
+    /// A picture of `view` for people (preview.png): by default the training render, which
+    /// is only as large as the encoder's input (32 px for a tiny model).
+    fn render_preview(&self, lut: &Lut, view: &View) -> Result<Image, BoxError> {
+        Ok(self.render(lut, view)?.0)
+    }
 }
 
 /// CLIP's image tower as the loop sees it.
