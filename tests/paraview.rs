@@ -6,7 +6,7 @@
 
 mod paraview_util;
 
-use paraview_util::{floats, paraview_available, psnr, pvpython, repo};
+use paraview_util::{assert_volume_only_inside, floats, paraview_available, psnr, pvpython, repo};
 use std::path::Path;
 
 use t2tf::formats::{to_paraview_json, to_paraview_xml, write_all, ExportTf, ScriptView};
@@ -252,34 +252,12 @@ fn generated_script_renders_the_volume_in_paraview() {
     if let Ok(keep) = std::env::var("T2TF_PARAVIEW_SHOT") {
         std::fs::copy(&shot, keep).unwrap();
     }
-    let bg = background.map(|c| c as f32);
-    let is_bg = |p: [f32; 3]| (0..3).all(|i| (p[i] - bg[i]).abs() <= 1.5 / 255.0);
     let b = projected_box(&v, &view, w, h);
     assert!(
         b[0] > 2.0 && b[1] > 2.0 && b[2] < w as f64 - 2.0 && b[3] < h as f64 - 2.0,
         "{b:?}"
     );
-    let (mut inside, mut inside_differs, mut outside_differs) = (0, 0, 0);
-    for y in 0..h {
-        for x in 0..w {
-            let (cx, cy) = (x as f64 + 0.5, y as f64 + 0.5);
-            let differs = !is_bg(img.pixel(x, y));
-            // A 2-pixel margin absorbs rasterization at the silhouette.
-            if cx < b[0] - 2.0 || cx > b[2] + 2.0 || cy < b[1] - 2.0 || cy > b[3] + 2.0 {
-                outside_differs += differs as usize;
-            } else if cx > b[0] + 2.0 && cx < b[2] - 2.0 && cy > b[1] + 2.0 && cy < b[3] - 2.0 {
-                inside += 1;
-                inside_differs += differs as usize;
-            }
-        }
-    }
-    assert_eq!(
-        outside_differs, 0,
-        "pixels outside the projected box changed"
-    );
-    let frac = inside_differs as f64 / inside as f64;
-    eprintln!("projected box {b:?}: {inside_differs}/{inside} inside pixels show the volume");
-    assert!(frac > 0.3, "only {frac} of the box shows the volume");
+    assert_volume_only_inside(&img, b, background);
 }
 
 #[test]

@@ -13,7 +13,7 @@
 
 mod paraview_util;
 
-use paraview_util::{floats, paraview_available, psnr, pvpython, repo};
+use paraview_util::{assert_volume_only_inside, floats, paraview_available, psnr, pvpython, repo};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -269,28 +269,7 @@ fn optimizer_output_opens_in_paraview_and_matches_our_render() {
         std::fs::copy(&shot, keep).unwrap();
     }
     let b = projected_box(&volume, &cam, SIZE, SIZE);
-    let is_bg = |p: [f32; 3]| (0..3).all(|i| (p[i] as f64 - bg[i]).abs() <= 1.5 / 255.0);
-    let (mut inside, mut inside_differs, mut outside_differs) = (0, 0, 0);
-    for y in 0..SIZE {
-        for x in 0..SIZE {
-            let (cx, cy) = (x as f64 + 0.5, y as f64 + 0.5);
-            let differs = !is_bg(img.pixel(x, y));
-            // A 2-pixel margin absorbs rasterization at the silhouette.
-            if cx < b[0] - 2.0 || cx > b[2] + 2.0 || cy < b[1] - 2.0 || cy > b[3] + 2.0 {
-                outside_differs += differs as usize;
-            } else if cx > b[0] + 2.0 && cx < b[2] - 2.0 && cy > b[1] + 2.0 && cy < b[3] - 2.0 {
-                inside += 1;
-                inside_differs += differs as usize;
-            }
-        }
-    }
-    assert_eq!(
-        outside_differs, 0,
-        "pixels outside the projected box {b:?} changed"
-    );
-    let frac = inside_differs as f64 / inside as f64;
-    eprintln!("projected box {b:?}: {inside_differs}/{inside} inside pixels show the volume");
-    assert!(frac > 0.3, "only {frac} of the box shows the volume");
+    assert_volume_only_inside(&img, b, bg);
 
     // (2) Against our renderer, same camera and background. Five random-CLIP steps at the
     // paper's lr saturate this TF: σ = 255 everywhere (o ≈ 0.98 per voxel) and the first

@@ -89,3 +89,30 @@ pub fn floats(v: &serde_json::Value) -> Vec<f64> {
         .map(|x| x.as_f64().expect("number"))
         .collect()
 }
+
+/// Assert that `img` differs from the background colour `bg` nowhere outside the projected
+/// box `b` = (x0, y0, x1, y1) and in more than 30 % of the pixels inside it. A 2-pixel margin
+/// absorbs rasterization at the silhouette.
+pub fn assert_volume_only_inside(img: &Image, b: [f64; 4], bg: [f64; 3]) {
+    let is_bg = |p: [f32; 3]| (0..3).all(|i| (p[i] as f64 - bg[i]).abs() <= 1.5 / 255.0);
+    let (mut inside, mut inside_differs, mut outside_differs) = (0, 0, 0);
+    for y in 0..img.height {
+        for x in 0..img.width {
+            let (cx, cy) = (x as f64 + 0.5, y as f64 + 0.5);
+            let differs = !is_bg(img.pixel(x, y));
+            if cx < b[0] - 2.0 || cx > b[2] + 2.0 || cy < b[1] - 2.0 || cy > b[3] + 2.0 {
+                outside_differs += differs as usize;
+            } else if cx > b[0] + 2.0 && cx < b[2] - 2.0 && cy > b[1] + 2.0 && cy < b[3] - 2.0 {
+                inside += 1;
+                inside_differs += differs as usize;
+            }
+        }
+    }
+    assert_eq!(
+        outside_differs, 0,
+        "pixels outside the projected box {b:?} changed"
+    );
+    let frac = inside_differs as f64 / inside as f64;
+    eprintln!("projected box {b:?}: {inside_differs}/{inside} inside pixels show the volume");
+    assert!(frac > 0.3, "only {frac} of the box shows the volume");
+}
