@@ -10,6 +10,7 @@ pub mod cli;
 pub mod clip;
 pub mod formats;
 pub mod image;
+pub mod math;
 pub mod optimize;
 pub mod render;
 pub mod tf;

@@ -8,7 +8,7 @@ use t2tf::camera::{Camera, UpAxis};
 use t2tf::image::Image;
 use t2tf::render::{self, RenderOptions};
 use t2tf::tf::Lut;
-use t2tf::volume::Volume;
+use t2tf::volume::{BrickValues, Volume};
 
 fn flat_lut(n: usize, sigma: f32, rgb: [f32; 3]) -> Lut {
     Lut {
@@ -42,6 +42,53 @@ fn assert_finite_everywhere(v: &Volume, lut: &Lut, cam: &Camera, what: &str) -> 
         first.get_or_insert(r);
     }
     first.unwrap()
+}
+
+/// A uint8 volume is rendered from its 8-bit copy (volume::bricked), a float one from f32:
+/// the same values give the same images and gradients, to f32 rounding.
+#[test]
+fn narrow_storage_renders_like_f32() {
+    let narrow = crop_u8_typed("neghip_64x64x64_uint8.raw", [64; 3], [0; 3], [64; 3]);
+    let wide = crop_u8("neghip_64x64x64_uint8.raw", [64; 3], [0; 3], [64; 3]);
+    assert!(matches!(
+        narrow.levels[0].bricked().values(),
+        BrickValues::U8(_)
+    ));
+    assert!(matches!(
+        wide.levels[0].bricked().values(),
+        BrickValues::F32(_)
+    ));
+    let lut = random_lut(64, 0.0, 80.0, 3);
+    let bg = background::from_name("checkerboard", 48, 40, 2).unwrap();
+    let (wi, wt) = weights(48, 40, 5);
+    for (k, jitter) in [(0, None), (1, Some(9))] {
+        let cam = orbit(&narrow, 0.7 + k as f64, 0.2, 2.5);
+        let opts = RenderOptions {
+            jitter_seed: jitter,
+            ..RenderOptions::default()
+        };
+        let a = render::forward(&narrow, &lut, &cam, &bg, &opts).unwrap();
+        let b = render::forward(&wide, &lut, &cam, &bg, &opts).unwrap();
+        let diff = a
+            .image
+            .data
+            .iter()
+            .zip(&b.image.data)
+            .map(|(x, y)| (x - y).abs());
+        assert!(diff.fold(0.0f32, f32::max) < 1e-5, "images differ");
+        let ga = render::backward_from(&narrow, &lut, &cam, &a, &opts, &wi, &wt).unwrap();
+        let gb = render::backward_from(&wide, &lut, &cam, &b, &opts, &wi, &wt).unwrap();
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for (x, y) in ga.entries.iter().flatten().zip(gb.entries.iter().flatten()) {
+            num += (x - y).powi(2);
+            den += y * y;
+        }
+        assert!(
+            den > 0.0 && (num / den).sqrt() < 1e-4,
+            "gradients differ: {}",
+            (num / den).sqrt()
+        );
+    }
 }
 
 #[test]

@@ -18,7 +18,7 @@ use t2tf::camera::Camera;
 use t2tf::image::Image;
 use t2tf::render::{self, RenderOptions};
 use t2tf::tf::{ControlPoints, Lut};
-use t2tf::volume::Volume;
+use t2tf::volume::{BrickValues, Volume};
 
 const H: f32 = 0.05;
 
@@ -183,6 +183,16 @@ fn real_volume_crop_with_skipping() {
             );
         }
     }
+}
+
+#[test]
+fn real_volume_crop_stored_in_8_bits() {
+    // The same crop as above kept as uint8: the renderer interpolates its 8-bit copy
+    // (volume::bricked) — through AVX2 gathers where the CPU has them.
+    let v = crop_u8_typed("neghip_64x64x64_uint8.raw", [64; 3], [20, 22, 24], [16; 3]);
+    assert!(matches!(v.levels[0].bricked().values(), BrickValues::U8(_)));
+    let c = case(&v, orbit(&v, 2.0, -0.2, 2.4), 12, 10, smooth_opts(), 6);
+    c.check(&random_lut(12, 2.0, 50.0, 9), "neghip crop, u8");
 }
 
 #[test]

@@ -3,24 +3,29 @@
 //! same early stop) and differ only in what they do per sample, so the backward is the exact
 //! gradient of what the forward computed.
 
+use std::ops::ControlFlow;
+
 use glam::DVec3;
 
 use super::fastmath::ceil;
+use super::simd;
 use super::skip::Blocks;
+use crate::math::fast_exp;
 use crate::tf::Lut;
-use crate::volume::Level;
+use crate::volume::{BrickValues, Level, BRICK_CELLS, BRICK_POINTS, BRICK_VALUES};
 
-/// A level's samples with the index arithmetic precomputed.
+/// A level's samples (brick by brick, `volume::BrickedData`) with the index arithmetic
+/// precomputed.
 pub(crate) struct Grid<'a> {
-    data: &'a [f32],
+    pub(super) values: BrickValues<'a>,
+    /// Normalized value per unit of a stored value.
+    pub(super) scale: f32,
     /// Largest valid coordinate per axis: dims − 1.
-    max_coord: [f32; 3],
+    pub(super) max_coord: [f32; 3],
     /// Largest cell index per axis: max(dims − 2, 0).
-    max_cell: [usize; 3],
-    /// Index offset of the +1 corner per axis (0 on a 1-point axis, so it reuses the point).
-    step: [usize; 3],
-    /// Row and slice strides.
-    stride: [usize; 2],
+    pub(super) max_cell: [u32; 3],
+    /// Bricks along x, and in an xy-layer.
+    pub(super) brick_stride: [u32; 2],
     /// [super-blocks, bricks]: checked coarse to fine before sampling.
     blocks: &'a [Blocks; 2],
 }
@@ -28,36 +33,52 @@ pub(crate) struct Grid<'a> {
 impl<'a> Grid<'a> {
     pub(crate) fn new(level: &'a Level, blocks: &'a [Blocks; 2]) -> Grid<'a> {
         let d = level.dims;
-        let stride = [d[0], d[0] * d[1]];
+        let c = level.bricks.counts;
+        let bricked = level.bricked();
+        // Every index `trilinear` computes is below (number of bricks) · BRICK_VALUES, which
+        // must fit in i32 (the index arithmetic is 32-bit for speed, and AVX2 gathers take
+        // signed 32-bit indices: 2³¹ values per level).
+        let len = match bricked.values() {
+            BrickValues::U8(v) => v.len(),
+            BrickValues::U16(v) => v.len(),
+            BrickValues::F32(v) => v.len(),
+        };
+        assert!(
+            len <= i32::MAX as usize,
+            "level too large for 32-bit brick indices"
+        );
         Grid {
-            data: &level.data,
+            values: bricked.values(),
+            scale: bricked.scale(),
             max_coord: d.map(|n| (n - 1) as f32),
-            max_cell: d.map(|n| n.saturating_sub(2)),
-            step: [
-                usize::from(d[0] > 1),
-                if d[1] > 1 { stride[0] } else { 0 },
-                if d[2] > 1 { stride[1] } else { 0 },
-            ],
-            stride,
+            max_cell: d.map(|n| n.saturating_sub(2) as u32),
+            brick_stride: [c[0] as u32, (c[0] * c[1]) as u32],
             blocks,
         }
     }
 }
 
+/// A stored value type of the bricked data.
+pub(super) trait Voxel: Copy + Into<f32> + simd::Gather {}
+impl Voxel for u8 {}
+impl Voxel for u16 {}
+impl Voxel for f32 {}
+
 /// A ray in a level's index space, clipped to the box: position `a + s * b` for `s` in
 /// [0, length], `s` in world units (so `b` is the world direction divided by the spacing).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Ray {
-    a: [f32; 3],
-    b: [f32; 3],
+    pub(super) a: [f32; 3],
+    /// b · δ: the index-space step from one sample to the next.
+    pub(super) bd: [f32; 3],
     /// 1 / (b · δ) per axis (0 where b is 0): block exits in sample units without divisions.
-    inv_b_delta: [f32; 3],
+    inv_bd: [f32; 3],
     /// Number of segments; segment n is [n δ, min((n + 1) δ, length)].
     segments: u32,
     delta: f32,
     delta_last: f32,
     /// Where in its segment each sample sits, in [0, 1) (0.5 without jitter).
-    jitter: f32,
+    pub(super) jitter: f32,
 }
 
 /// One view's box in a level's index space, with what every ray's clipping shares.
@@ -70,6 +91,14 @@ pub(crate) struct BoxFrame {
     hi: DVec3,
     delta: f64,
     inv_delta: f64,
+}
+
+impl Ray {
+    /// Number of segments (and samples) of the ray.
+    #[cfg(test)]
+    pub(crate) fn segments(&self) -> u32 {
+        self.segments
+    }
 }
 
 impl BoxFrame {
@@ -123,8 +152,8 @@ impl BoxFrame {
         let entry = a + t0 * b;
         Some(Ray {
             a: entry.as_vec3().to_array(),
-            b: b.as_vec3().to_array(),
-            inv_b_delta: std::array::from_fn(|ax| {
+            bd: (b * self.delta).as_vec3().to_array(),
+            inv_bd: std::array::from_fn(|ax| {
                 if b[ax].abs() < 1e-300 {
                     0.0
                 } else {
@@ -175,169 +204,526 @@ pub(crate) struct MarchParams<'a> {
     pub inv_l: f32,
     /// Stop once T falls below this (0 = never).
     pub stop_below: f32,
+    /// Interpolate and classify with AVX2 (`simd::available()`); results are bit-identical.
+    pub simd: bool,
 }
 
-/// Index of the first sample past block `bc` (of `cells` cells per side) along `ray`, as a
-/// whole number in f32 (infinite when the ray never leaves it, which cannot happen in a box).
+/// Work found by the block walk and not yet composited. Consecutive blocks of one kind are
+/// merged first: uniform runs of equal value cost one `exp`, and sample ranges get long enough
+/// for [`Compositor::samples`] to keep a chunk full (a brick holds only ~5 samples of a ray).
+#[derive(Clone, Copy)]
+enum Pending {
+    None,
+    /// `count` samples from `start` on, all of value `value`.
+    Uniform {
+        value: f32,
+        start: u32,
+        count: u32,
+    },
+    /// Samples `n0..n1`, to be interpolated.
+    Samples {
+        n0: u32,
+        n1: u32,
+    },
+}
+
+/// Where a ray is in its front-to-back compositing.
+struct Compositor<'a, 'p, T, F> {
+    p: &'p MarchParams<'a>,
+    /// The grid's values.
+    data: &'p [T],
+    ray: &'p Ray,
+    visit: F,
+    /// A full segment's length in normalized units (δ / L).
+    delta_norm: f32,
+    t: f32,
+    acc: [f32; 3],
+    samples: u32,
+    pending: Pending,
+}
+
+/// A sample's value through the LUT.
+#[derive(Clone, Copy, Default)]
+struct Classified {
+    /// LUT entry below the value and the weight of the entry above.
+    j: u32,
+    w: f32,
+    rgb: [f32; 3],
+    /// Optical depth σ · δ / L of one sample, and e^(−τ).
+    tau: f32,
+    ext: f32,
+}
+
+/// Look `v` up in the LUT for a segment of normalized length `delta_norm`; `None` for NaN
+/// (any NaN corner makes the sample NaN, since 0 · NaN is NaN: empty space).
 #[inline(always)]
-fn next_sample_after_block(g: &Grid, ray: &Ray, bc: [usize; 3], cells: usize) -> f32 {
-    let mut exit = f32::INFINITY;
-    for (ax, &b) in bc.iter().enumerate() {
-        let bnd = if ray.b[ax] > 0.0 {
-            ((b + 1) * cells).min(g.max_cell[ax] + 1) as f32
-        } else if ray.b[ax] < 0.0 {
-            (b * cells) as f32
-        } else {
-            continue;
-        };
-        exit = exit.min((bnd - ray.a[ax]) * ray.inv_b_delta[ax]);
+fn classify(lut: &[[f32; 4]], v: f32, delta_norm: f32) -> Option<Classified> {
+    if v.is_nan() {
+        return None;
     }
-    ceil(exit - ray.jitter)
-}
-
-/// March `ray` front to back, calling `visit` after each non-empty sample.
-#[inline(always)]
-pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, mut visit: F) -> Marched {
-    let g = &p.grid;
-    let lut = &p.lut.entries;
-    let lut_max = (lut.len() - 1) as f32;
-    let lut_last_cell = lut.len() - 2;
-    let mut t = 1.0f32;
-    let mut acc = [0.0f32; 3];
-    let mut samples = 0u32;
-    let mut n = 0u32;
-    let last = ray.segments - 1;
-    while n < ray.segments {
-        let (s, dn) = if n < last {
-            ((n as f32 + ray.jitter) * ray.delta, ray.delta)
-        } else {
-            (
-                last as f32 * ray.delta + ray.jitter * ray.delta_last,
-                ray.delta_last,
-            )
-        };
-        let pos: [f32; 3] =
-            std::array::from_fn(|ax| (ray.a[ax] + s * ray.b[ax]).clamp(0.0, g.max_coord[ax]));
-        // Through i32: f32 → usize saturation costs about 12 instructions on x86-64, f32 → i32
-        // about 4 (measured with callgrind); positions are clamped to [0, dims − 1] already.
-        let cell: [usize; 3] =
-            std::array::from_fn(|ax| (pos[ax] as i32 as usize).min(g.max_cell[ax]));
-        let lerp = |a: f32, b: f32, w: f32| a + w * (b - a);
-        // Coarse to fine: an empty block is jumped over (sample positions do not move, so this
-        // only drops samples that are empty anyway); a uniform block is crossed in one step
-        // (every trilinear sample in it is its value, exactly: a + w·0).
-        let mut found = None;
-        let mut jumped = false;
-        for b in g.blocks {
-            let bc = cell.map(|c| c >> b.shift);
-            let i = bc[0] + b.counts[0] * (bc[1] + b.counts[1] * bc[2]);
-            if b.empty[i] {
-                let next = next_sample_after_block(g, ray, bc, b.cells);
-                n = if next > n as f32 {
-                    next.min(ray.segments as f32) as u32
-                } else {
-                    n + 1
-                };
-                jumped = true;
-                break;
-            }
-            let value = b.value[i];
-            if !value.is_nan() {
-                // Samples n..n+run all lie in this block or in the blocks right behind it that
-                // hold the same value (the last, shorter segment is always taken on its own).
-                let mut next = next_sample_after_block(g, ray, bc, b.cells);
-                while next > n as f32 && next < last as f32 {
-                    let m = next as u32;
-                    let s = (m as f32 + ray.jitter) * ray.delta;
-                    let cell: [usize; 3] = std::array::from_fn(|ax| {
-                        let p = (ray.a[ax] + s * ray.b[ax]).clamp(0.0, g.max_coord[ax]);
-                        (p as i32 as usize).min(g.max_cell[ax])
-                    });
-                    let same = g.blocks.iter().find_map(|b| {
-                        let bc = cell.map(|c| c >> b.shift);
-                        let i = bc[0] + b.counts[0] * (bc[1] + b.counts[1] * bc[2]);
-                        (b.value[i] == value).then(|| next_sample_after_block(g, ray, bc, b.cells))
-                    });
-                    match same {
-                        Some(after) if after > next => next = after,
-                        _ => break,
-                    }
-                }
-                let next = next.min(last as f32);
-                let run = if n + 1 < last && next > (n + 1) as f32 {
-                    next as u32 - n
-                } else {
-                    1
-                };
-                found = Some((run, value));
-                break;
-            }
-        }
-        if jumped {
-            continue;
-        }
-        let (run, v) = found.unwrap_or_else(|| {
-            let f: [f32; 3] = std::array::from_fn(|ax| pos[ax] - cell[ax] as f32);
-            let base = cell[0] + g.stride[0] * cell[1] + g.stride[1] * cell[2];
-            let (sx, sy, sz) = (g.step[0], g.step[1], g.step[2]);
-            let d = g.data;
-            let c00 = lerp(d[base], d[base + sx], f[0]);
-            let c10 = lerp(d[base + sy], d[base + sy + sx], f[0]);
-            let c01 = lerp(d[base + sz], d[base + sz + sx], f[0]);
-            let c11 = lerp(d[base + sz + sy], d[base + sz + sy + sx], f[0]);
-            (1, lerp(lerp(c00, c10, f[1]), lerp(c01, c11, f[1]), f[2]))
-        });
-        samples += 1;
-        // Any NaN corner makes the sample NaN (0 · NaN is NaN): empty space.
-        if v.is_nan() {
-            n += 1;
-            continue;
-        }
-        let x = v.clamp(0.0, 1.0) * lut_max;
-        let j = (x as i32 as usize).min(lut_last_cell);
-        let w = x - j as f32;
-        let (e0, e1) = (lut[j], lut[j + 1]);
-        let sigma = lerp(e0[0], e1[0], w);
-        let delta_norm = dn * p.inv_l;
-        let x = sigma * delta_norm;
-        let mut count = run;
-        let mut t_after = t * (-(run as f32) * x).exp();
-        if run > 1 && t_after < p.stop_below {
-            // Stop where sample-by-sample compositing would have: the first m with
-            // T·e^(−m x) < threshold.
-            let m = ((t / p.stop_below).ln() / x).floor() + 1.0;
-            count = (m.max(1.0) as u32).min(run);
-            t_after = t * (-(count as f32) * x).exp();
-        }
-        n += count;
-        let weight = t - t_after;
-        let rgb = [
+    // max/min, not clamp: the same operations as the AVX2 path, with no panic branch.
+    #[allow(clippy::manual_clamp)]
+    let x = v.max(0.0).min(1.0) * (lut.len() - 1) as f32;
+    // SAFETY: x ∈ [0, len − 1] (not NaN), so the conversion is in range.
+    let j = unsafe { x.to_int_unchecked::<u32>() }.min(lut.len() as u32 - 2);
+    let w = x - j as f32;
+    let (e0, e1) = (lut[j as usize], lut[j as usize + 1]);
+    let tau = lerp(e0[0], e1[0], w) * delta_norm;
+    Some(Classified {
+        j,
+        w,
+        rgb: [
             lerp(e0[1], e1[1], w),
             lerp(e0[2], e1[2], w),
             lerp(e0[3], e1[3], w),
-        ];
-        for c in 0..3 {
-            acc[c] += weight * rgb[c];
+        ],
+        tau,
+        ext: fast_exp(-tau),
+    })
+}
+
+impl<T: Voxel, F: FnMut(&Sample)> Compositor<'_, '_, T, F> {
+    /// Composite `count` consecutive samples of value `v` (a NaN value is empty space), each of
+    /// normalized length `delta_norm`. Breaks once the ray is saturated.
+    #[inline(always)]
+    fn shade(&mut self, v: f32, count: u32, delta_norm: f32) -> ControlFlow<()> {
+        let k = classify(&self.p.lut.entries, v, delta_norm);
+        self.composite(k, count, delta_norm)
+    }
+
+    /// Composite `count` samples of class `k` (`None`: empty).
+    #[inline(always)]
+    fn composite(&mut self, k: Option<Classified>, count: u32, delta_norm: f32) -> ControlFlow<()> {
+        self.samples += 1;
+        let Some(k) = k else {
+            return ControlFlow::Continue(());
+        };
+        let t = self.t;
+        let stop = self.p.stop_below;
+        let mut count = count;
+        let mut t_after = t * k.ext;
+        if count > 1 {
+            t_after = t * fast_exp(-(count as f32) * k.tau);
+            if t_after < stop {
+                // Stop where sample-by-sample compositing would have: the first m with
+                // T·e^(−m τ) < threshold.
+                let m = ((t / stop).ln() / k.tau).floor() + 1.0;
+                count = (m.max(1.0) as u32).min(count);
+                t_after = t * fast_exp(-(count as f32) * k.tau);
+            }
         }
-        visit(&Sample {
-            lut_index: j,
-            lut_weight: w,
-            rgb,
+        let weight = t - t_after;
+        for c in 0..3 {
+            self.acc[c] += weight * k.rgb[c];
+        }
+        (self.visit)(&Sample {
+            lut_index: k.j as usize,
+            lut_weight: k.w,
+            rgb: k.rgb,
             delta_norm,
             count: count as f32,
             t_before: t,
             t_after,
-            acc,
+            acc: self.acc,
         });
-        t = t_after;
-        if t < p.stop_below {
-            break;
+        self.t = t_after;
+        if t_after < stop {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    }
+
+    /// Samples `n0..n1` all have value `v` (a uniform block).
+    #[inline(always)]
+    fn uniform(&mut self, v: f32, n0: u32, n1: u32) -> ControlFlow<()> {
+        if let Pending::Uniform {
+            value,
+            start,
+            count,
+        } = &mut self.pending
+        {
+            if *value == v && *start + *count == n0 {
+                *count += n1 - n0;
+                return ControlFlow::Continue(());
+            }
+        }
+        self.flush()?;
+        self.pending = Pending::Uniform {
+            value: v,
+            start: n0,
+            count: n1 - n0,
+        };
+        ControlFlow::Continue(())
+    }
+
+    /// Samples `n0..n1` must be interpolated.
+    #[inline(always)]
+    fn interpolated(&mut self, n0: u32, n1: u32) -> ControlFlow<()> {
+        if let Pending::Samples { n1: end, .. } = &mut self.pending {
+            if *end == n0 {
+                *end = n1;
+                return ControlFlow::Continue(());
+            }
+        }
+        self.flush()?;
+        self.pending = Pending::Samples { n0, n1 };
+        ControlFlow::Continue(())
+    }
+
+    /// Composite the pending work, if any.
+    #[inline(always)]
+    fn flush(&mut self) -> ControlFlow<()> {
+        match std::mem::replace(&mut self.pending, Pending::None) {
+            Pending::None => ControlFlow::Continue(()),
+            Pending::Uniform { value, count, .. } => self.shade(value, count, self.delta_norm),
+            Pending::Samples { n0, n1 } => self.samples(n0, n1),
+        }
+    }
+
+    /// Interpolate and composite samples `n0..n1`. In chunks of [`CHUNK`]: first every sample
+    /// of the chunk is interpolated and classified (independent of each other: AVX2 does 8 at
+    /// once, and even in scalar code their loads overlap), then the chunk is composited, where
+    /// the transmittance is a serial chain. A chunk past `n1` interpolates clamped positions
+    /// that are never composited, and a ray that stops mid-chunk has interpolated at most
+    /// CHUNK − 1 samples too many.
+    #[inline(always)]
+    fn samples(&mut self, n0: u32, n1: u32) -> ControlFlow<()> {
+        let (p, ray, dn) = (self.p, self.ray, self.delta_norm);
+        let mut k = Chunk::default();
+        let mut n = n0;
+        while n < n1 {
+            simd::interpolate_classify(
+                p.simd,
+                &p.grid,
+                self.data,
+                ray,
+                &p.lut.entries,
+                n,
+                dn,
+                &mut k,
+            );
+            for i in 0..((n1 - n) as usize).min(CHUNK) {
+                self.composite(k.get(i), 1, dn)?;
+            }
+            n += CHUNK as u32;
+        }
+        ControlFlow::Continue(())
+    }
+}
+
+/// Samples per chunk of [`Compositor::samples`]: one AVX2 register of f32.
+pub(super) const CHUNK: usize = 8;
+
+/// A chunk of samples interpolated and classified, as structure of arrays. NaN samples have
+/// τ = 0 (and the class of value 0); [`Chunk::get`] returns `None` for them.
+#[derive(Default)]
+pub(super) struct Chunk {
+    pub v: [f32; CHUNK],
+    pub j: [u32; CHUNK],
+    pub w: [f32; CHUNK],
+    pub rgb: [[f32; CHUNK]; 3],
+    pub tau: [f32; CHUNK],
+    pub ext: [f32; CHUNK],
+}
+
+impl Chunk {
+    #[inline(always)]
+    fn get(&self, i: usize) -> Option<Classified> {
+        (!self.v[i].is_nan()).then(|| Classified {
+            j: self.j[i],
+            w: self.w[i],
+            rgb: [self.rgb[0][i], self.rgb[1][i], self.rgb[2][i]],
+            tau: self.tau[i],
+            ext: self.ext[i],
+        })
+    }
+}
+
+/// Samples n … n + CHUNK − 1 of `ray`, interpolated and classified in scalar code (what
+/// `simd` does with AVX2, operation for operation).
+#[inline(always)]
+pub(super) fn lerp_chunk_scalar<T: Voxel>(
+    g: &Grid,
+    d: &[T],
+    ray: &Ray,
+    lut: &[[f32; 4]],
+    n: u32,
+    delta_norm: f32,
+    out: &mut Chunk,
+) {
+    let (a, bd, jit) = (ray.a, ray.bd, ray.jitter);
+    for i in 0..CHUNK {
+        let u = (n + i as u32) as f32 + jit;
+        let v = trilinear(g, d, a[0] + u * bd[0], a[1] + u * bd[1], a[2] + u * bd[2]);
+        let k = classify(lut, v, delta_norm).unwrap_or_else(|| {
+            let mut k = classify(lut, 0.0, delta_norm).expect("0 is not NaN");
+            k.tau = 0.0;
+            k.ext = 1.0;
+            k
+        });
+        out.v[i] = v;
+        out.j[i] = k.j;
+        out.w[i] = k.w;
+        for c in 0..3 {
+            out.rgb[c][i] = k.rgb[c];
+        }
+        out.tau[i] = k.tau;
+        out.ext[i] = k.ext;
+    }
+}
+
+#[inline(always)]
+fn lerp(a: f32, b: f32, w: f32) -> f32 {
+    a + w * (b - a)
+}
+
+/// The cell holding index coordinate `p` on axis `ax`, clamped into the grid.
+#[inline(always)]
+fn cell(g: &Grid, p: f32, ax: usize) -> u32 {
+    let p = p.max(0.0).min(g.max_coord[ax]);
+    // SAFETY: p ∈ [0, dims − 1] (max/min return the non-NaN operand), so the conversion is in
+    // range. Unchecked because the checked `as` costs a few instructions per axis in the
+    // innermost loop.
+    unsafe { p.to_int_unchecked::<u32>() }.min(g.max_cell[ax])
+}
+
+/// The trilinear sample of `d` (the grid's values) at index position (x, y, z), clamped into
+/// the box first, as a normalized value.
+#[inline(always)]
+fn trilinear<T: Voxel>(g: &Grid, d: &[T], x: f32, y: f32, z: f32) -> f32 {
+    const P: u32 = BRICK_POINTS as u32;
+    const SHIFT: u32 = BRICK_CELLS.trailing_zeros();
+    const MASK: u32 = BRICK_CELLS as u32 - 1;
+    let (x, y, z) = (
+        x.max(0.0).min(g.max_coord[0]),
+        y.max(0.0).min(g.max_coord[1]),
+        z.max(0.0).min(g.max_coord[2]),
+    );
+    let (cx, cy, cz) = (cell(g, x, 0), cell(g, y, 1), cell(g, z, 2));
+    let (fx, fy, fz) = (x - cx as f32, y - cy as f32, z - cz as f32);
+    let brick =
+        (cx >> SHIFT) + g.brick_stride[0] * (cy >> SHIFT) + g.brick_stride[1] * (cz >> SHIFT);
+    let base =
+        (brick * BRICK_VALUES as u32 + (cx & MASK) + P * ((cy & MASK) + P * (cz & MASK))) as usize;
+    let (sy, sz) = (P as usize, (P * P) as usize);
+    debug_assert!(
+        base + 1 + sy + sz < d.len(),
+        "trilinear: cell outside the grid"
+    );
+    // SAFETY: c ≤ max_cell = dims − 2 per axis, so the brick (c >> 3) is below the brick count
+    // ⌈(dims − 1)/8⌉ (both from the same dims, `Grid::new`), and the local corner (c & 7) + 1
+    // ≤ 8 < BRICK_POINTS: every corner lies in this brick's BRICK_VALUES, inside `data`.
+    // Unchecked because a bounds check is a branch, which keeps the chunk loop from
+    // vectorising: this is the renderer's innermost loop.
+    let at = |i: usize| -> f32 { unsafe { *d.get_unchecked(i) }.into() };
+    let c00 = lerp(at(base), at(base + 1), fx);
+    let c10 = lerp(at(base + sy), at(base + sy + 1), fx);
+    let c01 = lerp(at(base + sz), at(base + sz + 1), fx);
+    let c11 = lerp(at(base + sz + sy), at(base + sz + sy + 1), fx);
+    lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz) * g.scale
+}
+
+/// Walk the blocks of `blocks` that the ray crosses between sample coordinates `u0` and `u1`
+/// (u = s / δ: sample n sits at u = n + jitter), front to back, calling `f(block, u_in,
+/// u_out)` for each. Block coordinates stay within `lo..=hi` (a parent block's children, or
+/// the whole level), which also settles a start exactly on a boundary.
+#[inline(always)]
+fn walk(
+    g: &Grid,
+    blocks: &Blocks,
+    ray: &Ray,
+    (u0, u1): (f32, f32),
+    (lo, hi): ([usize; 3], [usize; 3]),
+    mut f: impl FnMut(usize, [usize; 3], f32, f32) -> ControlFlow<()>,
+) -> ControlFlow<()> {
+    let cells = blocks.cells as f32;
+    // The block holding the point just inside the interval.
+    let um = u0 + (u1 - u0).min(1e-3);
+    let block = |ax: usize| {
+        let c = cell(g, ray.a[ax] + um * ray.bd[ax], ax) as usize;
+        (c >> blocks.shift).max(lo[ax]).min(hi[ax])
+    };
+    let mut bc = [block(0), block(1), block(2)];
+    // Per axis: the index-space boundary the ray leaves the block through, and its u.
+    let mut bound = [0.0f32; 3];
+    let mut u_exit = [f32::INFINITY; 3];
+    for ax in 0..3 {
+        if ray.bd[ax] > 0.0 {
+            bound[ax] = (bc[ax] + 1) as f32 * cells;
+        } else if ray.bd[ax] < 0.0 {
+            bound[ax] = bc[ax] as f32 * cells;
+        } else {
+            continue;
+        }
+        u_exit[ax] = (bound[ax] - ray.a[ax]) * ray.inv_bd[ax];
+    }
+    let mut u = u0;
+    loop {
+        let ax = if u_exit[0] <= u_exit[1] {
+            if u_exit[0] <= u_exit[2] {
+                0
+            } else {
+                2
+            }
+        } else if u_exit[1] <= u_exit[2] {
+            1
+        } else {
+            2
+        };
+        let out = u_exit[ax].max(u).min(u1);
+        let i = bc[0] + blocks.counts[0] * (bc[1] + blocks.counts[1] * bc[2]);
+        f(i, bc, u, out)?;
+        if out >= u1 {
+            return ControlFlow::Continue(());
+        }
+        u = out;
+        if ray.bd[ax] > 0.0 {
+            if bc[ax] == hi[ax] {
+                return ControlFlow::Continue(());
+            }
+            bc[ax] += 1;
+            bound[ax] += cells;
+        } else {
+            if bc[ax] == lo[ax] {
+                return ControlFlow::Continue(());
+            }
+            bc[ax] -= 1;
+            bound[ax] -= cells;
+        }
+        u_exit[ax] = (bound[ax] - ray.a[ax]) * ray.inv_bd[ax];
+    }
+}
+
+/// March `ray` front to back, calling `visit` after each non-empty sample.
+///
+/// Samples 0 … N − 2 are found block by block: a walk over the super-blocks, and inside each
+/// one that is neither empty nor uniform a walk over its bricks. An empty block's samples are
+/// skipped (sample positions do not move, so this only drops samples that are empty anyway); a
+/// uniform block's samples are all its value, exactly (a + w·0), and are composited in one
+/// step; the others are sampled one by one without further checks. The last, shorter
+/// segment's sample is taken on its own.
+///
+/// With `p.simd` the whole march is compiled for AVX2 (the scalar parts too: VEX encoding,
+/// `roundss` for the block boundaries' ceilings), through a `target_feature` copy.
+#[inline(always)]
+pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, visit: F) -> Marched {
+    match p.grid.values {
+        BrickValues::U8(d) => march_typed(p, d, ray, visit),
+        BrickValues::U16(d) => march_typed(p, d, ray, visit),
+        BrickValues::F32(d) => march_typed(p, d, ray, visit),
+    }
+}
+
+#[inline(always)]
+fn march_typed<T: Voxel, F: FnMut(&Sample)>(
+    p: &MarchParams,
+    d: &[T],
+    ray: &Ray,
+    visit: F,
+) -> Marched {
+    #[cfg(target_arch = "x86_64")]
+    if p.simd {
+        // SAFETY: `simd` is set only where `simd::available()` found AVX2 on this CPU.
+        return unsafe { march_avx2(p, d, ray, visit) };
+    }
+    march_body(p, d, ray, visit)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn march_avx2<T: Voxel, F: FnMut(&Sample)>(
+    p: &MarchParams,
+    d: &[T],
+    ray: &Ray,
+    visit: F,
+) -> Marched {
+    march_body(p, d, ray, visit)
+}
+
+#[inline(always)]
+fn march_body<T: Voxel, F: FnMut(&Sample)>(
+    p: &MarchParams,
+    d: &[T],
+    ray: &Ray,
+    visit: F,
+) -> Marched {
+    let g = &p.grid;
+    let [supers, bricks] = g.blocks;
+    let mut c = Compositor {
+        p,
+        data: d,
+        ray,
+        visit,
+        delta_norm: ray.delta * p.inv_l,
+        t: 1.0,
+        acc: [0.0; 3],
+        samples: 0,
+        pending: Pending::None,
+    };
+    let last = ray.segments - 1;
+    let jit = ray.jitter;
+    // Sample n lies in [u_in, u_out) when n ∈ [⌈u_in − jitter⌉, ⌈u_out − jitter⌉).
+    let first_at = |u: f32| (ceil(u - jit).max(0.0) as u32).min(last);
+    let whole = |ax: usize| supers.counts[ax] - 1;
+    let per_super = supers.cells / bricks.cells;
+    let done = walk(
+        g,
+        supers,
+        ray,
+        (0.0, last as f32 + jit),
+        ([0; 3], [whole(0), whole(1), whole(2)]),
+        |s, sc, u_in, u_out| {
+            let (n0, n1) = (first_at(u_in), first_at(u_out));
+            if n0 >= n1 || supers.empty[s] {
+                return ControlFlow::Continue(());
+            }
+            if !supers.value[s].is_nan() {
+                return c.uniform(supers.value[s], n0, n1);
+            }
+            let lo = [sc[0] * per_super, sc[1] * per_super, sc[2] * per_super];
+            let hi_of = |ax: usize| (lo[ax] + per_super - 1).min(bricks.counts[ax] - 1);
+            let hi = [hi_of(0), hi_of(1), hi_of(2)];
+            walk(
+                g,
+                bricks,
+                ray,
+                (u_in, u_out),
+                (lo, hi),
+                |b, _, u_in, u_out| {
+                    let (n0, n1) = (first_at(u_in), first_at(u_out));
+                    if n0 >= n1 || bricks.empty[b] {
+                        return ControlFlow::Continue(());
+                    }
+                    if !bricks.value[b].is_nan() {
+                        return c.uniform(bricks.value[b], n0, n1);
+                    }
+                    c.interpolated(n0, n1)
+                },
+            )
+        },
+    );
+    if done.is_continue() && c.flush().is_continue() {
+        // The last segment: its sample sits at jitter · δ_last into it.
+        let u = last as f32 + jit * ray.delta_last / ray.delta;
+        let (a, bd) = (ray.a, ray.bd);
+        let (x, y, z) = (a[0] + u * bd[0], a[1] + u * bd[1], a[2] + u * bd[2]);
+        let bc = [cell(g, x, 0), cell(g, y, 1), cell(g, z, 2)].map(|c| c as usize >> bricks.shift);
+        let b = bc[0] + bricks.counts[0] * (bc[1] + bricks.counts[1] * bc[2]);
+        if !bricks.empty[b] {
+            // A uniform brick's value is what interpolation would give, without the load (this
+            // sample sits on the box's far face, rarely in cache).
+            let v = match bricks.value[b] {
+                v if v.is_nan() => trilinear(g, d, x, y, z),
+                v => v,
+            };
+            let _ = c.shade(v, 1, ray.delta_last * p.inv_l);
         }
     }
     Marched {
-        acc,
-        transmittance: t,
-        samples,
+        acc: c.acc,
+        transmittance: c.t,
+        samples: c.samples,
     }
 }
 
@@ -387,6 +773,7 @@ mod tests {
                 lut: &lut,
                 inv_l: 1.0 / 32.0,
                 stop_below: stop,
+                simd: false,
             };
             let (fast, slow) = (params(true), params(false));
             let mut saved = 0;

@@ -31,11 +31,20 @@
 //! skipped bricks: their samples are never visited. Pass `skip_empty: false` where that
 //! gradient matters (the TF parameterization's σ = 255·(tanh p + 1)/2 is never exactly 0).
 //!
+//! **Memory and the inner loop** (BENCHMARKS.md, "Renderer"). Sampling is bound by memory, not
+//! arithmetic: rays read the level's bricked copy (`volume::bricked`: 9³ points per brick with
+//! aprons, 8 or 16 bits for integer volumes, huge pages), so a 256³ `uint8` volume is 23 MiB
+//! instead of 64 MiB of f32. The block walk merges consecutive non-uniform bricks into one
+//! sample range, which is interpolated and classified 8 samples at a time (AVX2 gathers where
+//! the CPU has them, `simd.rs`, bit-identical to the scalar code) before the serial
+//! compositing. A tile's rays are cast in 4 × 4 pixel groups, which cross the same bricks.
+//!
 //! Rays run in parallel over 16 × 16 tiles (rayon); LUT gradients are summed per tile and the
 //! tiles reduced in a fixed order, so the result does not depend on the thread count.
 
 mod fastmath;
 mod march;
+mod simd;
 mod skip;
 
 use glam::DVec3;
@@ -51,6 +60,8 @@ use skip::Blocks;
 
 /// Tile side in pixels (parallel work unit and gradient reduction unit).
 const TILE: usize = 16;
+/// Side of the pixel groups a tile's rays are cast in (see `View::tile_pixels`).
+const GROUP: usize = 4;
 
 /// Default step in voxels of the rendered level (see BENCHMARKS.md, "Renderer").
 pub const DEFAULT_STEP: f32 = 1.0;
@@ -179,9 +190,18 @@ impl<'a> View<'a> {
         t
     }
 
+    /// The tile's pixels in groups of `GROUP` × `GROUP`: the rays of a group are neighbours
+    /// and cross nearly the same bricks, so all but the first find them in the L2 cache (in
+    /// row order the ray below a pixel came a whole tile row earlier and found them in L3 or
+    /// memory; measured in BENCHMARKS.md).
     fn tile_pixels(&self, (tx, ty): (usize, usize)) -> impl Iterator<Item = (usize, usize)> + '_ {
         let (x1, y1) = ((tx + TILE).min(self.width), (ty + TILE).min(self.height));
-        (ty..y1).flat_map(move |py| (tx..x1).map(move |px| (px, py)))
+        (ty..y1).step_by(GROUP).flat_map(move |gy| {
+            (tx..x1).step_by(GROUP).flat_map(move |gx| {
+                (gy..(gy + GROUP).min(y1))
+                    .flat_map(move |py| (gx..(gx + GROUP).min(x1)).map(move |px| (px, py)))
+            })
+        })
     }
 }
 
@@ -269,6 +289,7 @@ fn view<'a>(
             lut,
             inv_l: (1.0 / volume.geometry.longest_side()) as f32,
             stop_below: opts.early_termination,
+            simd: simd::available(),
         },
         rays: camera.rays(width, height),
         frame: BoxFrame::new(
@@ -458,23 +479,7 @@ fn backward_impl(
                 };
                 let tail = g_t * t_final;
                 march(&v.params, &ray, |s| {
-                    let weight = s.t_before - s.t_after;
-                    let mut d_sigma = -tail;
-                    let mut d_rgb = [0.0f32; 3];
-                    for c in 0..3 {
-                        d_sigma += g[c] * (s.t_after * s.rgb[c] - (image[c] - s.acc[c]));
-                        d_rgb[c] = weight * g[c];
-                    }
-                    let d_sigma = (d_sigma * s.delta_norm * s.count) as f64;
-                    let (w1, w0) = (s.lut_weight as f64, 1.0 - s.lut_weight as f64);
-                    let (e0, e1) = grad.split_at_mut(s.lut_index + 1);
-                    let (e0, e1) = (&mut e0[s.lut_index], &mut e1[0]);
-                    e0[0] += w0 * d_sigma;
-                    e1[0] += w1 * d_sigma;
-                    for c in 0..3 {
-                        e0[c + 1] += w0 * d_rgb[c] as f64;
-                        e1[c + 1] += w1 * d_rgb[c] as f64;
-                    }
+                    accumulate(&mut grad, s, g, image, tail)
                 });
             }
             grad
@@ -490,6 +495,30 @@ fn backward_impl(
         }
     }
     Ok(total)
+}
+
+/// One sample's part of ∂L/∂LUT (module docs: "Backward"), for a pixel with ∂L/∂I = `g`,
+/// final colour `image` and `tail` = ∂L/∂T_N · T_N. A function of its own, always inlined:
+/// as a closure body LLVM called it once per sample.
+#[inline(always)]
+fn accumulate(grad: &mut [[f64; 4]], s: &march::Sample, g: [f32; 3], image: [f32; 3], tail: f32) {
+    let weight = s.t_before - s.t_after;
+    let mut d_sigma = -tail;
+    let mut d_rgb = [0.0f32; 3];
+    for c in 0..3 {
+        d_sigma += g[c] * (s.t_after * s.rgb[c] - (image[c] - s.acc[c]));
+        d_rgb[c] = weight * g[c];
+    }
+    let d_sigma = (d_sigma * s.delta_norm * s.count) as f64;
+    let (w1, w0) = (s.lut_weight as f64, 1.0 - s.lut_weight as f64);
+    let (e0, e1) = grad.split_at_mut(s.lut_index + 1);
+    let (e0, e1) = (&mut e0[s.lut_index], &mut e1[0]);
+    e0[0] += w0 * d_sigma;
+    e1[0] += w1 * d_sigma;
+    for c in 0..3 {
+        e0[c + 1] += w0 * d_rgb[c] as f64;
+        e1[c + 1] += w1 * d_rgb[c] as f64;
+    }
 }
 
 /// Render one view per camera and tile them into a sheet of ⌈√n⌉ columns; cells without a

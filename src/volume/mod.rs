@@ -6,6 +6,7 @@
 //! (DESIGN.md, "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty),
 //! the histogram, and the mip pyramid with per-brick value ranges for empty-space skipping.
 
+mod bricked;
 mod buffer;
 mod legacy;
 mod pyramid;
@@ -15,6 +16,7 @@ mod small_int;
 mod vti;
 mod vti_blocks;
 
+pub use bricked::{BrickValues, BrickedData, BRICK_POINTS, BRICK_VALUES};
 pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
 pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
@@ -202,7 +204,13 @@ impl Volume {
             ));
         };
 
-        let levels = pyramid::build(geometry, data);
+        // Integer data spanning at most 65535 steps normalizes to k / span exactly: the
+        // renderer's bricked copy can store k in 8 or 16 bits (volume::bricked).
+        let span = norm_range[1] - norm_range[0];
+        let integer = !matches!(buffer.scalar_type(), ScalarType::F32 | ScalarType::F64);
+        let denominator = (integer && span.fract() == 0.0 && (1.0..=65535.0).contains(&span))
+            .then_some(span as u32);
+        let levels = pyramid::build(geometry, data, denominator);
         Ok(Volume {
             geometry,
             scalar_type: buffer.scalar_type(),

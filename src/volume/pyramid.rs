@@ -10,6 +10,9 @@
 //! covers every point its cells touch, so any trilinear sample inside the brick lies within
 //! [min, max] and a TF that is zero on that interval makes the whole brick empty.
 
+use std::sync::OnceLock;
+
+use super::bricked::BrickedData;
 use super::Geometry;
 
 /// Cells per brick side.
@@ -28,12 +31,37 @@ pub struct Level {
     /// Normalized samples, x fastest; NaN = empty.
     pub data: Vec<f32>,
     pub bricks: BrickGrid,
+    /// Some(D) when every value is k / D for an integer k (level 0 of an integer volume):
+    /// the bricked copy then stores k in 8 or 16 bits.
+    denominator: Option<u32>,
+    /// The same samples brick by brick for the renderer, built on first use.
+    bricked: OnceLock<BrickedData>,
 }
 
 impl Level {
+    fn new(dims: [usize; 3], spacing: [f64; 3], data: Vec<f32>, denominator: Option<u32>) -> Level {
+        Level {
+            dims,
+            spacing,
+            bricks: BrickGrid::build(dims, &data),
+            data,
+            denominator,
+            bricked: OnceLock::new(),
+        }
+    }
+
+    /// Memory held now (the bricked copy counts once it has been built).
     pub fn memory_bytes(&self) -> usize {
         4 * (self.data.len() + self.bricks.min.len() + self.bricks.max.len())
             + self.bricks.uniform.len()
+            + self.bricked.get().map_or(0, BrickedData::memory_bytes)
+    }
+
+    /// The samples regrouped per brick with aprons (see `bricked.rs`); built on first call.
+    pub fn bricked(&self) -> &BrickedData {
+        self.bricked.get_or_init(|| {
+            BrickedData::build(self.dims, &self.data, &self.bricks, self.denominator)
+        })
     }
 
     #[inline]
@@ -56,7 +84,7 @@ pub struct BrickGrid {
 }
 
 impl BrickGrid {
-    fn build(dims: [usize; 3], data: &[f32]) -> BrickGrid {
+    pub(super) fn build(dims: [usize; 3], data: &[f32]) -> BrickGrid {
         let cells = dims.map(|d| d.saturating_sub(1).max(1));
         let counts = cells.map(|c| c.div_ceil(BRICK_CELLS));
         let total = counts.iter().product();
@@ -104,14 +132,15 @@ impl BrickGrid {
     }
 }
 
-/// Build all levels, level 0 taking ownership of `data`.
-pub(super) fn build(geometry: Geometry, data: Vec<f32>) -> Vec<Level> {
-    let mut levels = vec![Level {
-        dims: geometry.dims,
-        spacing: geometry.spacing,
-        bricks: BrickGrid::build(geometry.dims, &data),
+/// Build all levels, level 0 taking ownership of `data` (whose values are k / `denominator`
+/// for integers k, when given).
+pub(super) fn build(geometry: Geometry, data: Vec<f32>, denominator: Option<u32>) -> Vec<Level> {
+    let mut levels = vec![Level::new(
+        geometry.dims,
+        geometry.spacing,
         data,
-    }];
+        denominator,
+    )];
     loop {
         let prev = levels.last().expect("level 0 exists");
         if prev.dims.iter().all(|&d| d <= MIN_LEVEL_POINTS) {
@@ -136,12 +165,7 @@ pub(super) fn build(geometry: Geometry, data: Vec<f32>) -> Vec<Level> {
             }
         }
         let cur = cur.into_owned();
-        levels.push(Level {
-            dims,
-            spacing,
-            bricks: BrickGrid::build(dims, &cur),
-            data: cur,
-        });
+        levels.push(Level::new(dims, spacing, cur, None));
     }
     levels
 }
@@ -226,7 +250,7 @@ mod tests {
         let dims = [33, 20, 9];
         let n: usize = dims.iter().product();
         let data: Vec<f32> = (0..n).map(|i| (i % 97) as f32 / 96.0).collect();
-        let levels = build(geom(dims), data);
+        let levels = build(geom(dims), data, None);
         assert!(levels.len() >= 3);
         for l in &levels {
             for a in 0..3 {
@@ -245,7 +269,7 @@ mod tests {
         let data: Vec<f32> = (0..dims.iter().product::<usize>())
             .map(|i| (i % 17) as f32 / 16.0)
             .collect();
-        let levels = build(geom(dims), data);
+        let levels = build(geom(dims), data, None);
         let l1 = &levels[1];
         assert_eq!(l1.dims[0], 9);
         for i in 1..8 {

@@ -1,0 +1,285 @@
+//! A level's samples regrouped brick by brick, each brick with its one-point apron, and stored
+//! in as few bytes as represent them exactly — the layout of the renderer's inner loop.
+//!
+//! Why: in the x-fastest f32 layout a trilinear sample's eight corners sit in four rows up to
+//! a slice apart (256 KiB for a 256³ volume), a ray marching in depth touches new cache lines
+//! at almost every step, and the renderer's sampling waits on memory (BENCHMARKS.md). Here
+//! brick b holds the `(BRICK_CELLS + 1)³` points its cells touch (its own and the first layer
+//! of its +x/+y/+z neighbours) contiguously: every corner of every cell in the brick is within
+//! 729 values, rays of one image tile reuse the same bricks from L1/L2, and a sample never
+//! needs a neighbouring brick. Level 0 of an integer volume whose range spans at most 255
+//! (65535) steps is stored as `u8` (`u16`): value = q · scale, exactly as normalized (to
+//! within 1e-6); a 256³ `uint8` volume then takes 23 MiB (it fits the L3 cache) instead of
+//! 64 MiB of f32. Everything else stays f32. Built once per level, on first render.
+//!
+//! The copy lives in an anonymous mapping advised for transparent huge pages (Linux): a ray
+//! enters a new brick every few samples, and with 4 KiB pages that is a TLB miss once the
+//! volume outgrows the TLB's reach. Elsewhere, or when the mapping fails, it is a heap vector.
+//!
+//! Points past the level's last point (the apron of a partial last brick, or the second point
+//! of a one-point axis) repeat the last point, so the corner offsets are the same everywhere;
+//! the renderer clamps cells so that such a point is only ever read with weight 0 — or, on a
+//! one-point axis, where the x-fastest layout reuses the point itself, with the same value.
+//! Each buffer has [`PAD`] values more than its bricks need: AVX2 gathers read 4 bytes at a
+//! corner's address, 3 bytes past the last `u8` corner.
+
+use super::pyramid::BrickGrid;
+use super::BRICK_CELLS;
+
+/// Points per brick side: its cells plus one.
+pub const BRICK_POINTS: usize = BRICK_CELLS + 1;
+/// Values per brick.
+pub const BRICK_VALUES: usize = BRICK_POINTS * BRICK_POINTS * BRICK_POINTS;
+/// Zero values after the last brick (see the module docs).
+pub const PAD: usize = 4;
+
+/// The stored values of all bricks, one after the other: brick `b` at
+/// `[b * BRICK_VALUES..][..BRICK_VALUES]`, local point (i, j, k) at
+/// `i + BRICK_POINTS * (j + BRICK_POINTS * k)`; bricks numbered as in [`BrickGrid`].
+#[derive(Clone, Copy, Debug)]
+pub enum BrickValues<'a> {
+    U8(&'a [u8]),
+    U16(&'a [u16]),
+    F32(&'a [f32]),
+}
+
+/// A level's bricks; the normalized value of stored `q` is `q · scale`.
+pub struct BrickedData {
+    storage: Storage,
+    scale: f32,
+}
+
+enum Storage {
+    U8(Buffer<u8>),
+    U16(Buffer<u16>),
+    F32(Buffer<f32>),
+}
+
+impl BrickedData {
+    /// `denominator`: level 0 of an integer volume, whose normalized values are k / D for
+    /// integers k ≤ D (checked here; a value that is not keeps the level in f32).
+    pub(super) fn build(
+        dims: [usize; 3],
+        data: &[f32],
+        grid: &BrickGrid,
+        denominator: Option<u32>,
+    ) -> BrickedData {
+        let count = grid.counts.iter().product::<usize>() * BRICK_VALUES + PAD;
+        if let Some(d) = denominator.filter(|&d| d > 0 && exactly_k_over(data, d)) {
+            let q = |v: f32| (v * d as f32).round();
+            let scale = 1.0 / d as f32;
+            let storage = if d <= u8::MAX as u32 {
+                Storage::U8(Buffer::build(count, dims, data, grid, |v| q(v) as u8))
+            } else {
+                Storage::U16(Buffer::build(count, dims, data, grid, |v| q(v) as u16))
+            };
+            return BrickedData { storage, scale };
+        }
+        BrickedData {
+            storage: Storage::F32(Buffer::build(count, dims, data, grid, |v| v)),
+            scale: 1.0,
+        }
+    }
+
+    pub fn values(&self) -> BrickValues<'_> {
+        match &self.storage {
+            Storage::U8(b) => BrickValues::U8(b.as_slice()),
+            Storage::U16(b) => BrickValues::U16(b.as_slice()),
+            Storage::F32(b) => BrickValues::F32(b.as_slice()),
+        }
+    }
+
+    /// Normalized value per unit of a stored value.
+    pub fn scale(&self) -> f32 {
+        self.scale
+    }
+
+    pub fn memory_bytes(&self) -> usize {
+        match self.values() {
+            BrickValues::U8(v) => v.len(),
+            BrickValues::U16(v) => 2 * v.len(),
+            BrickValues::F32(v) => 4 * v.len(),
+        }
+    }
+}
+
+/// Whether every value is k / d for an integer k in [0, d], to within 1e-6 (NaN is not).
+fn exactly_k_over(data: &[f32], d: u32) -> bool {
+    let (df, inv) = (d as f32, 1.0 / d as f32);
+    data.iter().all(|&v| {
+        let k = (v * df).round();
+        (0.0..=df).contains(&k) && (k * inv - v).abs() <= 1e-6
+    })
+}
+
+impl std::fmt::Debug for BrickedData {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "BrickedData({} bytes, scale {})",
+            self.memory_bytes(),
+            self.scale
+        )
+    }
+}
+
+impl Clone for BrickedData {
+    fn clone(&self) -> BrickedData {
+        let storage = match &self.storage {
+            Storage::U8(b) => Storage::U8(b.clone()),
+            Storage::U16(b) => Storage::U16(b.clone()),
+            Storage::F32(b) => Storage::F32(b.clone()),
+        };
+        BrickedData {
+            storage,
+            scale: self.scale,
+        }
+    }
+}
+
+/// Values for which all-zero bytes are a valid value (so zero-filled pages are initialized).
+trait Zeroable: Copy + Default {}
+impl Zeroable for u8 {}
+impl Zeroable for u16 {}
+impl Zeroable for f32 {}
+
+/// `len` values in huge-page-advised memory where the platform offers it.
+enum Buffer<T> {
+    #[cfg(target_os = "linux")]
+    Mapped(memmap2::MmapMut, usize, std::marker::PhantomData<T>),
+    Heap(Vec<T>),
+}
+
+impl<T: Zeroable> Buffer<T> {
+    fn zeros(len: usize) -> Buffer<T> {
+        #[cfg(target_os = "linux")]
+        if let Ok(map) = memmap2::MmapMut::map_anon(len.max(1) * std::mem::size_of::<T>()) {
+            // Advice only: without it (or without THP in the kernel) the pages are just small.
+            let _ = map.advise(memmap2::Advice::HugePage);
+            return Buffer::Mapped(map, len, std::marker::PhantomData);
+        }
+        Buffer::Heap(vec![T::default(); len])
+    }
+
+    /// `count` values: the bricks of `data` through `f`, then zeros.
+    fn build(
+        count: usize,
+        dims: [usize; 3],
+        data: &[f32],
+        grid: &BrickGrid,
+        f: impl Fn(f32) -> T,
+    ) -> Buffer<T> {
+        let c = grid.counts;
+        let mut buffer = Buffer::zeros(count);
+        let out = buffer.as_mut_slice();
+        for (b, brick) in out.chunks_exact_mut(BRICK_VALUES).enumerate() {
+            let (bi, bj, bk) = (b % c[0], (b / c[0]) % c[1], b / (c[0] * c[1]));
+            let origin = [bi, bj, bk].map(|x| x * BRICK_CELLS);
+            for k in 0..BRICK_POINTS {
+                let z = (origin[2] + k).min(dims[2] - 1);
+                for j in 0..BRICK_POINTS {
+                    let y = (origin[1] + j).min(dims[1] - 1);
+                    let row = &data[dims[0] * (y + dims[1] * z)..][..dims[0]];
+                    let dst = &mut brick[BRICK_POINTS * (j + BRICK_POINTS * k)..][..BRICK_POINTS];
+                    for (i, v) in dst.iter_mut().enumerate() {
+                        *v = f(row[(origin[0] + i).min(dims[0] - 1)]);
+                    }
+                }
+            }
+        }
+        buffer
+    }
+
+    fn as_slice(&self) -> &[T] {
+        match self {
+            #[cfg(target_os = "linux")]
+            // SAFETY: the mapping is page-aligned (so aligned for T), `len` values long, zero-
+            // filled by the kernel (a valid T: `Zeroable`), and borrowed as long as the slice.
+            Buffer::Mapped(m, len, _) => unsafe {
+                std::slice::from_raw_parts(m.as_ptr().cast(), *len)
+            },
+            Buffer::Heap(v) => v,
+        }
+    }
+
+    fn as_mut_slice(&mut self) -> &mut [T] {
+        match self {
+            #[cfg(target_os = "linux")]
+            // SAFETY: as in `as_slice`, borrowed mutably.
+            Buffer::Mapped(m, len, _) => unsafe {
+                std::slice::from_raw_parts_mut(m.as_mut_ptr().cast(), *len)
+            },
+            Buffer::Heap(v) => v,
+        }
+    }
+}
+
+impl<T: Zeroable> Clone for Buffer<T> {
+    fn clone(&self) -> Buffer<T> {
+        let src = self.as_slice();
+        let mut b = Buffer::zeros(src.len());
+        b.as_mut_slice().copy_from_slice(src);
+        b
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid_and_data(dims: [usize; 3], f: impl Fn(usize) -> f32) -> (BrickGrid, Vec<f32>) {
+        let data: Vec<f32> = (0..dims.iter().product()).map(f).collect();
+        (BrickGrid::build(dims, &data), data)
+    }
+
+    #[test]
+    fn bricks_hold_their_points_and_aprons() {
+        // 11 × 3 × 1 points: two bricks along x, the second partial; one-point z axis.
+        let dims = [11, 3, 1];
+        let (grid, data) = grid_and_data(dims, |i| i as f32 / 33.0);
+        let b = BrickedData::build(dims, &data, &grid, None);
+        let BrickValues::F32(v) = b.values() else {
+            panic!("f32 expected")
+        };
+        assert_eq!(v.len(), 2 * BRICK_VALUES + PAD);
+        let at = |brick: usize, i: usize, j: usize, k: usize| {
+            v[brick * BRICK_VALUES + i + BRICK_POINTS * (j + BRICK_POINTS * k)]
+        };
+        let point = |x: usize, y: usize| data[x.min(10) + 11 * y.min(2)];
+        for j in 0..BRICK_POINTS {
+            for i in 0..BRICK_POINTS {
+                for k in 0..BRICK_POINTS {
+                    assert_eq!(at(0, i, j, k), point(i, j));
+                    assert_eq!(at(1, i, j, k), point(8 + i, j));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn integer_levels_are_stored_narrow_and_exact() {
+        let dims = [9, 9, 9];
+        for (d, bytes) in [(255u32, 1usize), (4095, 2), (65535, 2)] {
+            let (grid, data) = grid_and_data(dims, |i| (i as u32 % (d + 1)) as f32 / d as f32);
+            let b = BrickedData::build(dims, &data, &grid, Some(d));
+            assert_eq!(b.memory_bytes(), bytes * (BRICK_VALUES + PAD), "D = {d}");
+            let q: Vec<f32> = match b.values() {
+                BrickValues::U8(v) => v.iter().map(|&q| q as f32).collect(),
+                BrickValues::U16(v) => v.iter().map(|&q| q as f32).collect(),
+                BrickValues::F32(_) => panic!("narrow storage expected"),
+            };
+            // Brick 0 holds every point of a 9³ level, x fastest.
+            for (i, &v) in data.iter().enumerate() {
+                assert!((q[i] * b.scale() - v).abs() <= 1e-6);
+            }
+        }
+        // A value that is not k / D (or a NaN) keeps f32.
+        let (grid, mut data) = grid_and_data(dims, |i| (i % 256) as f32 / 255.0);
+        data[5] = 0.5;
+        let b = BrickedData::build(dims, &data, &grid, Some(255));
+        assert!(matches!(b.values(), BrickValues::F32(_)));
+        data[5] = f32::NAN;
+        let b = BrickedData::build(dims, &data, &grid, Some(255));
+        assert!(matches!(b.values(), BrickValues::F32(_)));
+    }
+}
