@@ -18,8 +18,10 @@
 //!     --views-list 1,3              views of the grid (default: this list)
 //!     --step-sizes 2                extra rows at the default steps/views with this render step
 //!     --levels 1                    extra rows at the default steps/views on this mip level
+//!     --render-sizes 160            extra rows casting rays at this image side (upsampled to
+//!                                   CLIP's 224; the "image precision" of the table)
 //!     --runs "steps=100,views=1,step=2;seed=1"   extra rows, any of steps, views, step,
-//!                                   level, seed, lr (unset keys keep the defaults)
+//!                                   level, render, seed, lr (unset keys keep the defaults)
 //!     --no-grid                     skip the steps × views grid
 //!     --quick                       a smoke test: reference 20 steps × 1 view, one 10-step row
 //!     --threads N                   rayon threads (default: rayon's choice)
@@ -80,6 +82,8 @@ struct Row {
     views: usize,
     step: f32,
     level: Option<usize>,
+    /// Ray-casting image side (`VolumeRenderer::render_size`); None = CLIP's input size.
+    render: Option<usize>,
     seed: u64,
     lr: f64,
 }
@@ -92,6 +96,7 @@ impl Row {
             views: s.views,
             step: t2tf::render::DEFAULT_STEP,
             level: None,
+            render: None,
             seed: s.seed,
             lr: s.lr,
         }
@@ -110,6 +115,7 @@ impl Row {
                 "views" => r.views = v.parse().map_err(|e| bad(&e))?,
                 "step" => r.step = v.parse().map_err(|e| bad(&e))?,
                 "level" => r.level = Some(v.parse().map_err(|e| bad(&e))?),
+                "render" => r.render = Some(v.parse().map_err(|e| bad(&e))?),
                 "seed" => r.seed = v.parse().map_err(|e| bad(&e))?,
                 "lr" => r.lr = v.parse().map_err(|e| bad(&e))?,
                 _ => return Err(format!("--runs: unknown key '{k}'")),
@@ -138,9 +144,10 @@ impl Row {
 
     fn label(&self) -> String {
         let level = self.level.map_or("auto".into(), |l| l.to_string());
+        let render = self.render.map_or("224 (CLIP)".into(), |r| r.to_string());
         format!(
-            "| {} | {} | {} | {} | {} | {} |",
-            self.steps, self.views, self.step, level, self.lr, self.seed
+            "| {} | {} | {} | {} | {} | {} | {} |",
+            self.steps, self.views, self.step, level, render, self.lr, self.seed
         )
     }
 }
@@ -305,6 +312,15 @@ fn main() -> anyhow::Result<()> {
             ..reference.clone()
         });
     }
+    for r in list::<usize>(&args, "--render-sizes")
+        .map_err(err)?
+        .unwrap_or_default()
+    {
+        rows.push(Row {
+            render: Some(r),
+            ..reference.clone()
+        });
+    }
     for l in list::<usize>(&args, "--levels")
         .map_err(err)?
         .unwrap_or_default()
@@ -396,6 +412,7 @@ fn main() -> anyhow::Result<()> {
             options: RenderOptions::default(),
             up: UpAxis::Z,
             size: clip.image_size(),
+            render_size: clip.image_size(),
             jitter: false,
         };
         let lut = cp.to_lut(LUT_SIZE);
@@ -412,6 +429,7 @@ fn main() -> anyhow::Result<()> {
             options: row.options(),
             up: UpAxis::Z,
             size: clip.image_size(),
+            render_size: row.render.unwrap_or(clip.image_size()),
             jitter: false,
         };
         let tf = PaperTf {
@@ -547,8 +565,8 @@ fn main() -> anyhow::Result<()> {
     println!(
         "\n### Speed against error (against the default run, same seed; {HELD_OUT} held-out views)\n"
     );
-    println!("| steps | views | render step (voxels) | level | lr | seed | wall (s) | CPU (s) | CPU / threads (s) | opacity RMS | colour RMS | PSNR held-out (dB) | CLIP loss (last 25 steps) |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| steps | views | render step (voxels) | level | render size (px) | lr | seed | wall (s) | CPU (s) | CPU / threads (s) | opacity RMS | colour RMS | PSNR held-out (dB) | CLIP loss (last 25 steps) |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let line = |row: &Row, r: &Result1| {
         let (o, c) = tf_distance(&r.cp, &r0.cp, u_over_l);
         println!(

@@ -106,6 +106,76 @@ impl Image {
     }
 }
 
+/// Bilinear resampling of a `w`×`h` grid of `channels` interleaved values to `nw`×`nh`, pixel
+/// centres aligned (source coordinate (x + ½)·w/nw − ½, clamped at the edges: PyTorch's
+/// `interpolate(mode="bilinear", align_corners=False)` without antialiasing). Used to render
+/// below CLIP's input size and upsample; [`resize_bilinear_adjoint`] is its exact transpose.
+pub fn resize_bilinear(
+    src: &[f32],
+    (w, h): (usize, usize),
+    channels: usize,
+    (nw, nh): (usize, usize),
+) -> Vec<f32> {
+    assert_eq!(src.len(), w * h * channels, "resize_bilinear: source size");
+    let (tx, ty) = (taps(w, nw), taps(h, nh));
+    let mut out = vec![0.0f32; nw * nh * channels];
+    for (y, &(y0, y1, fy)) in ty.iter().enumerate() {
+        for (x, &(x0, x1, fx)) in tx.iter().enumerate() {
+            for c in 0..channels {
+                let at = |xx: usize, yy: usize| src[(yy * w + xx) * channels + c];
+                let top = at(x0, y0) + fx * (at(x1, y0) - at(x0, y0));
+                let bottom = at(x0, y1) + fx * (at(x1, y1) - at(x0, y1));
+                out[(y * nw + x) * channels + c] = top + fy * (bottom - top);
+            }
+        }
+    }
+    out
+}
+
+/// The transpose of [`resize_bilinear`]: the gradient with respect to the `w`×`h` source of
+/// a loss whose gradient with respect to the `nw`×`nh` result is `d`.
+pub fn resize_bilinear_adjoint(
+    d: &[f32],
+    (nw, nh): (usize, usize),
+    channels: usize,
+    (w, h): (usize, usize),
+) -> Vec<f32> {
+    assert_eq!(
+        d.len(),
+        nw * nh * channels,
+        "resize_bilinear_adjoint: gradient size"
+    );
+    let (tx, ty) = (taps(w, nw), taps(h, nh));
+    let mut out = vec![0.0f32; w * h * channels];
+    for (y, &(y0, y1, fy)) in ty.iter().enumerate() {
+        for (x, &(x0, x1, fx)) in tx.iter().enumerate() {
+            for c in 0..channels {
+                let g = d[(y * nw + x) * channels + c];
+                let (top, bottom) = (g * (1.0 - fy), g * fy);
+                let mut add = |xx: usize, yy: usize, v: f32| out[(yy * w + xx) * channels + c] += v;
+                add(x0, y0, top * (1.0 - fx));
+                add(x1, y0, top * fx);
+                add(x0, y1, bottom * (1.0 - fx));
+                add(x1, y1, bottom * fx);
+            }
+        }
+    }
+    out
+}
+
+/// Per output index along one axis of `n` → `nn` points: (lower source, upper source, weight
+/// of the upper).
+fn taps(n: usize, nn: usize) -> Vec<(usize, usize, f32)> {
+    (0..nn)
+        .map(|i| {
+            let x = ((i as f64 + 0.5) * n as f64 / nn as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+            let x0 = (x.floor() as usize).min(n - 1);
+            let x1 = (x0 + 1).min(n - 1);
+            (x0, x1, (x - x0 as f64) as f32)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -134,5 +204,51 @@ mod tests {
         std::fs::write(&p, b"not a png").unwrap();
         let e = Image::load_png(&p).unwrap_err();
         assert!(format!("{e:#}").contains("bad.png"));
+    }
+
+    #[test]
+    fn bilinear_resize_is_exact_on_linear_images_and_its_adjoint_is_the_transpose() {
+        // A linear ramp upsamples to the same ramp (away from the clamped border).
+        let (w, h, nw, nh) = (6, 5, 14, 11);
+        let ramp: Vec<f32> = (0..w * h * 2)
+            .map(|i| {
+                let (p, c) = (i / 2, i % 2);
+                (p % w) as f32 * 0.3 + (p / w) as f32 * 0.2 + c as f32
+            })
+            .collect();
+        let up = resize_bilinear(&ramp, (w, h), 2, (nw, nh));
+        for y in 2..nh - 2 {
+            for x in 2..nw - 2 {
+                let sx = (x as f32 + 0.5) * w as f32 / nw as f32 - 0.5;
+                let sy = (y as f32 + 0.5) * h as f32 / nh as f32 - 0.5;
+                let want = sx * 0.3 + sy * 0.2 + 1.0;
+                assert!((up[(y * nw + x) * 2 + 1] - want).abs() < 1e-5);
+            }
+        }
+        // Same size: the identity.
+        assert_eq!(resize_bilinear(&ramp, (w, h), 2, (w, h)), ramp);
+        // <U a, b> = <a, Uᵀ b> for arbitrary a, b.
+        let a: Vec<f32> = (0..w * h * 3)
+            .map(|i| ((i * 37 % 11) as f32 - 5.0) / 7.0)
+            .collect();
+        let b: Vec<f32> = (0..nw * nh * 3)
+            .map(|i| ((i * 53 % 13) as f32 - 6.0) / 5.0)
+            .collect();
+        let ua = resize_bilinear(&a, (w, h), 3, (nw, nh));
+        let utb = resize_bilinear_adjoint(&b, (nw, nh), 3, (w, h));
+        let lhs: f64 = ua
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (*x as f64) * (*y as f64))
+            .sum();
+        let rhs: f64 = a
+            .iter()
+            .zip(&utb)
+            .map(|(x, y)| (*x as f64) * (*y as f64))
+            .sum();
+        assert!(
+            (lhs - rhs).abs() < 1e-4 * lhs.abs().max(1.0),
+            "{lhs} vs {rhs}"
+        );
     }
 }

@@ -64,6 +64,7 @@ fn help_lists_every_flag_with_the_papers_default() {
         "--reference-image",
         "--step-size",
         "--level",
+        "--render-size",
         "--threads",
     ] {
         assert!(help.contains(flag), "{flag} missing from --help");
@@ -84,6 +85,11 @@ fn argument_errors_are_one_clear_line() {
     assert!(!ok && err.contains("--views"), "{err}");
     let (ok, _, err) = t2tf(&["optimize", v]);
     assert!(!ok && err.contains("--prompt"), "{err}");
+    let (ok, _, err) = t2tf(&["optimize", v, "--prompt", "x", "--render-size", "4"]);
+    assert!(
+        !ok && err.contains("--render-size must be 8 to 4096"),
+        "{err}"
+    );
 }
 
 #[derive(Parser)]

@@ -128,6 +128,11 @@ pub struct OptimizeArgs {
     #[arg(long)]
     pub level: Option<usize>,
 
+    /// Cast rays at this image side and upsample to CLIP's input size (the background stays
+    /// sharp): a cheaper render for a blurrier view (BENCHMARKS.md). Default: CLIP's size.
+    #[arg(long, value_name = "PIXELS")]
+    pub render_size: Option<usize>,
+
     /// Worker threads; default: all cores.
     #[arg(long)]
     pub threads: Option<usize>,
@@ -198,6 +203,11 @@ impl OptimizeArgs {
         }
         if self.threads == Some(0) {
             bail!("--threads must be at least 1");
+        }
+        if let Some(r) = self.render_size {
+            if !(8..=4096).contains(&r) {
+                bail!("--render-size must be 8 to 4096 pixels, got {r}");
+            }
         }
         if self.out.exists() && !self.out.is_dir() {
             bail!("{}: --out exists and is not a folder", self.out.display());
@@ -450,6 +460,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         options,
         up: args.up,
         size: clip.image_size(),
+        render_size: args.render_size.unwrap_or(clip.image_size()),
         jitter: false,
     };
     let ctx = Loaded {
@@ -471,6 +482,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             "step_voxels": options.step,
             "level": options.level,
             "image_size": clip.image_size(),
+            "render_size": renderer.render_size,
             "lut_size": LUT_SIZE,
             "threads": rayon::current_num_threads(),
         }),

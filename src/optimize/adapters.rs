@@ -4,7 +4,7 @@
 use crate::background::{self, BackgroundKind};
 use crate::camera::{Camera, Orbit, UpAxis};
 use crate::clip::{Clip, ImageCache};
-use crate::image::Image;
+use crate::image::{resize_bilinear, resize_bilinear_adjoint, Image};
 use crate::render::{self, RenderOptions, Rendered};
 use crate::tf::{ControlPoints, Lut, LutGrad, TfParams};
 use crate::volume::Volume;
@@ -22,6 +22,11 @@ pub struct VolumeRenderer<'a> {
     pub up: UpAxis,
     /// Square image side (CLIP's `image_size()`).
     pub size: usize,
+    /// Side the rays are cast at. Below `size`, the volume's colour and transmittance are
+    /// rendered at this size, upsampled bilinearly, and composited over the full-size
+    /// background there (so CLIP still sees sharp checkerboards and noise): the renderer's
+    /// work shrinks with the square of the ratio.
+    pub render_size: usize,
     /// Jitter sample positions per view (seeded by `View::seed`).
     pub jitter: bool,
 }
@@ -60,13 +65,30 @@ impl VolumeRenderer<'_> {
 }
 
 impl Renderer for VolumeRenderer<'_> {
-    type Tape = (Camera, Rendered);
+    /// The camera, the forward's result at `render_size`, and — when that is below `size` —
+    /// the full-size background it was composited over.
+    type Tape = (Camera, Rendered, Option<Image>);
 
     fn render(&self, lut: &Lut, view: &View) -> Result<(Image, Vec<f32>, Self::Tape), BoxError> {
         let camera = self.camera(view)?;
         let bg = self.background(view);
-        let r = render::forward(self.volume, lut, &camera, &bg, &self.options(view))?;
-        Ok((r.image.clone(), r.transmittance.clone(), (camera, r)))
+        let opts = self.options(view);
+        if self.render_size >= self.size {
+            let r = render::forward(self.volume, lut, &camera, &bg, &opts)?;
+            return Ok((r.image.clone(), r.transmittance.clone(), (camera, r, None)));
+        }
+        // Colour over black is the accumulated colour alone: I = up(acc) + up(T) · B.
+        let (s, n) = (self.render_size, self.size);
+        let r = render::forward(self.volume, lut, &camera, &Image::new(s, s), &opts)?;
+        let acc = resize_bilinear(&r.image.data, (s, s), 3, (n, n));
+        let t = resize_bilinear(&r.transmittance, (s, s), 1, (n, n));
+        let mut image = Image::new(n, n);
+        for (p, px) in image.data.chunks_exact_mut(3).enumerate() {
+            for c in 0..3 {
+                px[c] = acc[3 * p + c] + t[p] * bg.data[3 * p + c];
+            }
+        }
+        Ok((image, t, (camera, r, Some(bg))))
     }
 
     /// preview.png views at least `PREVIEW_SIZE` pixels wide, whatever CLIP's input size.
@@ -85,15 +107,40 @@ impl Renderer for VolumeRenderer<'_> {
         d_image: &[f32],
         d_transmittance: &[f32],
     ) -> Result<LutGrad, BoxError> {
-        let (camera, rendered) = tape;
+        let (camera, rendered, bg) = tape;
+        let opts = self.options(view);
+        let Some(bg) = bg else {
+            return Ok(render::backward_from(
+                self.volume,
+                lut,
+                camera,
+                rendered,
+                &opts,
+                d_image,
+                d_transmittance,
+            )?);
+        };
+        // Through I = up(acc) + up(T) · B: ∂/∂up(acc) = ∂/∂I, ∂/∂up(T) = ∂/∂T + Σ_c ∂/∂I_c B_c,
+        // then the upsampling's transpose.
+        let (s, n) = (self.render_size, self.size);
+        let d_t: Vec<f32> = (0..n * n)
+            .map(|p| {
+                let from_image: f32 = (0..3)
+                    .map(|c| d_image[3 * p + c] * bg.data[3 * p + c])
+                    .sum();
+                d_transmittance.get(p).copied().unwrap_or(0.0) + from_image
+            })
+            .collect();
+        let d_acc_s = resize_bilinear_adjoint(d_image, (n, n), 3, (s, s));
+        let d_t_s = resize_bilinear_adjoint(&d_t, (n, n), 1, (s, s));
         Ok(render::backward_from(
             self.volume,
             lut,
             camera,
             rendered,
-            &self.options(view),
-            d_image,
-            d_transmittance,
+            &opts,
+            &d_acc_s,
+            &d_t_s,
         )?)
     }
 }
