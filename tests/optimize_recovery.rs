@@ -42,6 +42,7 @@ fn renderer(v: &Volume) -> VolumeRenderer<'_> {
         options: RenderOptions::default(),
         up: t2tf::camera::UpAxis::Z,
         size: SIZE,
+        render_size: SIZE,
         jitter: false,
     }
 }
