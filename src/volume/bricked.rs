@@ -10,7 +10,8 @@
 //! needs a neighbouring brick. Level 0 of an integer volume whose range spans at most 255
 //! (65535) steps is stored as `u8` (`u16`): value = q · scale, exactly as normalized (to
 //! within 1e-6); a 256³ `uint8` volume then takes 23 MiB (it fits the L3 cache) instead of
-//! 64 MiB of f32. Everything else stays f32. Built once per level, on first render.
+//! 64 MiB of f32. Filtered mip levels are rounded to 16 bits ([`Narrow::Round16`]); level 0
+//! of a float volume, and any level with NaN, stays f32. Built once per level, on first render.
 //!
 //! The copy lives in an anonymous mapping advised for transparent huge pages (Linux): a ray
 //! enters a new brick every few samples, and with 4 KiB pages that is a TLB miss once the
@@ -56,16 +57,19 @@ enum Storage {
 }
 
 impl BrickedData {
-    /// `denominator`: level 0 of an integer volume, whose normalized values are k / D for
-    /// integers k ≤ D (checked here; a value that is not keeps the level in f32).
     pub(super) fn build(
         dims: [usize; 3],
         data: &[f32],
         grid: &BrickGrid,
-        denominator: Option<u32>,
+        narrow: Narrow,
     ) -> BrickedData {
         let count = grid.counts.iter().product::<usize>() * BRICK_VALUES + PAD;
-        if let Some(d) = denominator.filter(|&d| d > 0 && exactly_k_over(data, d)) {
+        let denominator = match narrow {
+            Narrow::Exact(d) => Some(d).filter(|&d| d > 0 && exactly_k_over(data, d)),
+            Narrow::Round16 => data.iter().all(|v| !v.is_nan()).then_some(u16::MAX as u32),
+            Narrow::No => None,
+        };
+        if let Some(d) = denominator {
             let q = |v: f32| (v * d as f32).round();
             let scale = 1.0 / d as f32;
             let storage = if d <= u8::MAX as u32 {
@@ -101,6 +105,19 @@ impl BrickedData {
             BrickValues::F32(v) => 4 * v.len(),
         }
     }
+}
+
+/// How a level may be stored in fewer bits than f32.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Narrow {
+    /// Level 0 of an integer volume: its normalized values should be k / D for integers
+    /// k ≤ D (checked; a value that is not keeps the level in f32).
+    Exact(u32),
+    /// A filtered mip level, an approximation already: rounded to 16 bits (error ≤ 2⁻¹⁷ of
+    /// the range, 1/512 of a 256-entry LUT's cell), unless it holds NaN.
+    Round16,
+    /// f32 (float volumes' level 0).
+    No,
 }
 
 /// Whether every value is k / d for an integer k in [0, d], to within 1e-6 (NaN is not).
@@ -237,7 +254,7 @@ mod tests {
         // 11 × 3 × 1 points: two bricks along x, the second partial; one-point z axis.
         let dims = [11, 3, 1];
         let (grid, data) = grid_and_data(dims, |i| i as f32 / 33.0);
-        let b = BrickedData::build(dims, &data, &grid, None);
+        let b = BrickedData::build(dims, &data, &grid, Narrow::No);
         let BrickValues::F32(v) = b.values() else {
             panic!("f32 expected")
         };
@@ -261,7 +278,7 @@ mod tests {
         let dims = [9, 9, 9];
         for (d, bytes) in [(255u32, 1usize), (4095, 2), (65535, 2)] {
             let (grid, data) = grid_and_data(dims, |i| (i as u32 % (d + 1)) as f32 / d as f32);
-            let b = BrickedData::build(dims, &data, &grid, Some(d));
+            let b = BrickedData::build(dims, &data, &grid, Narrow::Exact(d));
             assert_eq!(b.memory_bytes(), bytes * (BRICK_VALUES + PAD), "D = {d}");
             let q: Vec<f32> = match b.values() {
                 BrickValues::U8(v) => v.iter().map(|&q| q as f32).collect(),
@@ -276,10 +293,31 @@ mod tests {
         // A value that is not k / D (or a NaN) keeps f32.
         let (grid, mut data) = grid_and_data(dims, |i| (i % 256) as f32 / 255.0);
         data[5] = 0.5;
-        let b = BrickedData::build(dims, &data, &grid, Some(255));
+        let b = BrickedData::build(dims, &data, &grid, Narrow::Exact(255));
         assert!(matches!(b.values(), BrickValues::F32(_)));
         data[5] = f32::NAN;
-        let b = BrickedData::build(dims, &data, &grid, Some(255));
+        let b = BrickedData::build(dims, &data, &grid, Narrow::Exact(255));
         assert!(matches!(b.values(), BrickValues::F32(_)));
+        let b = BrickedData::build(dims, &data, &grid, Narrow::Round16);
+        assert!(matches!(b.values(), BrickValues::F32(_)));
+    }
+
+    #[test]
+    fn filtered_levels_round_to_16_bits() {
+        let dims = [9, 9, 9];
+        let (grid, data) = grid_and_data(dims, |i| ((i as f32) * 0.618_034).fract());
+        let b = BrickedData::build(dims, &data, &grid, Narrow::Round16);
+        let BrickValues::U16(q) = b.values() else {
+            panic!("u16 expected")
+        };
+        let worst = data
+            .iter()
+            .zip(q)
+            .map(|(&v, &q)| (q as f32 * b.scale() - v).abs())
+            .fold(0.0f32, f32::max);
+        assert!(
+            worst <= 0.5 / 65535.0 + 1e-7,
+            "worst rounding error {worst:e}"
+        );
     }
 }

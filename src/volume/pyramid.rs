@@ -12,7 +12,7 @@
 
 use std::sync::OnceLock;
 
-use super::bricked::BrickedData;
+use super::bricked::{BrickedData, Narrow};
 use super::Geometry;
 
 /// Cells per brick side.
@@ -31,21 +31,20 @@ pub struct Level {
     /// Normalized samples, x fastest; NaN = empty.
     pub data: Vec<f32>,
     pub bricks: BrickGrid,
-    /// Some(D) when every value is k / D for an integer k (level 0 of an integer volume):
-    /// the bricked copy then stores k in 8 or 16 bits.
-    denominator: Option<u32>,
+    /// How the bricked copy may store the values in fewer bits.
+    narrow: Narrow,
     /// The same samples brick by brick for the renderer, built on first use.
     bricked: OnceLock<BrickedData>,
 }
 
 impl Level {
-    fn new(dims: [usize; 3], spacing: [f64; 3], data: Vec<f32>, denominator: Option<u32>) -> Level {
+    fn new(dims: [usize; 3], spacing: [f64; 3], data: Vec<f32>, narrow: Narrow) -> Level {
         Level {
             dims,
             spacing,
             bricks: BrickGrid::build(dims, &data),
             data,
-            denominator,
+            narrow,
             bricked: OnceLock::new(),
         }
     }
@@ -59,9 +58,8 @@ impl Level {
 
     /// The samples regrouped per brick with aprons (see `bricked.rs`); built on first call.
     pub fn bricked(&self) -> &BrickedData {
-        self.bricked.get_or_init(|| {
-            BrickedData::build(self.dims, &self.data, &self.bricks, self.denominator)
-        })
+        self.bricked
+            .get_or_init(|| BrickedData::build(self.dims, &self.data, &self.bricks, self.narrow))
     }
 
     #[inline]
@@ -135,12 +133,8 @@ impl BrickGrid {
 /// Build all levels, level 0 taking ownership of `data` (whose values are k / `denominator`
 /// for integers k, when given).
 pub(super) fn build(geometry: Geometry, data: Vec<f32>, denominator: Option<u32>) -> Vec<Level> {
-    let mut levels = vec![Level::new(
-        geometry.dims,
-        geometry.spacing,
-        data,
-        denominator,
-    )];
+    let narrow = denominator.map_or(Narrow::No, Narrow::Exact);
+    let mut levels = vec![Level::new(geometry.dims, geometry.spacing, data, narrow)];
     loop {
         let prev = levels.last().expect("level 0 exists");
         if prev.dims.iter().all(|&d| d <= MIN_LEVEL_POINTS) {
@@ -165,7 +159,7 @@ pub(super) fn build(geometry: Geometry, data: Vec<f32>, denominator: Option<u32>
             }
         }
         let cur = cur.into_owned();
-        levels.push(Level::new(dims, spacing, cur, None));
+        levels.push(Level::new(dims, spacing, cur, Narrow::Round16));
     }
     levels
 }
