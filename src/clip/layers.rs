@@ -267,8 +267,14 @@ const CHUNK: usize = 8192;
 
 /// Apply the activation in place.
 pub fn activation_forward(act: Activation, x: &mut [f32]) {
-    x.par_chunks_mut(CHUNK)
-        .for_each(|c| c.iter_mut().for_each(|v| *v = act_value(act, *v)));
+    x.par_chunks_mut(CHUNK).for_each(|c| {
+        #[cfg(target_arch = "x86_64")]
+        if avx2_fma() {
+            // SAFETY: the CPU has AVX2 and FMA (checked just above).
+            return unsafe { act_forward_avx2(act, c) };
+        }
+        act_forward_chunk(act, c)
+    });
 }
 
 /// `dy ← dy · act'(pre)` in place, `pre` being the activation's input.
@@ -276,13 +282,54 @@ pub fn activation_backward(act: Activation, pre: &[f32], dy: &mut [f32]) {
     dy.par_chunks_mut(CHUNK)
         .zip(pre.par_chunks(CHUNK))
         .for_each(|(g, p)| {
-            g.iter_mut()
-                .zip(p)
-                .for_each(|(g, &x)| *g *= act_slope(act, x))
+            #[cfg(target_arch = "x86_64")]
+            if avx2_fma() {
+                // SAFETY: the CPU has AVX2 and FMA (checked just above).
+                return unsafe { act_backward_avx2(act, p, g) };
+            }
+            act_backward_chunk(act, p, g)
         });
 }
 
-#[inline]
+// The activation loops are compiled twice: for the baseline target (SSE2, 4 lanes) and with
+// AVX2 (8 lanes), chosen at run time; both do the same operations per element (no FMA
+// contraction in Rust), so results are identical. The AVX2 copy halved these loops, 4 % of the
+// image pass once the GEMMs had packed weights.
+#[inline(always)]
+fn act_forward_chunk(act: Activation, c: &mut [f32]) {
+    // Plain indexed loops: iterator adapters (zip's fold) were not inlined into the AVX2 copy.
+    for v in c.iter_mut() {
+        *v = act_value(act, *v);
+    }
+}
+
+#[inline(always)]
+fn act_backward_chunk(act: Activation, pre: &[f32], g: &mut [f32]) {
+    let n = g.len().min(pre.len());
+    let (g, pre) = (&mut g[..n], &pre[..n]);
+    for i in 0..n {
+        g[i] *= act_slope(act, pre[i]);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+fn avx2_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn act_forward_avx2(act: Activation, c: &mut [f32]) {
+    act_forward_chunk(act, c)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn act_backward_avx2(act: Activation, pre: &[f32], g: &mut [f32]) {
+    act_backward_chunk(act, pre, g)
+}
+
+#[inline(always)]
 fn act_value(act: Activation, x: f32) -> f32 {
     match act {
         Activation::QuickGelu => x * sigmoid(1.702 * x),
@@ -294,7 +341,7 @@ fn act_value(act: Activation, x: f32) -> f32 {
     }
 }
 
-#[inline]
+#[inline(always)]
 fn act_slope(act: Activation, x: f32) -> f32 {
     match act {
         Activation::QuickGelu => {
@@ -317,7 +364,7 @@ fn act_slope(act: Activation, x: f32) -> f32 {
 
 /// Logistic function, finite for any input, written without branches so the activation
 /// loops vectorise.
-#[inline]
+#[inline(always)]
 fn sigmoid(z: f32) -> f32 {
     1.0 / (1.0 + fast_exp(-z))
 }
@@ -327,7 +374,7 @@ fn sigmoid(z: f32) -> f32 {
 /// 5 % of the whole benchmark profile (quick_gelu forward and backward, softmax).
 /// e^x = 2^n · e^g with n = round(x log2 e) and g = x − n ln 2 ∈ [−0.347, 0.347], e^g by its
 /// Taylor series to g⁶ (remainder g⁷/7! < 1.3e-7).
-#[inline]
+#[inline(always)]
 pub fn fast_exp(x: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     // ln 2 = HI + LO with HI = 355/512 (9 significant bits, so n·HI is exact in f32), the
@@ -415,6 +462,33 @@ mod tests {
         let mut g = vec![1.0; 4];
         activation_backward(Activation::QuickGelu, &pre, &mut g);
         assert!(big.iter().chain(&g).all(|v| v.is_finite()));
+    }
+
+    /// The run-time-dispatched (AVX2 where available) activation loops give the same bits as
+    /// the baseline copies, including the scalar remainder of a length that is not a multiple
+    /// of 8.
+    #[test]
+    fn activation_copies_agree_bit_for_bit() {
+        let xs: Vec<f32> = (0..20_003)
+            .map(|i| (i as f32 - 10_000.0) * 1.3e-3)
+            .collect();
+        for act in [
+            Activation::QuickGelu,
+            Activation::Gelu,
+            Activation::GeluTanh,
+        ] {
+            let (mut fast, mut base) = (xs.clone(), xs.clone());
+            activation_forward(act, &mut fast);
+            act_forward_chunk(act, &mut base);
+            assert!(fast
+                .iter()
+                .zip(&base)
+                .all(|(a, b)| a.to_bits() == b.to_bits()));
+            let (mut gf, mut gb) = (vec![0.7f32; xs.len()], vec![0.7f32; xs.len()]);
+            activation_backward(act, &xs, &mut gf);
+            act_backward_chunk(act, &xs, &mut gb);
+            assert!(gf.iter().zip(&gb).all(|(a, b)| a.to_bits() == b.to_bits()));
+        }
     }
 
     #[test]
