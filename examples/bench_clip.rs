@@ -312,6 +312,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         + 2.0 * b * gp * 3072.0 * d;
     let att_f = 4.0 * b * n * n * d * (l - 1.0) + 4.0 * b * n * d;
     let flops = 2.0 * lin + att_f + 2.0 * att_f;
+    // The machine is shared: measure the peak again now and compare the image pass with the
+    // higher of the two measurements (the conservative choice; both are printed).
+    let peak_after = if image_only {
+        f64::NAN
+    } else {
+        gemm_gflops(2048, 2048, 2048, false, 3).max(gemm_gflops(1536, 1536, 1536, false, 3))
+    };
+    let img_peak = peak.max(peak_after);
+    if !image_only {
+        println!(
+            "GEMM peak again after the image runs: {peak_after:.0} GFLOPS; image % below is of \
+             the higher, {img_peak:.0}"
+        );
+    }
     let names = [
         format!("{engine:?} engine"),
         format!("{other:?} engine, for comparison"),
@@ -331,7 +345,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
              CPU {img_cpu:.3} s per run → idle estimate {:.3} s",
             flops / 1e9,
             flops / tb / 1e9,
-            100.0 * flops / tb / 1e9 / peak,
+            100.0 * flops / tb / 1e9 / img_peak,
             img_cpu / threads as f64
         );
     }
