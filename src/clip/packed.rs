@@ -9,7 +9,10 @@
 //! packed is used for only 150 multiply-adds. The weights never change, so here each one is
 //! packed twice at load — `Wᵀ` for the forward `Y = X · Wᵀ` and `W` for the backward
 //! `dX = dY · W` — and a call only packs its activation operand (m × k, m = 150 rows, small).
-//! Before/after numbers are in the commit that made this the default on such machines.
+//! Measured with `bench_clip --reps 5`, both engines interleaved in one run on that machine
+//! (shared, GEMM peak 165–172 GFLOPS in the run): image forward + backward 0.379 s with the
+//! `gemm` crate (76 % of peak, 0.740 CPU s) against 0.327 s here (89 %, 0.652 CPU s); with
+//! one thread this micro-kernel runs at 85–94 GFLOPS, level with or above `gemm`'s 2048³.
 //!
 //! Blocking (BLIS-style, one level since m is small): the micro-kernel computes a 6 × 16 tile
 //! of C in 12 ymm accumulators from a 6-row panel of packed A (`[kc][6]`) and a 16-column panel
