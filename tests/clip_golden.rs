@@ -6,6 +6,7 @@
 use std::path::Path;
 
 use serde::Deserialize;
+use t2tf::clip::packed::{with_engine, Engine};
 use t2tf::clip::{cosine, cosine_grad, Clip};
 use t2tf::image::Image;
 
@@ -53,8 +54,16 @@ fn to_image(nested: &[Vec<Vec<f32>>]) -> Image {
     }
 }
 
-fn check_variant(name: &str) {
-    let dir = format!("tests/fixtures/clip/{name}");
+/// Both GEMM engines (packed weights + own kernel, and the `gemm` crate) must reach parity.
+fn check_variant(variant: &str) {
+    for engine in [Engine::Packed, Engine::Crate] {
+        with_engine(engine, || check_engine(variant, engine));
+    }
+}
+
+fn check_engine(variant: &str, engine: Engine) {
+    let name = format!("{variant} ({engine:?})");
+    let dir = format!("tests/fixtures/clip/{variant}");
     let golden: Golden =
         serde_json::from_str(&std::fs::read_to_string(format!("{dir}/golden.json")).unwrap())
             .unwrap();

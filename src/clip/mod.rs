@@ -10,7 +10,9 @@
 //! `layers` (Linear, LayerNorm, activations), `attention` (CLIPAttention), `encoder`
 //! (CLIPEncoderLayer), `tower` (CLIPEncoder), `text` (CLIPTextTransformer), `vision`
 //! (CLIPVisionTransformer), `load` (files and the Hugging Face cache), `preprocess`
-//! (CLIPImageProcessor's resize + crop), `similarity` (cosine and softmax).
+//! (CLIPImageProcessor's resize + crop), `similarity` (cosine and softmax); products by
+//! `packed` (weights packed at load, own AVX2 + FMA kernel, where that is the faster engine) or
+//! `matmul` (the `gemm` crate: AVX-512 machines, attention's per-head products).
 //!
 //! ```no_run
 //! # fn main() -> Result<(), t2tf::clip::ClipError> {
@@ -31,6 +33,7 @@ mod encoder;
 mod layers;
 pub mod load;
 pub mod matmul;
+pub mod packed;
 mod preprocess;
 mod similarity;
 mod source;
