@@ -333,75 +333,22 @@ mod tests {
                 };
                 for n in (0..ray.segments()).step_by(CHUNK) {
                     let (mut fast, mut slow) = (Chunk::default(), Chunk::default());
-                    let d = 1.0 / 20.0;
-                    match grid.values {
-                        BrickValues::U8(x) => {
-                            interpolate_classify(
-                                true,
-                                &grid,
-                                x,
-                                &ray,
-                                &lut.entries,
-                                n,
-                                d,
-                                &mut fast,
-                            );
-                            interpolate_classify(
-                                false,
-                                &grid,
-                                x,
-                                &ray,
-                                &lut.entries,
-                                n,
-                                d,
-                                &mut slow,
-                            );
+                    let both = |simd: bool, out: &mut Chunk| {
+                        let (e, d) = (&lut.entries, 1.0 / 20.0);
+                        match grid.values {
+                            BrickValues::U8(x) => {
+                                interpolate_classify(simd, &grid, x, &ray, e, n, d, out)
+                            }
+                            BrickValues::U16(x) => {
+                                interpolate_classify(simd, &grid, x, &ray, e, n, d, out)
+                            }
+                            BrickValues::F32(x) => {
+                                interpolate_classify(simd, &grid, x, &ray, e, n, d, out)
+                            }
                         }
-                        BrickValues::U16(x) => {
-                            interpolate_classify(
-                                true,
-                                &grid,
-                                x,
-                                &ray,
-                                &lut.entries,
-                                n,
-                                d,
-                                &mut fast,
-                            );
-                            interpolate_classify(
-                                false,
-                                &grid,
-                                x,
-                                &ray,
-                                &lut.entries,
-                                n,
-                                d,
-                                &mut slow,
-                            );
-                        }
-                        BrickValues::F32(x) => {
-                            interpolate_classify(
-                                true,
-                                &grid,
-                                x,
-                                &ray,
-                                &lut.entries,
-                                n,
-                                d,
-                                &mut fast,
-                            );
-                            interpolate_classify(
-                                false,
-                                &grid,
-                                x,
-                                &ray,
-                                &lut.entries,
-                                n,
-                                d,
-                                &mut slow,
-                            );
-                        }
-                    }
+                    };
+                    both(true, &mut fast);
+                    both(false, &mut slow);
                     for i in 0..CHUNK {
                         // NaN samples: both NaN (payloads may differ), the rest equal bits.
                         assert_eq!(fast.v[i].is_nan(), slow.v[i].is_nan());

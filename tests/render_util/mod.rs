@@ -35,24 +35,8 @@ pub fn load_u8(name: &str, dims: [usize; 3]) -> Volume {
     .expect("valid volume")
 }
 
-/// A sub-box of a uint8 raw volume as a new volume.
-pub fn crop_u8(name: &str, dims: [usize; 3], lo: [usize; 3], size: [usize; 3]) -> Volume {
-    let path = shared_volume(name);
-    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut vals = Vec::with_capacity(size.iter().product());
-    for k in 0..size[2] {
-        for j in 0..size[1] {
-            for i in 0..size[0] {
-                let (x, y, z) = (lo[0] + i, lo[1] + j, lo[2] + k);
-                vals.push(bytes[x + dims[0] * (y + dims[1] * z)] as f64);
-            }
-        }
-    }
-    volume_from(size, [1.0; 3], vals)
-}
-
-/// The same sub-box, kept as uint8 (so the renderer stores it in 8 bits, volume::bricked).
-pub fn crop_u8_typed(name: &str, dims: [usize; 3], lo: [usize; 3], size: [usize; 3]) -> Volume {
+/// The values of a sub-box of a uint8 raw volume, x fastest.
+fn crop_bytes(name: &str, dims: [usize; 3], lo: [usize; 3], size: [usize; 3]) -> Vec<u8> {
     let path = shared_volume(name);
     let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let mut vals = Vec::with_capacity(size.iter().product());
@@ -64,12 +48,27 @@ pub fn crop_u8_typed(name: &str, dims: [usize; 3], lo: [usize; 3], size: [usize;
             }
         }
     }
+    vals
+}
+
+/// A sub-box of a uint8 raw volume as a new (float) volume.
+pub fn crop_u8(name: &str, dims: [usize; 3], lo: [usize; 3], size: [usize; 3]) -> Volume {
+    let vals = crop_bytes(name, dims, lo, size);
+    volume_from(size, [1.0; 3], vals.into_iter().map(f64::from).collect())
+}
+
+/// The same sub-box, kept as uint8 (so the renderer stores it in 8 bits, volume::bricked).
+pub fn crop_u8_typed(name: &str, dims: [usize; 3], lo: [usize; 3], size: [usize; 3]) -> Volume {
     let g = Geometry {
         dims: size,
         spacing: [1.0; 3],
         origin: [-3.0, 1.0, 2.0],
     };
-    let buffer = TypedBuffer::new(ScalarType::U8, ByteOrder::Little, vals);
+    let buffer = TypedBuffer::new(
+        ScalarType::U8,
+        ByteOrder::Little,
+        crop_bytes(name, dims, lo, size),
+    );
     Volume::from_buffer(Path::new("crop"), g, &buffer).unwrap()
 }
 
