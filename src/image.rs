@@ -117,18 +117,12 @@ pub fn resize_bilinear(
     (nw, nh): (usize, usize),
 ) -> Vec<f32> {
     assert_eq!(src.len(), w * h * channels, "resize_bilinear: source size");
-    let (tx, ty) = (taps(w, nw), taps(h, nh));
     let mut out = vec![0.0f32; nw * nh * channels];
-    for (y, &(y0, y1, fy)) in ty.iter().enumerate() {
-        for (x, &(x0, x1, fx)) in tx.iter().enumerate() {
-            for c in 0..channels {
-                let at = |xx: usize, yy: usize| src[(yy * w + xx) * channels + c];
-                let top = at(x0, y0) + fx * (at(x1, y0) - at(x0, y0));
-                let bottom = at(x0, y1) + fx * (at(x1, y1) - at(x0, y1));
-                out[(y * nw + x) * channels + c] = top + fy * (bottom - top);
-            }
+    for_each_corner((w, h), (nw, nh), |o, s, weight| {
+        for c in 0..channels {
+            out[o * channels + c] += weight * src[s * channels + c];
         }
-    }
+    });
     out
 }
 
@@ -145,22 +139,32 @@ pub fn resize_bilinear_adjoint(
         nw * nh * channels,
         "resize_bilinear_adjoint: gradient size"
     );
-    let (tx, ty) = (taps(w, nw), taps(h, nh));
     let mut out = vec![0.0f32; w * h * channels];
+    for_each_corner((w, h), (nw, nh), |o, s, weight| {
+        for c in 0..channels {
+            out[s * channels + c] += weight * d[o * channels + c];
+        }
+    });
+    out
+}
+
+/// Every (output pixel, source pixel, weight) term of bilinear resampling from `w`×`h` to
+/// `nw`×`nh`: the four corners around each output pixel's source position.
+fn for_each_corner(
+    (w, h): (usize, usize),
+    (nw, nh): (usize, usize),
+    mut term: impl FnMut(usize, usize, f32),
+) {
+    let (tx, ty) = (taps(w, nw), taps(h, nh));
     for (y, &(y0, y1, fy)) in ty.iter().enumerate() {
         for (x, &(x0, x1, fx)) in tx.iter().enumerate() {
-            for c in 0..channels {
-                let g = d[(y * nw + x) * channels + c];
-                let (top, bottom) = (g * (1.0 - fy), g * fy);
-                let mut add = |xx: usize, yy: usize, v: f32| out[(yy * w + xx) * channels + c] += v;
-                add(x0, y0, top * (1.0 - fx));
-                add(x1, y0, top * fx);
-                add(x0, y1, bottom * (1.0 - fx));
-                add(x1, y1, bottom * fx);
-            }
+            let o = y * nw + x;
+            term(o, y0 * w + x0, (1.0 - fy) * (1.0 - fx));
+            term(o, y0 * w + x1, (1.0 - fy) * fx);
+            term(o, y1 * w + x0, fy * (1.0 - fx));
+            term(o, y1 * w + x1, fy * fx);
         }
     }
-    out
 }
 
 /// Per output index along one axis of `n` → `nn` points: (lower source, upper source, weight

@@ -38,13 +38,8 @@ impl<'a> Grid<'a> {
         // Every index `trilinear` computes is below (number of bricks) · BRICK_VALUES, which
         // must fit in i32 (the index arithmetic is 32-bit for speed, and AVX2 gathers take
         // signed 32-bit indices: 2³¹ values per level).
-        let len = match bricked.values() {
-            BrickValues::U8(v) => v.len(),
-            BrickValues::U16(v) => v.len(),
-            BrickValues::F32(v) => v.len(),
-        };
         assert!(
-            len <= i32::MAX as usize,
+            bricked.values().len() <= i32::MAX as usize,
             "level too large for 32-bit brick indices"
         );
         Grid {
@@ -64,8 +59,8 @@ impl Voxel for u8 {}
 impl Voxel for u16 {}
 impl Voxel for f32 {}
 
-/// A ray in a level's index space, clipped to the box: position `a + s * b` for `s` in
-/// [0, length], `s` in world units (so `b` is the world direction divided by the spacing).
+/// A ray in a level's index space, clipped to the box at `a`: sample n sits at `a + u · bd`
+/// with u = n + jitter (u = s / δ, s the world distance from the entry point).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Ray {
     pub(super) a: [f32; 3],
@@ -81,6 +76,14 @@ pub(crate) struct Ray {
     pub(super) jitter: f32,
 }
 
+impl Ray {
+    /// Number of segments (and samples) of the ray.
+    #[cfg(test)]
+    pub(crate) fn segments(&self) -> u32 {
+        self.segments
+    }
+}
+
 /// One view's box in a level's index space, with what every ray's clipping shares.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct BoxFrame {
@@ -91,14 +94,6 @@ pub(crate) struct BoxFrame {
     hi: DVec3,
     delta: f64,
     inv_delta: f64,
-}
-
-impl Ray {
-    /// Number of segments (and samples) of the ray.
-    #[cfg(test)]
-    pub(crate) fn segments(&self) -> u32 {
-        self.segments
-    }
 }
 
 impl BoxFrame {
@@ -243,7 +238,7 @@ struct Compositor<'a, 'p, T, F> {
 }
 
 /// A sample's value through the LUT.
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Copy)]
 struct Classified {
     /// LUT entry below the value and the weight of the entry above.
     j: u32,
@@ -393,16 +388,7 @@ impl<T: Voxel, F: FnMut(&Sample)> Compositor<'_, '_, T, F> {
         let mut k = Chunk::default();
         let mut n = n0;
         while n < n1 {
-            simd::interpolate_classify(
-                p.simd,
-                &p.grid,
-                self.data,
-                ray,
-                &p.lut.entries,
-                n,
-                dn,
-                &mut k,
-            );
+            simd::interpolate_classify(p, self.data, ray, n, dn, &mut k);
             for i in 0..((n1 - n) as usize).min(CHUNK) {
                 self.composite(k.get(i), 1, dn)?;
             }
@@ -443,15 +429,15 @@ impl Chunk {
 /// Samples n … n + CHUNK − 1 of `ray`, interpolated and classified in scalar code (what
 /// `simd` does with AVX2, operation for operation).
 #[inline(always)]
-pub(super) fn lerp_chunk_scalar<T: Voxel>(
-    g: &Grid,
+pub(super) fn interpolate_classify_scalar<T: Voxel>(
+    p: &MarchParams,
     d: &[T],
     ray: &Ray,
-    lut: &[[f32; 4]],
     n: u32,
     delta_norm: f32,
     out: &mut Chunk,
 ) {
+    let (g, lut) = (&p.grid, &p.lut.entries[..]);
     let (a, bd, jit) = (ray.a, ray.bd, ray.jitter);
     for i in 0..CHUNK {
         let u = (n + i as u32) as f32 + jit;
@@ -478,14 +464,26 @@ fn lerp(a: f32, b: f32, w: f32) -> f32 {
     a + w * (b - a)
 }
 
+/// Index coordinate `p` on axis `ax` clamped into the box [0, dims − 1] (max/min: the
+/// non-NaN operand, the same operations as the AVX2 path).
+#[inline(always)]
+fn clamp_coord(g: &Grid, p: f32, ax: usize) -> f32 {
+    p.max(0.0).min(g.max_coord[ax])
+}
+
+/// The cell holding the clamped coordinate `p` (from [`clamp_coord`]) on axis `ax`.
+#[inline(always)]
+fn cell_of_clamped(g: &Grid, p: f32, ax: usize) -> u32 {
+    // SAFETY: p ∈ [0, dims − 1] and not NaN (`clamp_coord`), so the conversion is in range.
+    // Unchecked because the checked `as` costs a few instructions per axis in the innermost
+    // loop.
+    unsafe { p.to_int_unchecked::<u32>() }.min(g.max_cell[ax])
+}
+
 /// The cell holding index coordinate `p` on axis `ax`, clamped into the grid.
 #[inline(always)]
 fn cell(g: &Grid, p: f32, ax: usize) -> u32 {
-    let p = p.max(0.0).min(g.max_coord[ax]);
-    // SAFETY: p ∈ [0, dims − 1] (max/min return the non-NaN operand), so the conversion is in
-    // range. Unchecked because the checked `as` costs a few instructions per axis in the
-    // innermost loop.
-    unsafe { p.to_int_unchecked::<u32>() }.min(g.max_cell[ax])
+    cell_of_clamped(g, clamp_coord(g, p, ax), ax)
 }
 
 /// The trilinear sample of `d` (the grid's values) at index position (x, y, z), clamped into
@@ -496,11 +494,15 @@ fn trilinear<T: Voxel>(g: &Grid, d: &[T], x: f32, y: f32, z: f32) -> f32 {
     const SHIFT: u32 = BRICK_CELLS.trailing_zeros();
     const MASK: u32 = BRICK_CELLS as u32 - 1;
     let (x, y, z) = (
-        x.max(0.0).min(g.max_coord[0]),
-        y.max(0.0).min(g.max_coord[1]),
-        z.max(0.0).min(g.max_coord[2]),
+        clamp_coord(g, x, 0),
+        clamp_coord(g, y, 1),
+        clamp_coord(g, z, 2),
     );
-    let (cx, cy, cz) = (cell(g, x, 0), cell(g, y, 1), cell(g, z, 2));
+    let (cx, cy, cz) = (
+        cell_of_clamped(g, x, 0),
+        cell_of_clamped(g, y, 1),
+        cell_of_clamped(g, z, 2),
+    );
     let (fx, fy, fz) = (x - cx as f32, y - cy as f32, z - cz as f32);
     let brick =
         (cx >> SHIFT) + g.brick_stride[0] * (cy >> SHIFT) + g.brick_stride[1] * (cz >> SHIFT);
@@ -601,8 +603,9 @@ fn walk(
 /// one that is neither empty nor uniform a walk over its bricks. An empty block's samples are
 /// skipped (sample positions do not move, so this only drops samples that are empty anyway); a
 /// uniform block's samples are all its value, exactly (a + w·0), and are composited in one
-/// step; the others are sampled one by one without further checks. The last, shorter
-/// segment's sample is taken on its own.
+/// step; the others, merged across consecutive blocks, are interpolated in chunks
+/// ([`Compositor::samples`]) without further checks. The last, shorter segment's sample is
+/// taken on its own.
 ///
 /// With `p.simd` the whole march is compiled for AVX2 (the scalar parts too: VEX encoding,
 /// `roundss` for the block boundaries' ceilings), through a `target_feature` copy.

@@ -37,7 +37,7 @@
 //! instead of 64 MiB of f32. The block walk merges consecutive non-uniform bricks into one
 //! sample range, which is interpolated and classified 8 samples at a time (AVX2 gathers where
 //! the CPU has them, `simd.rs`, bit-identical to the scalar code) before the serial
-//! compositing. A tile's rays are cast in 4 × 4 pixel groups, which cross the same bricks.
+//! compositing.
 //!
 //! Rays run in parallel over 16 × 16 tiles (rayon); LUT gradients are summed per tile and the
 //! tiles reduced in a fixed order, so the result does not depend on the thread count.
@@ -60,8 +60,6 @@ use skip::Blocks;
 
 /// Tile side in pixels (parallel work unit and gradient reduction unit).
 const TILE: usize = 16;
-/// Side of the pixel groups a tile's rays are cast in (see `View::tile_pixels`).
-const GROUP: usize = 4;
 
 /// Default step in voxels of the rendered level (see BENCHMARKS.md, "Renderer").
 pub const DEFAULT_STEP: f32 = 1.0;
@@ -190,18 +188,9 @@ impl<'a> View<'a> {
         t
     }
 
-    /// The tile's pixels in groups of `GROUP` × `GROUP`: the rays of a group are neighbours
-    /// and cross nearly the same bricks, so all but the first find them in the L2 cache (in
-    /// row order the ray below a pixel came a whole tile row earlier and found them in L3 or
-    /// memory; measured in BENCHMARKS.md).
     fn tile_pixels(&self, (tx, ty): (usize, usize)) -> impl Iterator<Item = (usize, usize)> + '_ {
         let (x1, y1) = ((tx + TILE).min(self.width), (ty + TILE).min(self.height));
-        (ty..y1).step_by(GROUP).flat_map(move |gy| {
-            (tx..x1).step_by(GROUP).flat_map(move |gx| {
-                (gy..(gy + GROUP).min(y1))
-                    .flat_map(move |py| (gx..(gx + GROUP).min(x1)).map(move |px| (px, py)))
-            })
-        })
+        (ty..y1).flat_map(move |py| (tx..x1).map(move |px| (px, py)))
     }
 }
 

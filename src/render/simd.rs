@@ -8,7 +8,7 @@
 //! fused multiply-add, the same order), so both paths give bit-identical results — a test
 //! checks it — and the result does not depend on which one the CPU takes.
 
-use super::march::{lerp_chunk_scalar, Chunk, Grid, Ray, Voxel, CHUNK};
+use super::march::{interpolate_classify_scalar, Chunk, MarchParams, Ray, Voxel, CHUNK};
 
 /// Whether this CPU can run [`interpolate_classify`].
 pub(crate) fn available() -> bool {
@@ -22,29 +22,26 @@ pub(crate) fn available() -> bool {
     }
 }
 
-/// Interpolate and classify samples n … n + 7 of `ray` into `out` (see `Chunk`); with
-/// `simd` false (or on a CPU without AVX2) through the scalar code.
+/// Interpolate and classify samples n … n + 7 of `ray` (values `d`, the grid's) into `out`
+/// (see `Chunk`); without `p.simd` through the scalar code.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn interpolate_classify<T: Voxel>(
-    simd: bool,
-    g: &Grid,
+    p: &MarchParams,
     d: &[T],
     ray: &Ray,
-    lut: &[[f32; 4]],
     n: u32,
     delta_norm: f32,
     out: &mut Chunk,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if simd {
+    if p.simd {
         // SAFETY: `simd` is only true where `available()` said the CPU has AVX2 (`View`
-        // sets it from there; tests force it off, never on).
-        unsafe { avx2::interpolate_classify(g, d, ray, lut, n, delta_norm, out) };
+        // sets it from there; tests set it from there too); `p.grid` holds `Grid`'s
+        // invariants and a `Lut` has at least two entries (`render::validate`).
+        unsafe { avx2::interpolate_classify(p, d, ray, n, delta_norm, out) };
         return;
     }
-    let _ = simd;
-    lerp_chunk_scalar(g, d, ray, lut, n, delta_norm, out);
+    interpolate_classify_scalar(p, d, ray, n, delta_norm, out);
 }
 
 /// Loading the corner pairs (i, i + 1) of 8 samples at once, per stored type.
@@ -84,9 +81,6 @@ mod avx2 {
         _mm256_add_ps(a, _mm256_mul_ps(w, _mm256_sub_ps(b, a)))
     }
 
-    /// SAFETY (callers): the CPU has AVX2; `g` satisfies `Grid`'s invariants (every index
-    /// below is then inside `g.data`, as in the scalar `trilinear`), and `lut` has at least
-    /// two entries.
     impl Gather for f32 {
         #[inline(always)]
         unsafe fn pair(ptr: *const f32, idx: __m256i, off: i32) -> (__m256, __m256) {
@@ -125,16 +119,20 @@ mod avx2 {
         }
     }
 
+    /// SAFETY (callers): the CPU has AVX2; `p.grid` satisfies `Grid`'s invariants and `d` is
+    /// its value slice (every index below is then inside `d`, as in the scalar `trilinear`,
+    /// plus `volume::bricked::PAD` for the 4-byte gathers), and the LUT has at least two
+    /// entries.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn interpolate_classify<T: Voxel>(
-        g: &Grid,
+        p: &MarchParams,
         d: &[T],
         ray: &Ray,
-        lut: &[[f32; 4]],
         n: u32,
         delta_norm: f32,
         out: &mut Chunk,
     ) {
+        let (g, lut) = (&p.grid, &p.lut.entries[..]);
         let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
         // u = (n + i) as f32 + jitter, exactly as the scalar code rounds it.
         let u = _mm256_add_ps(
@@ -261,7 +259,7 @@ mod avx2 {
 
 #[cfg(test)]
 mod tests {
-    use super::super::march::{BoxFrame, Chunk, Grid};
+    use super::super::march::{BoxFrame, Chunk, Grid, MarchParams};
     use super::super::skip;
     use super::*;
     use crate::tf::Lut;
@@ -320,7 +318,14 @@ mod tests {
                 BrickValues::F32(_) => "f32",
             });
             let blocks = skip::blocks(level, &lut, false, 0.0, false);
-            let grid = Grid::new(level, &blocks);
+            let params = |simd: bool| MarchParams {
+                grid: Grid::new(level, &blocks),
+                lut: &lut,
+                inv_l: 1.0 / 20.0,
+                stop_below: 0.0,
+                simd,
+            };
+            let (vector, scalar) = (params(true), params(false));
             let mut compared = 0;
             for k in 0..40 {
                 let a = k as f64 * 0.61;
@@ -333,22 +338,13 @@ mod tests {
                 };
                 for n in (0..ray.segments()).step_by(CHUNK) {
                     let (mut fast, mut slow) = (Chunk::default(), Chunk::default());
-                    let both = |simd: bool, out: &mut Chunk| {
-                        let (e, d) = (&lut.entries, 1.0 / 20.0);
-                        match grid.values {
-                            BrickValues::U8(x) => {
-                                interpolate_classify(simd, &grid, x, &ray, e, n, d, out)
-                            }
-                            BrickValues::U16(x) => {
-                                interpolate_classify(simd, &grid, x, &ray, e, n, d, out)
-                            }
-                            BrickValues::F32(x) => {
-                                interpolate_classify(simd, &grid, x, &ray, e, n, d, out)
-                            }
-                        }
+                    let run = |p: &MarchParams, out: &mut Chunk| match p.grid.values {
+                        BrickValues::U8(x) => interpolate_classify(p, x, &ray, n, p.inv_l, out),
+                        BrickValues::U16(x) => interpolate_classify(p, x, &ray, n, p.inv_l, out),
+                        BrickValues::F32(x) => interpolate_classify(p, x, &ray, n, p.inv_l, out),
                     };
-                    both(true, &mut fast);
-                    both(false, &mut slow);
+                    run(&vector, &mut fast);
+                    run(&scalar, &mut slow);
                     for i in 0..CHUNK {
                         // NaN samples: both NaN (payloads may differ), the rest equal bits.
                         assert_eq!(fast.v[i].is_nan(), slow.v[i].is_nan());

@@ -44,6 +44,30 @@ pub enum BrickValues<'a> {
     F32(&'a [f32]),
 }
 
+impl BrickValues<'_> {
+    /// Stored values (bricks and padding).
+    pub fn len(&self) -> usize {
+        match self {
+            BrickValues::U8(v) => v.len(),
+            BrickValues::U16(v) => v.len(),
+            BrickValues::F32(v) => v.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        match self {
+            BrickValues::U8(v) => std::mem::size_of_val(*v),
+            BrickValues::U16(v) => std::mem::size_of_val(*v),
+            BrickValues::F32(v) => std::mem::size_of_val(*v),
+        }
+    }
+}
+
 /// A level's bricks; the normalized value of stored `q` is `q · scale`.
 pub struct BrickedData {
     storage: Storage,
@@ -99,11 +123,7 @@ impl BrickedData {
     }
 
     pub fn memory_bytes(&self) -> usize {
-        match self.values() {
-            BrickValues::U8(v) => v.len(),
-            BrickValues::U16(v) => 2 * v.len(),
-            BrickValues::F32(v) => 4 * v.len(),
-        }
+        self.values().bytes()
     }
 }
 

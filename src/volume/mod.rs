@@ -16,7 +16,7 @@ mod small_int;
 mod vti;
 mod vti_blocks;
 
-pub use bricked::{BrickValues, BrickedData, BRICK_POINTS, BRICK_VALUES};
+pub use bricked::{BrickValues, BrickedData, Narrow, BRICK_POINTS, BRICK_VALUES};
 pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
 pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
@@ -208,9 +208,12 @@ impl Volume {
         // renderer's bricked copy can store k in 8 or 16 bits (volume::bricked).
         let span = norm_range[1] - norm_range[0];
         let integer = !matches!(buffer.scalar_type(), ScalarType::F32 | ScalarType::F64);
-        let denominator = (integer && span.fract() == 0.0 && (1.0..=65535.0).contains(&span))
-            .then_some(span as u32);
-        let levels = pyramid::build(geometry, data, denominator);
+        let narrow = if integer && span.fract() == 0.0 && (1.0..=65535.0).contains(&span) {
+            Narrow::Exact(span as u32)
+        } else {
+            Narrow::No
+        };
+        let levels = pyramid::build(geometry, data, narrow);
         Ok(Volume {
             geometry,
             scalar_type: buffer.scalar_type(),

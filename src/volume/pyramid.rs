@@ -130,10 +130,9 @@ impl BrickGrid {
     }
 }
 
-/// Build all levels, level 0 taking ownership of `data` (whose values are k / `denominator`
-/// for integers k, when given).
-pub(super) fn build(geometry: Geometry, data: Vec<f32>, denominator: Option<u32>) -> Vec<Level> {
-    let narrow = denominator.map_or(Narrow::No, Narrow::Exact);
+/// Build all levels, level 0 taking ownership of `data` (stored by the renderer as `narrow`
+/// says; filtered levels are [`Narrow::Round16`]).
+pub(super) fn build(geometry: Geometry, data: Vec<f32>, narrow: Narrow) -> Vec<Level> {
     let mut levels = vec![Level::new(geometry.dims, geometry.spacing, data, narrow)];
     loop {
         let prev = levels.last().expect("level 0 exists");
@@ -244,7 +243,7 @@ mod tests {
         let dims = [33, 20, 9];
         let n: usize = dims.iter().product();
         let data: Vec<f32> = (0..n).map(|i| (i % 97) as f32 / 96.0).collect();
-        let levels = build(geom(dims), data, None);
+        let levels = build(geom(dims), data, Narrow::No);
         assert!(levels.len() >= 3);
         for l in &levels {
             for a in 0..3 {
@@ -263,7 +262,7 @@ mod tests {
         let data: Vec<f32> = (0..dims.iter().product::<usize>())
             .map(|i| (i % 17) as f32 / 16.0)
             .collect();
-        let levels = build(geom(dims), data, None);
+        let levels = build(geom(dims), data, Narrow::No);
         let l1 = &levels[1];
         assert_eq!(l1.dims[0], 9);
         for i in 1..8 {
