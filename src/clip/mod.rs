@@ -28,6 +28,7 @@
 //! ```
 
 mod attention;
+mod checkpoint;
 pub mod config;
 mod encoder;
 mod layers;
