@@ -10,7 +10,7 @@ use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use hub_server::{hex, Fault, HubServer, HubSpec};
+use hub_server::{files_in, hex, Fault, HubServer, HubSpec};
 use sha2::{Digest, Sha256};
 use t2tf::hub::{cached_repos, Hub, HubError, HubSettings, RepoKind};
 
@@ -194,6 +194,24 @@ fn progress_output_does_not_disturb_a_large_download() {
         ..settings(&hub_server.endpoint(), cache.path())
     });
     assert!(read(get(&hub, REPO, "main", WEIGHTS).unwrap()) == big);
+}
+
+#[test]
+fn a_folder_can_be_served_as_a_revision() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("sub")).unwrap();
+    std::fs::write(dir.path().join(CONFIG), config()).unwrap();
+    std::fs::write(dir.path().join("sub/w.bin"), blob(500, 1)).unwrap();
+    let mut spec = HubSpec::new().lfs_threshold(256);
+    spec.repo(REPO).revision("main", files_in(dir.path()));
+    let hub_server = HubServer::start(spec);
+    let cache = tempfile::tempdir().unwrap();
+    let hub = Hub::new(settings(&hub_server.endpoint(), cache.path()));
+    assert_eq!(read(get(&hub, REPO, "main", CONFIG).unwrap()), config());
+    assert_eq!(
+        read(get(&hub, REPO, "main", "sub/w.bin").unwrap()),
+        blob(500, 1)
+    );
 }
 
 #[test]

@@ -6,6 +6,7 @@
 //! let main = spec.repo("owner/tiny").revision("main", [("config.json", b"{}".to_vec())]);
 //! spec.repo("owner/tiny").revision("refs/pr/1", [("config.json", b"{\"x\":1}".to_vec())]);
 //! spec.repo("owner/gated").gated("hf_good").revision("main", [("a.txt", b"a".to_vec())]);
+//! spec.repo("owner/clip").revision("main", files_in(Path::new("tests/fixtures/some_model")));
 //! let hub = HubServer::start(spec);
 //! // HF_ENDPOINT = hub.endpoint(); main == hub.commit("owner/tiny", "main")
 //! hub.inject("model.safetensors", Fault::CutAfter(100), 1);  // first GET stops after 100 bytes
@@ -36,6 +37,7 @@
 use std::collections::BTreeMap;
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -136,6 +138,27 @@ impl RepoSpec {
                 .map(|(c, _)| c.as_str()),
         }
     }
+}
+
+/// Every file under `dir` as (name relative to `dir` with `/`, bytes), sorted: a model folder
+/// ready for [`RepoSpec::revision`].
+pub fn files_in(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(folder) = stack.pop() {
+        for entry in std::fs::read_dir(&folder).expect("readable folder") {
+            let path = entry.expect("folder entry").path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                let name = path.strip_prefix(dir).expect("inside dir");
+                let name: Vec<_> = name.iter().map(|c| c.to_string_lossy()).collect();
+                out.push((name.join("/"), std::fs::read(&path).expect("readable file")));
+            }
+        }
+    }
+    out.sort();
+    out
 }
 
 /// A misbehaviour for requests about one file name.
