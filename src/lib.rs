@@ -9,6 +9,7 @@ pub mod camera;
 pub mod cli;
 pub mod clip;
 pub mod formats;
+pub mod hub;
 pub mod image;
 pub mod math;
 pub mod optimize;

@@ -1,0 +1,337 @@
+//! Moving a blob's bytes into the cache: into `blobs/{etag}.incomplete`, resumed with
+//! `Range: bytes=N-` when that file exists, size-checked, sha256-checked for LFS files (64-hex
+//! etag), and only then renamed to `blobs/{etag}`. A cut transfer leaves only the `.incomplete`
+//! file; a sha mismatch deletes it.
+
+use std::fs::{self, File, OpenOptions};
+use std::io::{IsTerminal, Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use indicatif::{HumanBytes, ProgressBar, ProgressStyle};
+use sha2::{Digest, Sha256};
+
+use super::http::{header, Client, Target};
+use super::HubError;
+
+/// Further tries after a transient failure (the HEAD said the file exists; the GET broke).
+const RETRIES: u32 = 2;
+/// Files below this size download without any output.
+const QUIET_BELOW: u64 = 10 << 20;
+/// Seconds between plain progress lines when stderr is not a terminal.
+const LINE_EVERY: Duration = Duration::from_secs(5);
+
+/// One blob to fetch.
+pub(crate) struct Download<'a> {
+    pub client: &'a Client,
+    pub target: &'a Target<'a>,
+    /// Where the GET goes (after the HEAD's redirects).
+    pub url: &'a str,
+    pub etag: &'a str,
+    /// The size the HEAD announced, if it did.
+    pub size: Option<u64>,
+    pub progress: bool,
+}
+
+/// Whether an etag is an LFS sha256 (and so the file's checksum).
+pub(crate) fn is_sha256(etag: &str) -> bool {
+    etag.len() == 64 && etag.bytes().all(|b| b.is_ascii_hexdigit())
+}
+
+impl Download<'_> {
+    /// Fetch into `incomplete`, check it, and rename it to `blob`.
+    pub(crate) fn run(&self, incomplete: &Path, blob: &Path) -> Result<(), HubError> {
+        if let Some(dir) = blob.parent() {
+            fs::create_dir_all(dir).map_err(|e| HubError::io(dir, e))?;
+        }
+        let mut part = Partial::open(incomplete, is_sha256(self.etag))?;
+        let mut expected = self.size;
+        if expected.is_some_and(|n| part.len > n) {
+            part.restart()?;
+        }
+        let mut progress = Progress::new(self.progress, self.target.file, expected);
+        let mut tries = 0;
+        while expected != Some(part.len) {
+            match self.fetch(&mut part, &mut expected, &mut progress) {
+                Ok(()) => break,
+                Err(e) if e.is_transient() && tries < RETRIES => {
+                    tries += 1;
+                    std::thread::sleep(Duration::from_millis(300 * u64::from(tries)));
+                }
+                Err(e) => {
+                    progress.finish(false);
+                    return Err(e);
+                }
+            }
+        }
+        progress.finish(true);
+        let got = part.finish()?;
+        if let Some(got) = got.filter(|g| !g.eq_ignore_ascii_case(self.etag)) {
+            fs::remove_file(incomplete).map_err(|e| HubError::io(incomplete, e))?;
+            return Err(HubError::Integrity {
+                file: self.target.file.to_string(),
+                url: self.url.to_string(),
+                expected: self.etag.to_string(),
+                got,
+            });
+        }
+        fs::rename(incomplete, blob).map_err(|e| HubError::io(blob, e))
+    }
+
+    /// One GET from `part.len` on; Ok when the body ended with the announced size.
+    fn fetch(
+        &self,
+        part: &mut Partial,
+        expected: &mut Option<u64>,
+        progress: &mut Progress,
+    ) -> Result<(), HubError> {
+        let response = self.client.get(self.url, part.len, self.target)?;
+        let total = match response.status().as_u16() {
+            206 => {
+                let range = header(&response, "content-range").unwrap_or_default();
+                match parse_content_range(&range) {
+                    Some((start, total)) if start == part.len => total,
+                    _ => {
+                        part.restart()?;
+                        return Err(self.cut(format!("bad Content-Range {range:?} for a resume")));
+                    }
+                }
+            }
+            200 => {
+                // The server ignored the Range: its body starts at byte 0.
+                part.restart()?;
+                header(&response, "content-length").and_then(|s| s.trim().parse().ok())
+            }
+            _ => {
+                // 416: the partial file does not fit the blob any more.
+                part.restart()?;
+                return Err(self.cut("the server refused to resume; starting over".into()));
+            }
+        };
+        if expected.is_none() {
+            *expected = total;
+        }
+        progress.set(part.len, *expected);
+        let mut body = response.into_body().into_reader();
+        let mut buf = vec![0u8; 256 << 10];
+        loop {
+            let n = match body.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => {
+                    return Err(
+                        self.cut(format!("{e} after {} bytes; run again to resume", part.len))
+                    )
+                }
+            };
+            part.append(&buf[..n])?;
+            progress.set(part.len, *expected);
+            if expected.is_some_and(|want| part.len > want) {
+                part.restart()?;
+                return Err(HubError::BadResponse {
+                    url: self.url.to_string(),
+                    reason: format!("more bytes than the {} announced", expected.unwrap_or(0)),
+                });
+            }
+        }
+        match *expected {
+            Some(want) if part.len != want => Err(self.cut(format!(
+                "connection closed after {} of {want} bytes; run again to resume",
+                part.len
+            ))),
+            _ => Ok(()),
+        }
+    }
+
+    /// A transfer that broke off (transient: retried, then reported as a network error).
+    fn cut(&self, reason: String) -> HubError {
+        HubError::Network {
+            repo: self.target.repo.to_string(),
+            file: self.target.file.to_string(),
+            url: self.url.to_string(),
+            reason,
+        }
+    }
+}
+
+/// `bytes START-END/TOTAL` → (START, TOTAL if known).
+fn parse_content_range(value: &str) -> Option<(u64, Option<u64>)> {
+    let rest = value.trim().strip_prefix("bytes")?.trim_start();
+    let (range, total) = rest.split_once('/')?;
+    let start = range.split_once('-')?.0.trim().parse().ok()?;
+    Some((start, total.trim().parse().ok()))
+}
+
+/// The `.incomplete` file and, for LFS files, the sha256 of what it holds so far.
+struct Partial {
+    path: PathBuf,
+    file: File,
+    len: u64,
+    hasher: Option<Sha256>,
+}
+
+impl Partial {
+    /// Open (or create) the partial file; when hashing, hash what an earlier run left.
+    fn open(path: &Path, hash: bool) -> Result<Partial, HubError> {
+        let io = |e| HubError::io(path, e);
+        let mut file = OpenOptions::new()
+            .read(true)
+            .append(true)
+            .create(true)
+            .open(path)
+            .map_err(io)?;
+        let mut hasher = hash.then(Sha256::new);
+        let len = match hasher.as_mut() {
+            Some(h) => std::io::copy(&mut file, h).map_err(io)?,
+            None => file.metadata().map_err(io)?.len(),
+        };
+        Ok(Partial {
+            path: path.to_path_buf(),
+            file,
+            len,
+            hasher,
+        })
+    }
+
+    fn append(&mut self, bytes: &[u8]) -> Result<(), HubError> {
+        self.file
+            .write_all(bytes)
+            .map_err(|e| HubError::io(&self.path, e))?;
+        if let Some(h) = self.hasher.as_mut() {
+            h.update(bytes);
+        }
+        self.len += bytes.len() as u64;
+        Ok(())
+    }
+
+    fn restart(&mut self) -> Result<(), HubError> {
+        self.file
+            .set_len(0)
+            .map_err(|e| HubError::io(&self.path, e))?;
+        self.len = 0;
+        if self.hasher.is_some() {
+            self.hasher = Some(Sha256::new());
+        }
+        Ok(())
+    }
+
+    /// Flush to disk; the sha256 (hex) when hashing.
+    fn finish(self) -> Result<Option<String>, HubError> {
+        self.file
+            .sync_all()
+            .map_err(|e| HubError::io(&self.path, e))?;
+        Ok(self
+            .hasher
+            .map(|h| h.finalize().iter().map(|b| format!("{b:02x}")).collect()))
+    }
+}
+
+/// Progress on stderr: a bar on a terminal, a line every few seconds otherwise, nothing for
+/// small files.
+enum Progress {
+    Silent,
+    Bar(ProgressBar),
+    Lines {
+        file: String,
+        last: Instant,
+        done: u64,
+    },
+}
+
+impl Progress {
+    fn new(enabled: bool, file: &str, total: Option<u64>) -> Progress {
+        if !enabled || total.is_some_and(|t| t < QUIET_BELOW) {
+            return Progress::Silent;
+        }
+        if std::io::stderr().is_terminal() {
+            let bar = ProgressBar::new(total.unwrap_or(0));
+            if let Ok(style) = ProgressStyle::with_template(
+                "{msg} [{bar:30}] {bytes}/{total_bytes} {bytes_per_sec} {eta}",
+            ) {
+                bar.set_style(style.progress_chars("=> "));
+            }
+            bar.set_message(file.to_string());
+            return Progress::Bar(bar);
+        }
+        let size = total.map_or("unknown size".into(), |t| HumanBytes(t).to_string());
+        eprintln!("downloading {file} ({size})");
+        Progress::Lines {
+            file: file.to_string(),
+            last: Instant::now(),
+            done: 0,
+        }
+    }
+
+    fn set(&mut self, done_now: u64, total: Option<u64>) {
+        match self {
+            Progress::Silent => {}
+            Progress::Bar(bar) => {
+                if let Some(t) = total {
+                    bar.set_length(t);
+                }
+                bar.set_position(done_now);
+            }
+            Progress::Lines { file, last, done } => {
+                *done = done_now;
+                if last.elapsed() >= LINE_EVERY {
+                    *last = Instant::now();
+                    let of = total.map_or(String::new(), |t| format!(" of {}", HumanBytes(t)));
+                    eprintln!("{file}: {}{of}", HumanBytes(done_now));
+                }
+            }
+        }
+    }
+
+    fn finish(&mut self, ok: bool) {
+        match self {
+            Progress::Silent => {}
+            Progress::Bar(bar) if ok => bar.finish(),
+            Progress::Bar(bar) => bar.abandon(),
+            Progress::Lines { file, done, .. } => {
+                let how = if ok { "downloaded" } else { "stopped" };
+                eprintln!("{file}: {how} ({})", HumanBytes(*done));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn content_range_and_sha_etags() {
+        assert_eq!(
+            parse_content_range("bytes 10-99/100"),
+            Some((10, Some(100)))
+        );
+        assert_eq!(parse_content_range("bytes 10-99/*"), Some((10, None)));
+        assert_eq!(parse_content_range("items 1-2/3"), None);
+        assert!(is_sha256(&"a".repeat(64)));
+        assert!(!is_sha256(&"a".repeat(40)));
+    }
+
+    #[test]
+    fn partial_hash_survives_reopen_and_restart() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.incomplete");
+        let mut p = Partial::open(&path, true).unwrap();
+        p.append(b"hello ").unwrap();
+        drop(p);
+        let mut p = Partial::open(&path, true).unwrap();
+        assert_eq!(p.len, 6);
+        p.append(b"world").unwrap();
+        let want: String = Sha256::digest(b"hello world")
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        assert_eq!(p.finish().unwrap(), Some(want));
+        let mut p = Partial::open(&path, false).unwrap();
+        assert_eq!(p.len, 11);
+        p.restart().unwrap();
+        p.append(b"ab").unwrap();
+        assert_eq!(p.finish().unwrap(), None);
+        assert_eq!(fs::read(&path).unwrap(), b"ab");
+    }
+}

@@ -1,0 +1,171 @@
+//! Settings from the environment, read the way `huggingface_hub` reads them (its `constants.py`
+//! and `utils/_auth.py`), so that `t2tf` and Python share one cache, token and endpoint.
+
+use std::path::{Path, PathBuf};
+
+use super::HubSettings;
+
+/// The public Hub.
+pub const DEFAULT_ENDPOINT: &str = "https://huggingface.co";
+
+impl HubSettings {
+    /// Settings from this process's environment; see [`HubSettings::from_lookup`].
+    pub fn from_env() -> HubSettings {
+        HubSettings::from_lookup(|name| std::env::var(name).ok())
+    }
+
+    /// Settings from the variables `lookup` returns (empty values count as unset):
+    ///
+    /// - endpoint: `HF_ENDPOINT` (trailing `/` trimmed), else <https://huggingface.co>;
+    /// - cache: `HF_HUB_CACHE`, else `HUGGINGFACE_HUB_CACHE`, else `$HF_HOME/hub`, where `HF_HOME`
+    ///   defaults to `$XDG_CACHE_HOME/huggingface`, else `~/.cache/huggingface`;
+    /// - token: `HF_TOKEN`, else `HUGGING_FACE_HUB_TOKEN`, else the file `HF_TOKEN_PATH`, else
+    ///   `$HF_HOME/token` (what `huggingface-cli login` writes), trimmed;
+    /// - offline: `HF_HUB_OFFLINE` (else `TRANSFORMERS_OFFLINE`) is 1, true, yes or on;
+    /// - progress: unless `HF_HUB_DISABLE_PROGRESS_BARS` is true.
+    ///
+    /// A leading `~` in a path is the home directory (`HOME`, else `USERPROFILE`).
+    pub fn from_lookup(lookup: impl Fn(&str) -> Option<String>) -> HubSettings {
+        let var = |name: &str| lookup(name).filter(|v| !v.trim().is_empty());
+        let home = var("HOME")
+            .or_else(|| var("USERPROFILE"))
+            .map(PathBuf::from);
+        let path = |v: String| expand_home(&v, home.as_deref());
+        let hf_home = var("HF_HOME").map(path).unwrap_or_else(|| {
+            let cache = var("XDG_CACHE_HOME")
+                .map(path)
+                .unwrap_or_else(|| home.clone().unwrap_or_default().join(".cache"));
+            cache.join("huggingface")
+        });
+        let cache_dir = var("HF_HUB_CACHE")
+            .or_else(|| var("HUGGINGFACE_HUB_CACHE"))
+            .map(path)
+            .unwrap_or_else(|| hf_home.join("hub"));
+        let token_path = var("HF_TOKEN_PATH")
+            .map(path)
+            .unwrap_or_else(|| hf_home.join("token"));
+        let token = var("HF_TOKEN")
+            .or_else(|| var("HUGGING_FACE_HUB_TOKEN"))
+            .or_else(|| std::fs::read_to_string(&token_path).ok())
+            .map(|t| t.trim().to_string())
+            .filter(|t| !t.is_empty());
+        let offline = is_true(var("HF_HUB_OFFLINE").or_else(|| var("TRANSFORMERS_OFFLINE")));
+        HubSettings {
+            endpoint: var("HF_ENDPOINT")
+                .map(|e| e.trim().trim_end_matches('/').to_string())
+                .unwrap_or_else(|| DEFAULT_ENDPOINT.to_string()),
+            cache_dir,
+            token,
+            offline,
+            progress: !is_true(var("HF_HUB_DISABLE_PROGRESS_BARS")),
+        }
+    }
+}
+
+/// `huggingface_hub`'s truth values for flags.
+fn is_true(value: Option<String>) -> bool {
+    value.is_some_and(|v| {
+        matches!(
+            v.trim().to_ascii_lowercase().as_str(),
+            "1" | "true" | "yes" | "on"
+        )
+    })
+}
+
+/// `~` and `~/...` against `home` (as Python's `expanduser`); other paths unchanged.
+fn expand_home(value: &str, home: Option<&Path>) -> PathBuf {
+    match (value.strip_prefix('~'), home) {
+        (Some(""), Some(home)) => home.to_path_buf(),
+        (Some(rest), Some(home)) if rest.starts_with('/') || rest.starts_with('\\') => {
+            home.join(&rest[1..])
+        }
+        _ => PathBuf::from(value),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashMap;
+
+    fn settings(vars: &[(&str, &str)]) -> HubSettings {
+        let map: HashMap<String, String> = vars
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect();
+        HubSettings::from_lookup(|k| map.get(k).cloned())
+    }
+
+    #[test]
+    fn defaults_follow_home_and_xdg() {
+        let s = settings(&[("HOME", "/h")]);
+        assert_eq!(s.endpoint, DEFAULT_ENDPOINT);
+        assert_eq!(s.cache_dir, Path::new("/h/.cache/huggingface/hub"));
+        assert!(!s.offline && s.progress);
+        let s = settings(&[("HOME", "/h"), ("XDG_CACHE_HOME", "/x")]);
+        assert_eq!(s.cache_dir, Path::new("/x/huggingface/hub"));
+        let s = settings(&[
+            ("HOME", "/h"),
+            ("XDG_CACHE_HOME", "/x"),
+            ("HF_HOME", "~/hf"),
+        ]);
+        assert_eq!(s.cache_dir, Path::new("/h/hf/hub"));
+        let s = settings(&[("HF_HOME", "/hf"), ("HUGGINGFACE_HUB_CACHE", "/old")]);
+        assert_eq!(s.cache_dir, Path::new("/old"));
+        let s = settings(&[
+            ("HF_HOME", "/hf"),
+            ("HUGGINGFACE_HUB_CACHE", "/old"),
+            ("HF_HUB_CACHE", "/new"),
+        ]);
+        assert_eq!(s.cache_dir, Path::new("/new"));
+    }
+
+    #[test]
+    fn endpoint_offline_and_progress_flags() {
+        let s = settings(&[
+            ("HF_ENDPOINT", "http://mirror:8080/"),
+            ("HF_HUB_OFFLINE", "YES"),
+        ]);
+        assert_eq!(s.endpoint, "http://mirror:8080");
+        assert!(s.offline);
+        for (v, want) in [
+            ("1", true),
+            ("on", true),
+            ("True", true),
+            ("0", false),
+            ("no", false),
+            ("", false),
+        ] {
+            assert_eq!(settings(&[("HF_HUB_OFFLINE", v)]).offline, want, "{v}");
+        }
+        assert!(settings(&[("TRANSFORMERS_OFFLINE", "1")]).offline);
+        assert!(!settings(&[("HF_HUB_DISABLE_PROGRESS_BARS", "1")]).progress);
+    }
+
+    #[test]
+    fn token_from_env_then_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let home = dir.path().to_str().unwrap();
+        assert_eq!(settings(&[("HF_HOME", home)]).token, None);
+        std::fs::write(dir.path().join("token"), "hf_file\n").unwrap();
+        assert_eq!(
+            settings(&[("HF_HOME", home)]).token.as_deref(),
+            Some("hf_file")
+        );
+        let other = dir.path().join("other");
+        std::fs::write(&other, "  hf_other ").unwrap();
+        let s = settings(&[
+            ("HF_HOME", home),
+            ("HF_TOKEN_PATH", other.to_str().unwrap()),
+        ]);
+        assert_eq!(s.token.as_deref(), Some("hf_other"));
+        let s = settings(&[("HF_HOME", home), ("HUGGING_FACE_HUB_TOKEN", "hf_old")]);
+        assert_eq!(s.token.as_deref(), Some("hf_old"));
+        let s = settings(&[
+            ("HF_HOME", home),
+            ("HF_TOKEN", "hf_env"),
+            ("HUGGING_FACE_HUB_TOKEN", "x"),
+        ]);
+        assert_eq!(s.token.as_deref(), Some("hf_env"));
+    }
+}

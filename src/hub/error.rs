@@ -1,0 +1,142 @@
+//! What can go wrong talking to the Hub or its cache: one variant per thing the user can act on,
+//! each message one line that names the file or URL and says what to do.
+
+use std::path::PathBuf;
+
+/// Errors of [`super::HubRepo::get`] and [`super::cached_repos`].
+#[derive(Debug, thiserror::Error)]
+pub enum HubError {
+    /// The Hub could not be reached (DNS, connection, timeout, cut transfer) and the file is not
+    /// in the cache.
+    #[error(
+        "cannot download {file} of {repo} from {url} ({reason}); check the network and HF_ENDPOINT, \
+         or run `t2tf model fetch {repo}` on a machine with network and copy the cache here \
+         (HF_HUB_OFFLINE=1 then needs no network), or pass --model DIR"
+    )]
+    Network {
+        repo: String,
+        file: String,
+        url: String,
+        reason: String,
+    },
+    /// 401/403 without a token: the repo is gated or private.
+    #[error(
+        "{repo} is gated or private (HTTP {status} from {url}): set HF_TOKEN or log in with \
+         `huggingface-cli login`, after accepting its licence on {page} if it is gated"
+    )]
+    AuthRequired {
+        repo: String,
+        url: String,
+        status: u16,
+        page: String,
+    },
+    /// 401/403 although a token was sent: the token's account cannot read the repo.
+    #[error(
+        "{repo}: the token in use has no access (HTTP {status} from {url}): accept the licence on \
+         {page} with the token's account, or use another token (HF_TOKEN, `huggingface-cli login`)"
+    )]
+    AccessDenied {
+        repo: String,
+        url: String,
+        status: u16,
+        page: String,
+    },
+    /// `X-Error-Code: RepoNotFound` (the Hub also answers so for private repos it may not show).
+    #[error("repo {repo} not found (HTTP {status} from {url}): check the id; {hint}")]
+    RepoNotFound {
+        repo: String,
+        url: String,
+        status: u16,
+        hint: &'static str,
+    },
+    /// `X-Error-Code: RevisionNotFound`.
+    #[error(
+        "revision {revision:?} not found in {repo} (HTTP {status} from {url}): check the branch, tag \
+         or commit"
+    )]
+    RevisionNotFound {
+        repo: String,
+        revision: String,
+        url: String,
+        status: u16,
+    },
+    /// Any other unexpected HTTP status.
+    #[error("{url} answered HTTP {status}{detail}; try again later, or use the cache offline (HF_HUB_OFFLINE=1)")]
+    Status {
+        url: String,
+        status: u16,
+        detail: String,
+    },
+    /// The server's answer cannot be used (missing headers, redirect without `Location`, ...).
+    #[error("unexpected answer from {url}: {reason}; if HF_ENDPOINT is set, check it points to a Hugging Face Hub")]
+    BadResponse { url: String, reason: String },
+    /// A downloaded LFS file does not hash to its etag; the partial file was deleted.
+    #[error(
+        "{file} downloaded from {url} is corrupt: expected sha256 {expected}, got {got}; nothing \
+         was kept, run again to download it anew"
+    )]
+    Integrity {
+        file: String,
+        url: String,
+        expected: String,
+        got: String,
+    },
+    /// Offline and the file is not in the cache.
+    #[error(
+        "{file} of {repo} at revision {revision} is not in the Hugging Face cache {} and offline \
+         mode is on (HF_HUB_OFFLINE); run `t2tf model fetch {repo}` on a machine with network \
+         (and copy that cache here), or pass --model DIR",
+        cache.display()
+    )]
+    NotCached {
+        repo: String,
+        revision: String,
+        file: String,
+        cache: PathBuf,
+    },
+    /// A repo id, revision or file name that cannot be used as a Hub path or a cache path.
+    #[error("invalid {what} {value:?}: {reason}")]
+    InvalidName {
+        what: &'static str,
+        value: String,
+        reason: &'static str,
+    },
+    /// Reading or writing the cache failed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+impl HubError {
+    /// An I/O error on `path`.
+    pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> HubError {
+        HubError::Io {
+            path: path.into(),
+            source,
+        }
+    }
+
+    /// Worth one more try: the network, or the server saying it is busy or broken for now.
+    pub(crate) fn is_transient(&self) -> bool {
+        match self {
+            HubError::Network { .. } => true,
+            HubError::Status { status, .. } => *status == 429 || (500..600).contains(status),
+            _ => false,
+        }
+    }
+
+    /// Whether `huggingface_hub` would fall back to an already cached copy after this error:
+    /// everything but a definite "no such revision" and local problems.
+    pub(crate) fn allows_cache_fallback(&self) -> bool {
+        !matches!(
+            self,
+            HubError::RevisionNotFound { .. }
+                | HubError::Integrity { .. }
+                | HubError::InvalidName { .. }
+                | HubError::Io { .. }
+                | HubError::NotCached { .. }
+        )
+    }
+}
