@@ -13,6 +13,7 @@ pub mod hub;
 pub mod image;
 pub mod math;
 pub mod optimize;
+pub mod progress;
 pub mod render;
 pub mod tf;
 pub mod volume;

@@ -112,6 +112,7 @@ fn loaded() -> Loaded {
         },
         model: ModelInfo {
             id: "toy".into(),
+            revision: None,
             weights_sha256: Some("00".into()),
             logit_scale: 100.0,
         },

@@ -4,7 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 
-use crate::clip::{cosine, softmax_scaled, Clip, DEFAULT_MODEL};
+use super::ModelArgs;
+use crate::clip::{cosine, softmax_scaled, Clip};
 use crate::image::Image;
 
 /// Print each caption's cosine similarity to the image and CLIP's softmax probability over the
@@ -23,18 +24,13 @@ pub struct ClipScoreArgs {
     /// Caption to compare with (repeat for several).
     #[arg(long = "caption", required = true, value_name = "TEXT")]
     pub captions: Vec<String>,
-    /// Model directory (config.json, model.safetensors, tokenizer.json) or Hugging Face repo id.
-    #[arg(long, default_value = DEFAULT_MODEL, value_name = "DIR_OR_REPO")]
-    pub model: String,
-    /// tokenizer.json to use instead of the model's own.
-    #[arg(long, value_name = "PATH")]
-    pub tokenizer: Option<PathBuf>,
+    #[command(flatten)]
+    pub model: ModelArgs,
 }
 
 pub fn run(args: ClipScoreArgs) -> Result<()> {
     let image = Image::load_png(&args.image)?;
-    let clip = Clip::load_with_tokenizer(&args.model, args.tokenizer.as_deref())
-        .context("cannot load the CLIP model")?;
+    let clip = Clip::load_request(&args.model.request()).context("cannot load the CLIP model")?;
     let input = clip.preprocess(&image);
     let (img, _) = clip.encode_images(&[input])?;
     let captions: Vec<&str> = args.captions.iter().map(String::as_str).collect();

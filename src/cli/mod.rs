@@ -3,10 +3,13 @@
 mod clip_score;
 mod convert;
 mod info;
+mod model;
+mod model_args;
 pub mod optimize;
 mod render;
 mod volume_args;
 
+pub use model_args::ModelArgs;
 pub use volume_args::VolumeArgs;
 
 use clap::{Parser, Subcommand};
@@ -33,6 +36,8 @@ pub enum Command {
     ClipScore(clip_score::ClipScoreArgs),
     /// Optimize a transfer function so renderings match a text prompt.
     Optimize(optimize::OptimizeArgs),
+    /// Download CLIP models into the Hugging Face cache, or list the cached ones.
+    Model(model::ModelArgs),
 }
 
 /// Run the parsed command.
@@ -43,5 +48,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(a) => render::run(a),
         Command::ClipScore(a) => clip_score::run(a),
         Command::Optimize(a) => optimize::run(a),
+        Command::Model(a) => model::run(a),
     }
 }

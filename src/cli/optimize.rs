@@ -9,7 +9,7 @@ use std::sync::{Arc, OnceLock};
 
 use anyhow::{bail, Context, Result};
 
-use super::VolumeArgs;
+use super::{ModelArgs, VolumeArgs};
 use crate::image::Image;
 use crate::optimize::captions::{self, CacheOutcome, CaptionPool};
 use crate::optimize::driver::{self, Job, Positive, TextEncoder};
@@ -17,10 +17,8 @@ use crate::optimize::report::{ModelInfo, Report, StepLog, VolumeInfo};
 use crate::optimize::settings::{defaults, Settings};
 use crate::optimize::tf_plot::Curve;
 use crate::optimize::{ImageEncoder, Parameterization, Renderer};
+use crate::progress::{Progress, ProgressMode, StepReport};
 use crate::tf::ControlPoints;
-
-/// Default CLIP model (Hugging Face repo id).
-pub const DEFAULT_MODEL: &str = "openai/clip-vit-base-patch32";
 
 /// Optimize a transfer function so renderings of VOLUME match a text prompt.
 #[derive(clap::Args, Debug, Clone)]
@@ -50,14 +48,8 @@ pub struct OptimizeArgs {
     #[arg(long)]
     pub name: Option<String>,
 
-    /// CLIP model: Hugging Face repo id or a local folder with model.safetensors,
-    /// config.json and tokenizer.json.
-    #[arg(long, value_name = "REPO_ID|DIR", default_value = DEFAULT_MODEL)]
-    pub model: String,
-
-    /// tokenizer.json to use instead of the model's own (e.g. `../shared/data/clip/tokenizer.json`).
-    #[arg(long, value_name = "PATH")]
-    pub tokenizer: Option<PathBuf>,
+    #[command(flatten)]
+    pub model: ModelArgs,
 
     /// World axis pointing up in the views: x, y, z, -x, -y or -z (the orbit turns around it).
     #[arg(long, default_value = "z", allow_hyphen_values = true)]
@@ -132,6 +124,11 @@ pub struct OptimizeArgs {
     /// sharp): a cheaper render for a blurrier view (BENCHMARKS.md). Default: CLIP's size.
     #[arg(long, value_name = "PIXELS")]
     pub render_size: Option<usize>,
+
+    /// How progress is shown on stderr: a bar on a terminal and a line every few seconds
+    /// otherwise (auto), or one JSON object per line for programs (json).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub progress: ProgressMode,
 
     /// Worker threads; default: all cores.
     #[arg(long)]
@@ -290,17 +287,6 @@ pub fn stop_flag() -> Arc<AtomicBool> {
     .clone()
 }
 
-/// Progress bar on stderr (hidden when stderr is not a terminal): step, loss, ETA.
-fn progress_bar(steps: usize) -> indicatif::ProgressBar {
-    let bar = indicatif::ProgressBar::new(steps as u64);
-    if let Ok(style) = indicatif::ProgressStyle::with_template(
-        "{elapsed_precise} [{bar:30}] step {pos}/{len}  {msg}  ETA {eta}",
-    ) {
-        bar.set_style(style.progress_chars("=> "));
-    }
-    bar
-}
-
 /// The whole command once the volume and model are loaded: validate, run Algorithm 1 with a
 /// progress bar and Ctrl-C handling, export the TF (`export`), then write tf.png,
 /// preview.png and report.json. Returns the report.
@@ -342,13 +328,14 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
     };
     let stop = stop_flag();
     stop.store(false, Ordering::SeqCst);
-    let bar = progress_bar(settings.steps);
+    let mut progress = Progress::new(args.progress, settings.steps);
+    progress.phase("optimizing (caption embeddings are computed first if not cached)");
     let mut on_step = |log: &StepLog, _total: usize| {
-        bar.set_message(format!(
-            "loss {:.4} (clip {:.4}, p(prompt) {:.3})",
-            log.total, log.clip, log.prompt_probability
-        ));
-        bar.inc(1);
+        progress.step(&StepReport {
+            loss: log.total,
+            clip: log.clip,
+            prompt_probability: log.prompt_probability,
+        });
     };
     let finished = driver::run_job(
         &job,
@@ -360,7 +347,7 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
         &mut on_step,
     )
     .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
-    bar.finish_and_clear();
+    progress.finish();
     if finished.outcome.interrupted {
         eprintln!(
             "stopped after {} of {} steps: writing the TF of the last step",
@@ -411,6 +398,7 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
         report.outputs.len(),
         args.out.display()
     );
+    progress.done(&args.out, &report.outputs, finished.outcome.interrupted);
     Ok(report)
 }
 
@@ -432,8 +420,8 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             .context("--threads: cannot start the thread pool")?;
     }
     let volume = args.volume_args.load(&args.volume)?;
-    let files = crate::clip::load::resolve(&args.model, args.tokenizer.as_deref())?;
-    let clip = crate::clip::Clip::load_with_tokenizer(&args.model, args.tokenizer.as_deref())?;
+    let files = crate::clip::load::resolve(&args.model.request())?;
+    let clip = crate::clip::Clip::load_files(&files)?;
     if let Some(prompt) = args.prompt.as_deref() {
         // CLIP reads at most its context length; a prompt that fills it was cut (the tokenizer
         // truncates as transformers does). Say so rather than optimize for half a sentence.
@@ -444,7 +432,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             );
         }
     }
-    let weights_hash = captions::hash_file(&files.weights)?;
+    let weights_hash = captions::hash_files(&files.weights)?;
     let hex: String = weights_hash.iter().map(|b| format!("{b:02x}")).collect();
     let g = volume.geometry;
     let unit = crate::tf::default_unit_distance(&g);
@@ -473,7 +461,9 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             non_finite_voxels: volume.non_finite,
         },
         model: ModelInfo {
-            id: args.model.clone(),
+            id: args.model.model.clone(),
+            // A local folder has no revision.
+            revision: (!Path::new(&args.model.model).is_dir()).then(|| args.model.revision.clone()),
             weights_sha256: Some(hex),
             logit_scale: clip.logit_scale() as f64,
         },
@@ -553,7 +543,7 @@ mod tests {
     fn defaults_are_the_papers() {
         let a = parse(&["--prompt", "a potted tree"]).unwrap();
         assert_eq!(a.settings(), Settings::default());
-        assert_eq!(a.model, DEFAULT_MODEL);
+        assert_eq!(a.model.model, crate::clip::DEFAULT_MODEL);
         assert_eq!(a.tf_name().unwrap(), "a-potted-tree");
     }
 

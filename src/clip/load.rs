@@ -1,79 +1,312 @@
-//! Finding a model's files: a local directory, or a Hugging Face repo id resolved through the
-//! standard Hugging Face cache (`$HF_HOME/hub`, Python's layout) with `hf-hub`, downloading on a
-//! cache miss unless `HF_HUB_OFFLINE` is set (hf-hub 0.5 does not read it, so we do).
+//! Finding a model's files: a local directory, or a Hugging Face repo id at a revision, through
+//! the Hub cache shared with Python (`crate::hub`).
+//!
+//! Weights are looked for in transformers' order (`modeling_utils.PreTrainedModel.
+//! from_pretrained`): `model.safetensors`, `model.safetensors.index.json` (shards),
+//! `pytorch_model.bin`, `pytorch_model.bin.index.json`. The first that exists wins.
 
 use std::path::{Path, PathBuf};
 
-use super::ClipError;
+use serde::Deserialize;
 
-/// The default model (`--model` left out).
+use super::ClipError;
+use crate::hub::{Hub, HubError, HubRepo, HubSettings};
+
+/// The default model (`--model` left out): OpenAI's CLIP ViT-B/32, the paper's model.
+///
+/// Its `main` branch has no `model.safetensors` (the Hub answers 404; transformers then falls
+/// back to `pytorch_model.bin`), but it has had `pytorch_model.bin` (~600 MB) since 2021:
+/// public download scripts fetch `.../clip-vit-base-patch32/resolve/main/pytorch_model.bin`,
+/// and its LFS sha256 a6308213…576f appears in users' cache paths. We stay on `main` and let
+/// the weight order above find the `.bin` rather than pinning a pull-request revision
+/// (`refs/pr/15`, which candle's example uses for its safetensors): a PR ref can be closed or
+/// rewritten, while `main` is what the model's owners maintain, and a safetensors file merged
+/// into `main` later is picked up first. `--revision refs/pr/15` works as well.
 pub const DEFAULT_MODEL: &str = "openai/clip-vit-base-patch32";
 
+/// The revision used when none is given.
+pub const DEFAULT_REVISION: &str = "main";
+
 const CONFIG: &str = "config.json";
-const WEIGHTS: &str = "model.safetensors";
 const TOKENIZER: &str = "tokenizer.json";
 
-/// Paths of the three files a model needs.
+/// Weight files in the order transformers tries them; `true` for an index naming shards.
+pub const WEIGHT_FILES: [(&str, WeightFormat, bool); 4] = [
+    ("model.safetensors", WeightFormat::Safetensors, false),
+    ("model.safetensors.index.json", WeightFormat::Safetensors, true),
+    ("pytorch_model.bin", WeightFormat::PyTorch, false),
+    ("pytorch_model.bin.index.json", WeightFormat::PyTorch, true),
+];
+
+/// What the user asked for: `--model`, `--revision`, `--tokenizer`.
+#[derive(Clone, Debug)]
+pub struct ModelRequest {
+    /// A directory, or a Hugging Face repo id such as `openai/clip-vit-base-patch32`.
+    pub model: String,
+    /// Branch, tag, `refs/pr/N` or commit; only for repo ids.
+    pub revision: String,
+    /// `tokenizer.json` to use instead of the model's own.
+    pub tokenizer: Option<PathBuf>,
+}
+
+impl ModelRequest {
+    /// `model` at the default revision, with its own tokenizer.
+    pub fn new(model: &str) -> ModelRequest {
+        ModelRequest {
+            model: model.to_string(),
+            revision: DEFAULT_REVISION.to_string(),
+            tokenizer: None,
+        }
+    }
+}
+
+/// How the weights are stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WeightFormat {
+    Safetensors,
+    PyTorch,
+}
+
+/// Paths of the files a model needs.
 #[derive(Clone, Debug)]
 pub struct ModelFiles {
     pub config: PathBuf,
-    pub weights: PathBuf,
+    /// One file, or every shard an index names, in the index's order.
+    pub weights: Vec<PathBuf>,
+    pub format: WeightFormat,
     pub tokenizer: PathBuf,
 }
 
-/// Resolve `model` (a directory, or a repo id like `openai/clip-vit-base-patch32`).
-/// `tokenizer` overrides where `tokenizer.json` comes from.
-pub fn resolve(model: &str, tokenizer: Option<&Path>) -> Result<ModelFiles, ClipError> {
-    let path = Path::new(model);
+/// Resolve a request with the Hub settings of the environment (`HF_*` variables).
+pub fn resolve(req: &ModelRequest) -> Result<ModelFiles, ClipError> {
+    resolve_with(req, &Hub::new(HubSettings::from_env()))
+}
+
+/// Resolve a request; repo ids go through `hub`.
+pub fn resolve_with(req: &ModelRequest, hub: &Hub) -> Result<ModelFiles, ClipError> {
+    let path = Path::new(&req.model);
     if path.is_dir() {
-        return resolve_dir(path, tokenizer);
+        check_dir(path, req.tokenizer.is_some())?;
+        return resolve_files(&LocalDir(path), req.tokenizer.as_deref());
     }
     if path.exists() {
         return Err(ClipError::Missing(format!(
-            "{model} is a file; a model is a directory holding {CONFIG}, {WEIGHTS} and {TOKENIZER}, \
-             or a Hugging Face repo id such as {DEFAULT_MODEL}"
+            "{}: is a file; --model takes a directory holding {CONFIG}, {TOKENIZER} and the \
+             weights, or a Hugging Face repo id such as {DEFAULT_MODEL}",
+            req.model
         )));
     }
-    if !looks_like_repo_id(model) {
+    if !looks_like_repo_id(&req.model) {
         return Err(ClipError::Missing(format!(
-            "{model}: no such directory, and not a Hugging Face repo id (owner/name)"
+            "{}: no such directory, and not a Hugging Face repo id (owner/name)",
+            req.model
         )));
     }
-    let offline = std::env::var("HF_HUB_OFFLINE")
-        .map(|v| matches!(v.to_ascii_lowercase().as_str(), "1" | "true" | "yes" | "on"))
-        .unwrap_or(false);
-    resolve_repo(model, tokenizer, &hf_hub::Cache::from_env(), offline)
+    let repo = hub.repo(&req.model, &req.revision);
+    resolve_files(
+        &RepoFiles {
+            repo,
+            offline: hub.settings().offline,
+        },
+        req.tokenizer.as_deref(),
+    )
 }
 
-fn resolve_dir(dir: &Path, tokenizer: Option<&Path>) -> Result<ModelFiles, ClipError> {
-    let files = ModelFiles {
-        config: dir.join(CONFIG),
-        weights: dir.join(WEIGHTS),
-        tokenizer: tokenizer.map_or_else(|| dir.join(TOKENIZER), Path::to_path_buf),
-    };
-    let missing: Vec<String> = [&files.config, &files.weights, &files.tokenizer]
-        .iter()
-        .filter(|p| !p.is_file())
-        .map(|p| p.display().to_string())
-        .collect();
+/// Everything a model directory lacks, said at once.
+fn check_dir(dir: &Path, own_tokenizer: bool) -> Result<(), ClipError> {
+    let mut missing = Vec::new();
+    if !dir.join(CONFIG).is_file() {
+        missing.push(CONFIG.to_string());
+    }
+    if !own_tokenizer && !dir.join(TOKENIZER).is_file() {
+        missing.push(format!("{TOKENIZER} (or pass --tokenizer PATH)"));
+    }
+    if !WEIGHT_FILES.iter().any(|w| dir.join(w.0).is_file()) {
+        let names: Vec<&str> = WEIGHT_FILES.iter().map(|w| w.0).collect();
+        missing.push(format!("weights (one of {})", names.join(", ")));
+    }
     if missing.is_empty() {
-        Ok(files)
+        Ok(())
     } else {
         Err(ClipError::Missing(format!(
-            "model directory {} is incomplete: missing {} (a CLIP model directory holds {CONFIG}, \
-             {WEIGHTS} and {TOKENIZER} as on huggingface.co; --tokenizer PATH can point elsewhere \
-             for the tokenizer)",
+            "model directory {} is incomplete: missing {} (a CLIP model folder holds what \
+             transformers' CLIPModel.save_pretrained writes)",
             dir.display(),
             missing.join(", ")
         )))
     }
 }
 
-fn looks_like_repo_id(s: &str) -> bool {
+/// Where files come from: a directory or a Hub repo at a revision.
+trait FileSource {
+    /// `Ok(None)`: the source does not have this file.
+    fn get(&self, name: &str) -> Result<Option<PathBuf>, ClipError>;
+    /// `Ok(None)` also where the source cannot tell without a network (offline, not cached):
+    /// used to probe the weight files in order, keeping the error for when none is found.
+    fn probe(&self, name: &str) -> Result<Option<PathBuf>, ClipError> {
+        self.get(name)
+    }
+    /// "directory X" or "repo R at revision V", for messages.
+    fn describe(&self) -> String;
+    /// What to say when none of the weight files was found.
+    fn no_weights(&self, tried: &str) -> ClipError {
+        ClipError::Missing(format!(
+            "{} has no weights: none of {tried}",
+            self.describe()
+        ))
+    }
+}
+
+struct LocalDir<'a>(&'a Path);
+
+impl FileSource for LocalDir<'_> {
+    fn get(&self, name: &str) -> Result<Option<PathBuf>, ClipError> {
+        let p = self.0.join(name);
+        Ok(p.is_file().then_some(p))
+    }
+    fn describe(&self) -> String {
+        format!("model directory {}", self.0.display())
+    }
+}
+
+struct RepoFiles<'a> {
+    repo: HubRepo<'a>,
+    offline: bool,
+}
+
+impl FileSource for RepoFiles<'_> {
+    fn get(&self, name: &str) -> Result<Option<PathBuf>, ClipError> {
+        self.repo.get(name).map_err(hub_error)
+    }
+    fn probe(&self, name: &str) -> Result<Option<PathBuf>, ClipError> {
+        match self.repo.get(name) {
+            Err(HubError::NotCached { .. }) if self.offline => Ok(None),
+            r => r.map_err(hub_error),
+        }
+    }
+    fn describe(&self) -> String {
+        self.repo.describe()
+    }
+    fn no_weights(&self, tried: &str) -> ClipError {
+        let hint = if self.offline {
+            format!(
+                " in the Hugging Face cache {}, and offline mode is on (HF_HUB_OFFLINE): run \
+                 `t2tf model fetch` for it on a machine with network, or pass --model DIR",
+                self.repo.cache_folder().display()
+            )
+        } else {
+            String::new()
+        };
+        ClipError::Missing(format!(
+            "{} has no weights: none of {tried}{hint}",
+            self.describe()
+        ))
+    }
+}
+
+fn hub_error(e: HubError) -> ClipError {
+    ClipError::Missing(e.to_string())
+}
+
+fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<ModelFiles, ClipError> {
+    let required = |name: &str| -> Result<PathBuf, ClipError> {
+        src.get(name)?.ok_or_else(|| {
+            ClipError::Missing(format!(
+                "{} has no {name} (a CLIP model has {CONFIG}, {TOKENIZER} and its weights, as \
+                 transformers' CLIPModel saves them)",
+                src.describe()
+            ))
+        })
+    };
+    let config = required(CONFIG)?;
+    let (weights, format) = find_weights(src)?;
+    let tokenizer = match tokenizer {
+        Some(t) => t.to_path_buf(),
+        None => required(TOKENIZER).map_err(|e| {
+            ClipError::Missing(format!("{e}; --tokenizer PATH can point to a tokenizer.json"))
+        })?,
+    };
+    Ok(ModelFiles {
+        config,
+        weights,
+        format,
+        tokenizer,
+    })
+}
+
+/// The first weight file of `WEIGHT_FILES` the source has, with its shards if it is an index.
+fn find_weights(src: &dyn FileSource) -> Result<(Vec<PathBuf>, WeightFormat), ClipError> {
+    for (name, format, sharded) in WEIGHT_FILES {
+        let Some(path) = src.probe(name)? else {
+            continue;
+        };
+        if !sharded {
+            return Ok((vec![path], format));
+        }
+        let mut files = Vec::new();
+        for shard in shard_names(&path)? {
+            let p = src.get(&shard)?.ok_or_else(|| {
+                ClipError::Missing(format!(
+                    "{} names shard {shard} in {name}, but {} has no such file",
+                    path.display(),
+                    src.describe()
+                ))
+            })?;
+            files.push(p);
+        }
+        return Ok((files, format));
+    }
+    let names: Vec<&str> = WEIGHT_FILES.iter().map(|w| w.0).collect();
+    Err(src.no_weights(&names.join(", ")))
+}
+
+#[derive(Deserialize)]
+struct ShardIndex {
+    weight_map: std::collections::BTreeMap<String, String>,
+}
+
+/// The distinct shard files an index names, in first-appearance order of sorted tensor names.
+/// Shard names must be plain file names in the same folder (an index is data from the Hub).
+fn shard_names(index: &Path) -> Result<Vec<String>, ClipError> {
+    let err = |msg: String| ClipError::Weights {
+        path: index.to_path_buf(),
+        msg,
+    };
+    let text = std::fs::read_to_string(index).map_err(|e| ClipError::Io {
+        path: index.to_path_buf(),
+        source: e,
+    })?;
+    let parsed: ShardIndex = serde_json::from_str(&text)
+        .map_err(|e| err(format!("not a shard index (weight_map of tensor → file): {e}")))?;
+    let mut names: Vec<String> = Vec::new();
+    for shard in parsed.weight_map.values() {
+        let plain = !shard.is_empty()
+            && !shard.contains(['/', '\\'])
+            && shard != "."
+            && shard != "..";
+        if !plain {
+            return Err(err(format!(
+                "shard name \"{shard}\" is not a plain file name"
+            )));
+        }
+        if !names.contains(shard) {
+            names.push(shard.clone());
+        }
+    }
+    if names.is_empty() {
+        return Err(err("the weight_map names no shards".into()));
+    }
+    Ok(names)
+}
+
+/// `owner/name`, each part of letters, digits, `-`, `_` and `.`.
+pub fn looks_like_repo_id(s: &str) -> bool {
     let mut parts = s.split('/');
     let ok = |p: Option<&str>| {
         p.is_some_and(|p| {
             !p.is_empty()
+                && p != "."
+                && p != ".."
                 && p.chars()
                     .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
         })
@@ -81,122 +314,90 @@ fn looks_like_repo_id(s: &str) -> bool {
     ok(parts.next()) && ok(parts.next()) && parts.next().is_none()
 }
 
-/// Repo files from `cache`, fetching the missing ones unless `offline`.
-pub fn resolve_repo(
-    repo: &str,
-    tokenizer: Option<&Path>,
-    cache: &hf_hub::Cache,
-    offline: bool,
-) -> Result<ModelFiles, ClipError> {
-    let cached = cache.model(repo.to_string());
-    let wanted: Vec<&str> = if tokenizer.is_some() {
-        vec![CONFIG, WEIGHTS]
-    } else {
-        vec![CONFIG, WEIGHTS, TOKENIZER]
-    };
-    let mut found = Vec::new();
-    let mut missing = Vec::new();
-    for f in &wanted {
-        match cached.get(f) {
-            Some(p) => found.push(p),
-            None => missing.push(*f),
-        }
-    }
-    let where_to_put =
-        format!(
-        "download {} from https://huggingface.co/{repo} into a directory and pass --model DIR, \
-         or put them in the Hugging Face cache at {}",
-        wanted.join(", "),
-        cache.path().join(format!("models--{}", repo.replace('/', "--"))).display()
-    );
-    if !missing.is_empty() {
-        if offline {
-            return Err(ClipError::Missing(format!(
-                "{repo}: {} not in the Hugging Face cache and HF_HUB_OFFLINE is set; {where_to_put}",
-                missing.join(", ")
-            )));
-        }
-        let api = hf_hub::api::sync::ApiBuilder::from_cache(cache.clone())
-            .with_progress(true)
-            .build()
-            .map_err(|e| {
-                ClipError::Missing(format!(
-                    "{repo}: cannot start the download ({e}); {where_to_put}"
-                ))
-            })?;
-        let api_repo = api.model(repo.to_string());
-        found.clear();
-        for f in &wanted {
-            let p = api_repo.get(f).map_err(|e| {
-                ClipError::Missing(format!("{repo}: cannot fetch {f} ({e}); {where_to_put}"))
-            })?;
-            found.push(p);
-        }
-    }
-    Ok(ModelFiles {
-        config: found[0].clone(),
-        weights: found[1].clone(),
-        tokenizer: tokenizer.map_or_else(|| found[2].clone(), Path::to_path_buf),
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    #[test]
-    fn offline_cache_miss_names_files_and_places() {
-        let home = tempfile::tempdir().unwrap();
-        let cache = hf_hub::Cache::new(home.path().to_path_buf());
-        let e = resolve_repo(DEFAULT_MODEL, None, &cache, true)
-            .unwrap_err()
-            .to_string();
-        for needle in [
-            CONFIG,
-            WEIGHTS,
-            TOKENIZER,
-            "HF_HUB_OFFLINE",
-            "--model DIR",
-            "models--openai--clip-vit-base-patch32",
-        ] {
-            assert!(e.contains(needle), "{needle} not in: {e}");
+    fn touch(dir: &Path, names: &[&str]) {
+        for n in names {
+            std::fs::write(dir.join(n), "x").unwrap();
         }
     }
 
     #[test]
-    fn cached_files_resolve_without_network() {
-        // Python's cache layout: refs/main holds the commit, snapshots/<commit>/<file>.
-        let home = tempfile::tempdir().unwrap();
-        let repo = home.path().join("models--someone--tiny");
-        std::fs::create_dir_all(repo.join("refs")).unwrap();
-        std::fs::write(repo.join("refs/main"), "abc123").unwrap();
-        let snap = repo.join("snapshots/abc123");
-        std::fs::create_dir_all(&snap).unwrap();
-        for f in [CONFIG, WEIGHTS, TOKENIZER] {
-            std::fs::write(snap.join(f), "x").unwrap();
-        }
-        let cache = hf_hub::Cache::new(home.path().to_path_buf());
-        let files = resolve_repo("someone/tiny", None, &cache, true).unwrap();
-        assert_eq!(files.weights, snap.join(WEIGHTS));
-        assert_eq!(files.tokenizer, snap.join(TOKENIZER));
-    }
-
-    #[test]
-    fn incomplete_directory_lists_what_is_missing() {
+    fn weights_are_found_in_transformers_order() {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join(CONFIG), "{}").unwrap();
-        let e = resolve(dir.path().to_str().unwrap(), None)
-            .unwrap_err()
-            .to_string();
-        let path_of = |f: &str| dir.path().join(f).display().to_string();
-        assert!(
-            e.contains(&path_of(WEIGHTS)) && e.contains(&path_of(TOKENIZER)),
-            "{e}"
+        let d = dir.path();
+        touch(d, &[CONFIG, TOKENIZER, "pytorch_model.bin"]);
+        let req = ModelRequest::new(d.to_str().unwrap());
+        let f = resolve(&req).unwrap();
+        assert_eq!(f.format, WeightFormat::PyTorch);
+        assert_eq!(f.weights, vec![d.join("pytorch_model.bin")]);
+        std::fs::write(
+            d.join("model.safetensors.index.json"),
+            r#"{"metadata":{},"weight_map":{"b":"model-00002-of-00002.safetensors",
+                "a":"model-00001-of-00002.safetensors","c":"model-00001-of-00002.safetensors"}}"#,
+        )
+        .unwrap();
+        let e = resolve(&req).unwrap_err().to_string();
+        assert!(e.contains("model-00001-of-00002.safetensors"), "{e}");
+        touch(
+            d,
+            &[
+                "model-00001-of-00002.safetensors",
+                "model-00002-of-00002.safetensors",
+            ],
         );
-        assert!(!e.contains(&path_of(CONFIG)), "{e}");
-        let e = resolve("not a repo id at all", None)
+        let f = resolve(&req).unwrap();
+        assert_eq!(f.format, WeightFormat::Safetensors);
+        assert_eq!(
+            f.weights,
+            vec![
+                d.join("model-00001-of-00002.safetensors"),
+                d.join("model-00002-of-00002.safetensors")
+            ]
+        );
+        touch(d, &["model.safetensors"]);
+        assert_eq!(resolve(&req).unwrap().weights, vec![d.join("model.safetensors")]);
+    }
+
+    #[test]
+    fn hostile_shard_names_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        touch(d, &[CONFIG, TOKENIZER]);
+        for bad in ["../../etc/passwd", "/etc/passwd", "..", ""] {
+            std::fs::write(
+                d.join("pytorch_model.bin.index.json"),
+                format!(r#"{{"weight_map":{{"a":"{bad}"}}}}"#),
+            )
+            .unwrap();
+            let e = resolve(&ModelRequest::new(d.to_str().unwrap()))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("not a plain file name"), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn incomplete_directory_says_what_is_missing() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let req = ModelRequest::new(d.to_str().unwrap());
+        let e = resolve(&req).unwrap_err().to_string();
+        assert!(e.contains(CONFIG) && e.contains(&d.display().to_string()), "{e}");
+        for w in WEIGHT_FILES {
+            assert!(e.contains(w.0), "{e}");
+        }
+        assert!(e.contains(TOKENIZER) && e.contains("--tokenizer"), "{e}");
+        touch(d, &[CONFIG, "model.safetensors"]);
+        let e = resolve(&req).unwrap_err().to_string();
+        assert!(!e.contains(CONFIG) && e.contains(TOKENIZER), "{e}");
+        let e = resolve(&ModelRequest::new("not a repo id at all"))
             .unwrap_err()
             .to_string();
         assert!(e.contains("not a Hugging Face repo id"), "{e}");
+        assert!(!looks_like_repo_id("../x") && !looks_like_repo_id("a/b/c"));
+        assert!(looks_like_repo_id("laion/CLIP-ViT-bigG-14-laion2B-39B-b160k"));
     }
 }

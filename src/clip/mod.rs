@@ -6,7 +6,8 @@
 //! ops, ran ViT-B/32 forward+backward ~5–8× slower than the target (BENCHMARKS-clip.md).
 //!
 //! Parts, each reproducing a `transformers` modeling_clip.py class:
-//! `config` (CLIPConfig), `weights` (safetensors), `tokenizer` (CLIPTokenizerFast),
+//! `config` (CLIPConfig), `weights` (safetensors or PyTorch checkpoints, one file or shards;
+//! `checkpoint` reads the PyTorch ones), `tokenizer` (CLIPTokenizerFast),
 //! `layers` (Linear, LayerNorm, activations), `attention` (CLIPAttention), `encoder`
 //! (CLIPEncoderLayer), `tower` (CLIPEncoder), `text` (CLIPTextTransformer), `vision`
 //! (CLIPVisionTransformer), `load` (files and the Hugging Face cache), `preprocess`
@@ -47,7 +48,7 @@ mod weights;
 use std::path::{Path, PathBuf};
 
 pub use config::{Activation, ClipConfig};
-pub use load::DEFAULT_MODEL;
+pub use load::{ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
 pub use preprocess::preprocess;
 pub use similarity::{cosine, cosine_grad, softmax_scaled};
 pub use source::{RandomSource, TensorSource};
@@ -57,7 +58,7 @@ pub use vision::{ImageCache, MEAN, STD};
 use crate::image::Image;
 use text::TextModel;
 use vision::VisionModel;
-use weights::WeightFile;
+use weights::Checkpoint;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ClipError {
@@ -88,23 +89,52 @@ pub struct Clip {
 }
 
 impl Clip {
-    /// `model`: a directory with `config.json`, `model.safetensors` and `tokenizer.json`, or a
-    /// Hugging Face repo id (fetched into the standard cache; `HF_HUB_OFFLINE=1` forbids the
-    /// network).
+    /// `model`: a directory with `config.json`, `tokenizer.json` and the weights, or a Hugging
+    /// Face repo id (at its `main` branch, fetched into the standard cache; `HF_HUB_OFFLINE=1`
+    /// forbids the network).
     pub fn load(model: &str) -> Result<Clip, ClipError> {
-        Clip::load_with_tokenizer(model, None)
+        Clip::load_request(&ModelRequest::new(model))
     }
 
     /// As `load`, with `tokenizer.json` taken from `tokenizer` when given.
     pub fn load_with_tokenizer(model: &str, tokenizer: Option<&Path>) -> Result<Clip, ClipError> {
-        let files = load::resolve(model, tokenizer)?;
+        let mut req = ModelRequest::new(model);
+        req.tokenizer = tokenizer.map(Path::to_path_buf);
+        Clip::load_request(&req)
+    }
+
+    /// Load what `req` names (model, revision, tokenizer).
+    pub fn load_request(req: &ModelRequest) -> Result<Clip, ClipError> {
+        Clip::load_files(&load::resolve(req)?)
+    }
+
+    /// Load from files already resolved (see `load::resolve`).
+    pub fn load_files(files: &ModelFiles) -> Result<Clip, ClipError> {
         let config = ClipConfig::from_file(&files.config)?;
         let tok = ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
-        let wf = WeightFile::open(&files.weights)?;
-        let w = wf.tensors()?;
-        let mut clip = Clip::from_source(config, &w)?;
+        let weights = Checkpoint::open(&files.weights)?;
+        let mut clip = Clip::from_source(config, &weights)?;
         clip.tokenizer = Some(tok);
         Ok(clip)
+    }
+
+    /// Check resolved files without building the model (which can take many GiB): the
+    /// config parses, the tokenizer loads, every weight file's header or pickle parses.
+    /// Returns a one-line summary.
+    pub fn check(files: &ModelFiles) -> Result<String, ClipError> {
+        let config = ClipConfig::from_file(&files.config)?;
+        ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
+        let weights = Checkpoint::open(&files.weights)?;
+        Ok(format!(
+            "{:?} weights in {} file(s), {} tensors; vision {}x{} px, patch {}, {} layers",
+            files.format,
+            files.weights.len(),
+            weights.names().len(),
+            config.vision.image_size,
+            config.vision.image_size,
+            config.vision.patch_size,
+            config.vision.tower.num_layers,
+        ))
     }
 
     /// Build the model from any tensor source (checkpoint or `RandomSource`); no tokenizer, so

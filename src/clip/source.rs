@@ -1,12 +1,12 @@
-//! Where the towers get their tensors: a safetensors checkpoint, or random values of the right
-//! scale for benchmarks (timings do not depend on values).
+//! Where the towers get their tensors: a checkpoint (safetensors or PyTorch, one file or
+//! shards), or random values of the right scale for benchmarks (timings do not depend on values).
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::cell::RefCell;
 
 use super::layers::{LayerNorm, Linear};
-use super::weights::Weights;
+use super::weights::Checkpoint;
 use super::ClipError;
 
 /// Something that hands out named tensors of a given shape.
@@ -38,7 +38,7 @@ pub trait TensorSource {
     }
 }
 
-impl TensorSource for Weights<'_> {
+impl TensorSource for Checkpoint {
     fn tensor(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>, ClipError> {
         self.get(name, shape)
     }

@@ -146,6 +146,11 @@ impl HubRepo<'_> {
         }
     }
 
+    /// "REPO at revision REV", for messages.
+    pub fn describe(&self) -> String {
+        format!("{} at revision {}", self.repo_id, self.revision)
+    }
+
     /// Where the cache keeps this repo (for messages).
     pub fn cache_folder(&self) -> PathBuf {
         self.cache.root().to_path_buf()

@@ -120,18 +120,26 @@ pub fn cache_dir() -> Option<PathBuf> {
 
 /// SHA-256 of a file's bytes (the model weights), read in 1 MiB chunks.
 pub fn hash_file(path: &Path) -> Result<[u8; 32], OptimizeError> {
-    let err = |e: std::io::Error| {
-        OptimizeError::Captions(format!("{}: cannot read to hash it: {e}", path.display()))
-    };
-    let mut f = std::fs::File::open(path).map_err(err)?;
+    hash_files(&[path.to_path_buf()])
+}
+
+/// SHA-256 of several files one after the other (a sharded checkpoint); for one file, its
+/// SHA-256, so caches keyed by a single weights file stay valid.
+pub fn hash_files(paths: &[PathBuf]) -> Result<[u8; 32], OptimizeError> {
     let mut h = Sha256::new();
     let mut buf = vec![0u8; 1 << 20];
-    loop {
-        let n = f.read(&mut buf).map_err(err)?;
-        if n == 0 {
-            break;
+    for path in paths {
+        let err = |e: std::io::Error| {
+            OptimizeError::Captions(format!("{}: cannot read to hash it: {e}", path.display()))
+        };
+        let mut f = std::fs::File::open(path).map_err(err)?;
+        loop {
+            let n = f.read(&mut buf).map_err(err)?;
+            if n == 0 {
+                break;
+            }
+            h.update(&buf[..n]);
         }
-        h.update(&buf[..n]);
     }
     Ok(h.finalize().into())
 }

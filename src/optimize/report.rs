@@ -60,7 +60,11 @@ pub struct Score {
 pub struct ModelInfo {
     /// Hugging Face repo id or local directory as given.
     pub id: String,
-    /// SHA-256 of the weights file (hex), also the key of the caption-embedding cache.
+    /// The Hub revision asked for (`None` for a local directory).
+    #[serde(default)]
+    pub revision: Option<String>,
+    /// SHA-256 of the weight files, shard after shard (hex): the key of the caption-embedding
+    /// cache.
     pub weights_sha256: Option<String>,
     pub logit_scale: f64,
 }

@@ -12,8 +12,5 @@
 //! `Global::Other`, so it can represent neither torch's persistent storage ids nor which
 //! rebuild function a tensor names.
 
-// Nothing calls this until the checkpoint resolver is wired in.
-#![allow(dead_code)]
-
 pub(crate) mod pickle;
 pub(crate) mod torch;

@@ -213,9 +213,11 @@ fn resolve_global(module: &str, name: &str) -> Option<Global> {
 #[derive(Debug)]
 enum Node {
     None,
-    Bool(bool),
+    /// Booleans and floats appear in state dicts (`requires_grad`, metadata) but are never
+    /// looked at: only their kind is kept, for messages.
+    Bool,
     Int(i64),
-    Float(f64),
+    Float,
     Str(String),
     /// A value a state dict may carry but t2tf never looks at (bytes).
     Opaque,
@@ -231,9 +233,9 @@ impl Node {
     fn kind(&self) -> &'static str {
         match self {
             Node::None => "None",
-            Node::Bool(_) => "a bool",
+            Node::Bool => "a bool",
             Node::Int(_) => "an int",
-            Node::Float(_) => "a float",
+            Node::Float => "a float",
             Node::Str(_) => "a string",
             Node::Opaque => "bytes",
             Node::Tuple(_) => "a tuple",
@@ -354,8 +356,7 @@ impl<'a> Machine<'a> {
                 self.push_index(top)
             }
             NONE => self.push(Node::None),
-            NEWTRUE => self.push(Node::Bool(true)),
-            NEWFALSE => self.push(Node::Bool(false)),
+            NEWTRUE | NEWFALSE => self.push(Node::Bool),
             BININT => {
                 let v = i32::from_le_bytes(self.array()?);
                 self.push(Node::Int(v.into()))
@@ -377,9 +378,8 @@ impl<'a> Machine<'a> {
                 self.long(n)
             }
             BINFLOAT => {
-                // The one big-endian field in pickle.
-                let v = f64::from_be_bytes(self.array()?);
-                self.push(Node::Float(v))
+                self.array::<8>()?;
+                self.push(Node::Float)
             }
             SHORT_BINUNICODE => {
                 let n = self.u8()?.into();

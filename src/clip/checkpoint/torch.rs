@@ -90,11 +90,17 @@ impl TorchCheckpoint {
         }
     }
 
+    /// The file this checkpoint was read from.
+    pub(crate) fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// Every tensor, sorted by name (non-float buffers included).
     pub(crate) fn names(&self) -> Vec<&str> {
         self.tensors.keys().map(String::as_str).collect()
     }
 
+    #[cfg(test)]
     pub(crate) fn shape(&self, name: &str) -> Option<&[usize]> {
         self.tensors.get(name).map(|l| l.tensor.shape.as_slice())
     }
