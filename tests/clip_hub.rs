@@ -32,7 +32,10 @@ fn read(p: impl AsRef<Path>) -> Vec<u8> {
 /// config.json + tokenizer.json + every file of a checkpoint folder (or one named file).
 fn files_of(layout: &str) -> Vec<(String, Vec<u8>)> {
     let mut files = vec![
-        ("config.json".to_string(), read(Path::new(MODEL_DIR).join("config.json"))),
+        (
+            "config.json".to_string(),
+            read(Path::new(MODEL_DIR).join("config.json")),
+        ),
         ("tokenizer.json".to_string(), read(TOKENIZER)),
     ];
     if layout == "safetensors" {
@@ -178,7 +181,10 @@ fn hostile_pickle_is_refused_and_runs_nothing() {
     assert!(!marker.exists());
     let files = resolve_with(&ModelRequest::new("t2tf-test/hostile"), &hub).unwrap();
     let e = Clip::load_files(&files).err().expect("refused").to_string();
-    assert!(e.contains("os.system") && e.contains("pytorch_model.bin"), "{e}");
+    assert!(
+        e.contains("os.system") && e.contains("pytorch_model.bin"),
+        "{e}"
+    );
     assert!(!marker.exists(), "the pickle ran");
 }
 
@@ -216,8 +222,7 @@ fn cut_or_corrupted_weights_are_never_trusted() {
     // every retry the client makes.
     server.inject("pytorch_model.bin", Fault::CutAfter(500_000), 1 + RETRIES);
     let e = resolve_with(&ModelRequest::new(repo), &hub)
-        .err()
-        .expect("a cut download fails")
+        .expect_err("a cut download fails")
         .to_string();
     assert!(e.contains("pytorch_model.bin"), "{e}");
     assert!(!weights_trusted());
@@ -225,8 +230,7 @@ fn cut_or_corrupted_weights_are_never_trusted() {
     // Wrong bytes of the right length: the sha256 check catches them.
     server.inject("pytorch_model.bin", Fault::WrongBytes, 1);
     let e = resolve_with(&ModelRequest::new(repo), &hub)
-        .err()
-        .expect("a corrupted download fails")
+        .expect_err("a corrupted download fails")
         .to_string();
     assert!(e.to_lowercase().contains("sha256"), "{e}");
     assert!(!weights_trusted());
@@ -283,7 +287,11 @@ fn cli_uses_the_default_model_from_the_hub_then_offline() {
     let score = [&score[..], &["--caption", "an engine"]].concat();
 
     let want = ok(&t2tf(
-        &[&score[..], &["--model", MODEL_DIR, "--tokenizer", TOKENIZER]].concat(),
+        &[
+            &score[..],
+            &["--model", MODEL_DIR, "--tokenizer", TOKENIZER],
+        ]
+        .concat(),
         &server,
         cache.path(),
         false,
@@ -303,7 +311,10 @@ fn cli_uses_the_default_model_from_the_hub_then_offline() {
         false,
     ));
     let snapshot = PathBuf::from(fetched.lines().last().unwrap());
-    assert!(snapshot.join("model.safetensors.index.json").is_file(), "{fetched}");
+    assert!(
+        snapshot.join("model.safetensors.index.json").is_file(),
+        "{fetched}"
+    );
     let listed = ok(&t2tf(&["model", "list"], &server, cache.path(), true));
     for repo in [DEFAULT_MODEL, "t2tf-test/sharded_safetensors"] {
         assert!(listed.contains(repo), "{listed}");

@@ -670,7 +670,8 @@ for f in files:
 print(json.dumps(out))
 "#;
 
-/// The interpreter to use (`T2TF_PYTHON`, else `python3`), if it can import huggingface_hub.
+/// The interpreter to use (`T2TF_PYTHON`, else `python3`), if it can import huggingface_hub;
+/// with `T2TF_REQUIRE_PYTHON_HUB` set, its absence fails the test instead of skipping it.
 fn python() -> Option<String> {
     let python = std::env::var("T2TF_PYTHON").unwrap_or_else(|_| "python3".into());
     let ok = Command::new(&python)
@@ -678,6 +679,11 @@ fn python() -> Option<String> {
         .output()
         .is_ok_and(|o| o.status.success());
     if !ok {
+        // CI installs huggingface_hub and sets this, so the interop tests cannot skip there.
+        assert!(
+            std::env::var_os("T2TF_REQUIRE_PYTHON_HUB").is_none(),
+            "T2TF_REQUIRE_PYTHON_HUB is set, but {python} cannot import huggingface_hub"
+        );
         eprintln!(
             "skipped: {python} cannot import huggingface_hub (set T2TF_PYTHON to an interpreter that has it)"
         );

@@ -148,7 +148,11 @@ fn is_clip(r: &CachedRepo) -> bool {
 /// "main, refs/pr/15", or the short commits of snapshots no ref points to.
 fn refs(r: &CachedRepo) -> String {
     if r.refs.is_empty() {
-        let commits: Vec<&str> = r.snapshots.iter().map(|s| &s.commit[..s.commit.len().min(8)]).collect();
+        let commits: Vec<&str> = r
+            .snapshots
+            .iter()
+            .map(|s| &s.commit[..s.commit.len().min(8)])
+            .collect();
         commits.join(",")
     } else {
         r.refs.keys().cloned().collect::<Vec<_>>().join(",")

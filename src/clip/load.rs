@@ -33,7 +33,11 @@ const TOKENIZER: &str = "tokenizer.json";
 /// Weight files in the order transformers tries them; `true` for an index naming shards.
 pub const WEIGHT_FILES: [(&str, WeightFormat, bool); 4] = [
     ("model.safetensors", WeightFormat::Safetensors, false),
-    ("model.safetensors.index.json", WeightFormat::Safetensors, true),
+    (
+        "model.safetensors.index.json",
+        WeightFormat::Safetensors,
+        true,
+    ),
     ("pytorch_model.bin", WeightFormat::PyTorch, false),
     ("pytorch_model.bin.index.json", WeightFormat::PyTorch, true),
 ];
@@ -223,7 +227,9 @@ fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<Model
     let tokenizer = match tokenizer {
         Some(t) => t.to_path_buf(),
         None => required(TOKENIZER).map_err(|e| {
-            ClipError::Missing(format!("{e}; --tokenizer PATH can point to a tokenizer.json"))
+            ClipError::Missing(format!(
+                "{e}; --tokenizer PATH can point to a tokenizer.json"
+            ))
         })?,
     };
     Ok(ModelFiles {
@@ -276,14 +282,15 @@ fn shard_names(index: &Path) -> Result<Vec<String>, ClipError> {
         path: index.to_path_buf(),
         source: e,
     })?;
-    let parsed: ShardIndex = serde_json::from_str(&text)
-        .map_err(|e| err(format!("not a shard index (weight_map of tensor → file): {e}")))?;
+    let parsed: ShardIndex = serde_json::from_str(&text).map_err(|e| {
+        err(format!(
+            "not a shard index (weight_map of tensor → file): {e}"
+        ))
+    })?;
     let mut names: Vec<String> = Vec::new();
     for shard in parsed.weight_map.values() {
-        let plain = !shard.is_empty()
-            && !shard.contains(['/', '\\'])
-            && shard != "."
-            && shard != "..";
+        let plain =
+            !shard.is_empty() && !shard.contains(['/', '\\']) && shard != "." && shard != "..";
         if !plain {
             return Err(err(format!(
                 "shard name \"{shard}\" is not a plain file name"
@@ -358,7 +365,10 @@ mod tests {
             ]
         );
         touch(d, &["model.safetensors"]);
-        assert_eq!(resolve(&req).unwrap().weights, vec![d.join("model.safetensors")]);
+        assert_eq!(
+            resolve(&req).unwrap().weights,
+            vec![d.join("model.safetensors")]
+        );
     }
 
     #[test]
@@ -385,7 +395,10 @@ mod tests {
         let d = dir.path();
         let req = ModelRequest::new(d.to_str().unwrap());
         let e = resolve(&req).unwrap_err().to_string();
-        assert!(e.contains(CONFIG) && e.contains(&d.display().to_string()), "{e}");
+        assert!(
+            e.contains(CONFIG) && e.contains(&d.display().to_string()),
+            "{e}"
+        );
         for w in WEIGHT_FILES {
             assert!(e.contains(w.0), "{e}");
         }
@@ -398,6 +411,8 @@ mod tests {
             .to_string();
         assert!(e.contains("not a Hugging Face repo id"), "{e}");
         assert!(!looks_like_repo_id("../x") && !looks_like_repo_id("a/b/c"));
-        assert!(looks_like_repo_id("laion/CLIP-ViT-bigG-14-laion2B-39B-b160k"));
+        assert!(looks_like_repo_id(
+            "laion/CLIP-ViT-bigG-14-laion2B-39B-b160k"
+        ));
     }
 }

@@ -272,7 +272,12 @@ mod tests {
         let p = write(
             &dir.path().join("model.safetensors"),
             &[
-                ("a", Dtype::F32, vec![2, 2], f32_bytes(&[1.5, -2.0, 3.25, 0.0])),
+                (
+                    "a",
+                    Dtype::F32,
+                    vec![2, 2],
+                    f32_bytes(&[1.5, -2.0, 3.25, 0.0]),
+                ),
                 ("b", Dtype::F16, vec![2], f16s),
                 ("s", Dtype::BF16, vec![], bf16s),
                 ("ids", Dtype::I64, vec![1], vec![0; 8]),
