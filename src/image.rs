@@ -46,6 +46,29 @@ impl Image {
         self.data[i..i + 3].copy_from_slice(&rgb);
     }
 
+    /// `images` in a grid of `cols` columns (rows as needed), cell size that of the first
+    /// image; an image of another size leaves its cell black. No images: a 1 × 1 black image.
+    pub fn grid(images: &[Image], cols: usize) -> Image {
+        let Some(first) = images.first() else {
+            return Image::new(1, 1);
+        };
+        let (w, h) = (first.width, first.height);
+        let cols = cols.clamp(1, images.len());
+        let rows = images.len().div_ceil(cols);
+        let mut out = Image::new(w * cols, h * rows);
+        for (i, im) in images.iter().enumerate() {
+            if im.width != w || im.height != h {
+                continue;
+            }
+            let (ox, oy) = ((i % cols) * w, (i / cols) * h);
+            for y in 0..h {
+                let dst = ((oy + y) * out.width + ox) * 3;
+                out.data[dst..dst + w * 3].copy_from_slice(&im.data[y * w * 3..(y + 1) * w * 3]);
+            }
+        }
+        out
+    }
+
     /// 8-bit RGB bytes, clamped and rounded; NaN becomes 0.
     pub fn to_rgb8(&self) -> Vec<u8> {
         self.data

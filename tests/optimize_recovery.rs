@@ -7,21 +7,22 @@
 //! backgrounds). This checks renderer gradients, TF backward, CLIP input gradients, SGD and
 //! the schedule together.
 //!
-//! The loop is written here rather than calling `optimize::optimize`, because that loop's
-//! positive is one embedding for every view (a prompt), while recovery needs one target per
-//! view; everything it calls per step is the library's.
+//! The loop is `optimize::recover::descend` (one target per view), not `optimize::optimize`
+//! (one positive embedding for every view); examples/demo_recover.rs runs it on a larger
+//! volume for people to look at.
 
 use std::path::Path;
 
 use t2tf::clip::Clip;
 use t2tf::image::Image;
 use t2tf::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer};
-use t2tf::optimize::sgd::{linear_lr, Sgd};
+use t2tf::optimize::recover::{descend, pixel_loss, psnr};
 use t2tf::optimize::{
-    initialize, Background, ImageEncoder, Parameterization, PointGrad, Renderer, Settings, View,
+    initialize, Background, ImageEncoder, OptimizeError, Parameterization, Renderer, Settings,
+    View,
 };
 use t2tf::render::RenderOptions;
-use t2tf::tf::{ControlPoints, LutGrad};
+use t2tf::tf::ControlPoints;
 use t2tf::volume::{load, ReadOptions, Volume};
 
 const VOLUME: &str = "../shared/data/volumes/nucleon_41x41x41_uint8.raw";
@@ -106,22 +107,6 @@ fn render_all(r: &VolumeRenderer, cp: &ControlPoints, views: &[View]) -> Vec<Ima
 
 const LUT: usize = 256;
 
-/// Mean PSNR (dB, peak 1) of `a` against `b` over all images.
-fn psnr(a: &[Image], b: &[Image]) -> f64 {
-    let mut total = 0.0;
-    for (x, y) in a.iter().zip(b) {
-        let mse = x
-            .data
-            .iter()
-            .zip(&y.data)
-            .map(|(p, q)| ((p - q) as f64).powi(2))
-            .sum::<f64>()
-            / x.data.len() as f64;
-        total += -10.0 * mse.max(1e-12).log10();
-    }
-    total / a.len() as f64
-}
-
 /// The paper's initialization for K points on the renderer.
 fn start(r: &VolumeRenderer, tf: &PaperTf, v: &Volume) -> Vec<f64> {
     let settings = Settings {
@@ -130,75 +115,6 @@ fn start(r: &VolumeRenderer, tf: &PaperTf, v: &Volume) -> Vec<f64> {
         ..Settings::default()
     };
     initialize(r, tf, &v.histogram, &settings).unwrap().0
-}
-
-/// d loss / d image of every view, and the loss (mean over views), given the renders.
-type ImageLoss<'a> = dyn FnMut(&[Image]) -> (f64, Vec<Vec<f32>>) + 'a;
-
-/// `steps` of momentum SGD (μ = 0.75, the paper's) with linear annealing from `lr0`, all
-/// training views per step, gradients averaged (the loss functions average). Returns the
-/// parameters and the loss of each step.
-fn descend(
-    r: &VolumeRenderer,
-    tf: &PaperTf,
-    views: &[View],
-    mut params: Vec<f64>,
-    steps: usize,
-    lr0: f64,
-    loss: &mut ImageLoss,
-) -> (Vec<f64>, Vec<f64>) {
-    let mut sgd = Sgd::new(params.len(), 0.75).unwrap();
-    let mut losses = Vec::with_capacity(steps);
-    for step in 0..steps {
-        let lut = tf.control_points(&params).unwrap().to_lut(tf.lut_size());
-        let mut images = Vec::new();
-        let mut tapes = Vec::new();
-        for v in views {
-            let (im, _, tape) = r.render(&lut, v).unwrap();
-            images.push(im);
-            tapes.push(tape);
-        }
-        let (l, d_images) = loss(&images);
-        assert!(l.is_finite(), "loss {l} at step {step}");
-        losses.push(l);
-        let mut lut_grad = LutGrad::zeros(lut.entries.len());
-        let zero_t = vec![0.0f32; SIZE * SIZE];
-        for ((v, tape), d) in views.iter().zip(&tapes).zip(&d_images) {
-            lut_grad.add(&r.backward(&lut, v, tape, d, &zero_t).unwrap());
-        }
-        let direct = PointGrad {
-            sigma: vec![0.0; K],
-            rgb: vec![[0.0; 3]; K],
-        };
-        let grad = tf.backward(&params, &lut_grad, &direct).unwrap();
-        sgd.update(&mut params, &grad, linear_lr(lr0, step, steps))
-            .unwrap();
-    }
-    (params, losses)
-}
-
-/// Mean squared pixel error over views; d/d image = 2 (x − t) / (pixels · views).
-fn pixel_loss(targets: &[Image]) -> impl FnMut(&[Image]) -> (f64, Vec<Vec<f32>>) + '_ {
-    move |images| {
-        let n = (images.len() * images[0].data.len()) as f64;
-        let mut loss = 0.0;
-        let grads = images
-            .iter()
-            .zip(targets)
-            .map(|(x, t)| {
-                x.data
-                    .iter()
-                    .zip(&t.data)
-                    .map(|(p, q)| {
-                        let d = (p - q) as f64;
-                        loss += d * d / n;
-                        (2.0 * d / n) as f32
-                    })
-                    .collect()
-            })
-            .collect();
-        (loss, grads)
-    }
 }
 
 #[test]
@@ -220,7 +136,7 @@ fn pixel_loss_recovers_the_known_tf() {
     );
     // lr 30: measured 40 steps → 38.0 dB, 60 → 40.3, 100 → 41.6 (lr 10: 30.7 at 40 steps, 36.3 at
     // 100; lr 50, 60 steps: 37.4), 0.2 s for 60 steps in the dev profile.
-    let (p, losses) = descend(&r, &tf, &train, p0, 60, 30.0, &mut pixel_loss(&targets));
+    let (p, losses) = descend(&r, &tf, &train, p0, 60, 30.0, &mut pixel_loss(&targets)).unwrap();
     let after = psnr(
         &render_all(&r, &tf.control_points(&p).unwrap(), &held),
         &held_targets,
@@ -271,28 +187,7 @@ fn test_losses_match_central_differences() {
             g[i]
         );
     }
-    // The pixel loss on f32 images: the mean squared error is quadratic, so central
-    // differences are exact up to rounding; with h = 1e-2 the f32 inputs and the f64 sum give
-    // errors ≈ 1e-7 / h = 1e-5 at most.
-    let target = vec![Image {
-        width: 2,
-        height: 1,
-        data: vec![0.1, 0.5, 0.9, 0.3, 0.2, 0.7],
-    }];
-    let x = Image {
-        width: 2,
-        height: 1,
-        data: vec![0.4, 0.5, 0.1, 0.8, 0.25, 0.0],
-    };
-    let mut f = pixel_loss(&target);
-    let (_, g) = f(std::slice::from_ref(&x));
-    for (i, &gi) in g[0].iter().enumerate() {
-        let (mut a, mut b) = (x.clone(), x.clone());
-        a.data[i] += 1e-2;
-        b.data[i] -= 1e-2;
-        let fd = (f(&[a]).0 - f(&[b]).0) / 2e-2;
-        assert!((fd - gi as f64).abs() < 1e-4, "pixel {i}: {fd} vs {gi}");
-    }
+    // The pixel loss's gradient is checked in optimize::recover's unit tests.
 }
 
 /// 1 − cosine(embedding of render, embedding of target), averaged over views, through the
@@ -300,7 +195,7 @@ fn test_losses_match_central_differences() {
 fn embedding_loss<'a, E: ImageEncoder>(
     encoder: &'a E,
     targets: &'a [Vec<f32>],
-) -> impl FnMut(&[Image]) -> (f64, Vec<Vec<f32>>) + 'a {
+) -> impl FnMut(&[Image]) -> Result<(f64, Vec<Vec<f32>>), OptimizeError> + 'a {
     move |images| {
         let (emb, cache) = encoder.encode(images).unwrap();
         let n = images.len() as f64;
@@ -317,7 +212,7 @@ fn embedding_loss<'a, E: ImageEncoder>(
             })
             .collect();
         let d_images = encoder.backward(&cache, &d_emb).unwrap();
-        (loss, d_images.into_iter().map(|im| im.data).collect())
+        Ok((loss, d_images.into_iter().map(|im| im.data).collect()))
     }
 }
 
@@ -352,7 +247,8 @@ fn clip_embedding_loss_recovers_the_known_tf() {
         60,
         30.0,
         &mut embedding_loss(&enc, &target_emb),
-    );
+    )
+    .unwrap();
     let after = psnr(
         &render_all(&r, &tf.control_points(&p).unwrap(), &held),
         &held_targets,

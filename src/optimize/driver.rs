@@ -227,27 +227,10 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
     })
 }
 
-/// Images side by side in rows of ⌈√n⌉ (all of the first image's size; others are skipped
-/// if they differ). Empty input gives a 1 × 1 black image.
+/// Images side by side in rows of ⌈√n⌉ (see `Image::grid`).
 pub fn tile(images: &[Image]) -> Image {
-    let Some(first) = images.first() else {
-        return Image::new(1, 1);
-    };
-    let (w, h) = (first.width, first.height);
     let cols = (images.len() as f64).sqrt().ceil() as usize;
-    let rows = images.len().div_ceil(cols);
-    let mut out = Image::new(w * cols, h * rows);
-    for (i, im) in images.iter().enumerate() {
-        if im.width != w || im.height != h {
-            continue;
-        }
-        let (ox, oy) = ((i % cols) * w, (i / cols) * h);
-        for y in 0..h {
-            let dst = ((oy + y) * out.width + ox) * 3;
-            out.data[dst..dst + w * 3].copy_from_slice(&im.data[y * w * 3..(y + 1) * w * 3]);
-        }
-    }
-    out
+    Image::grid(images, cols)
 }
 
 impl Finished {

@@ -18,6 +18,7 @@ pub mod driver;
 mod error;
 pub mod init;
 pub mod loss;
+pub mod recover;
 pub mod report;
 pub mod schedule;
 pub mod settings;

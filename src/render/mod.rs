@@ -521,20 +521,10 @@ pub fn orbit_sheet(
 ) -> Result<Image, RenderError> {
     let n = cameras.len().max(1);
     let cols = (n as f64).sqrt().ceil() as usize;
-    let rows = n.div_ceil(cols);
-    let (w, h) = (background.width, background.height);
-    let mut sheet = Image::new(w * cols, h * rows);
-    for cell in 0..cols * rows {
-        let view = match cameras.get(cell) {
-            Some(cam) => forward(volume, lut, cam, background, opts)?.image,
-            None => background.clone(),
-        };
-        let (cx, cy) = (cell % cols, cell / cols);
-        for y in 0..h {
-            for x in 0..w {
-                sheet.set_pixel(cx * w + x, cy * h + y, view.pixel(x, y));
-            }
-        }
+    let mut views = Vec::with_capacity(cols * n.div_ceil(cols));
+    for cam in cameras {
+        views.push(forward(volume, lut, cam, background, opts)?.image);
     }
-    Ok(sheet)
+    views.resize(cols * n.div_ceil(cols), background.clone());
+    Ok(Image::grid(&views, cols))
 }
