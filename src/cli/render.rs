@@ -27,7 +27,7 @@ pub struct RenderArgs {
     /// Transfer function: ParaView JSON preset (.json), ParaView XML (.xml) or VisIt (.ct).
     #[arg(long, value_name = "PRESET")]
     pub tf: PathBuf,
-    /// Output PNG.
+    /// Output PNG (the name must end in .png).
     #[arg(long, value_name = "IMG.png")]
     pub out: PathBuf,
     /// Camera yaw around the up axis, degrees.

@@ -21,8 +21,9 @@ pub const JUMP_WIDTH: f64 = 1e-9;
 /// Widest 1D lookup table ParaView's GPU volume mapper can count on: VTK
 /// (`vtkOpenGLVolumeLookupTable`) sizes the opacity and colour tables as the next power of
 /// two ≥ ceil(range / smallest gap between points), at least 1024, and past the GPU's largest
-/// texture it warns ("falling back to maximum allowed") and uses that. 16384 is what
-/// ParaView 5.11 gets with Mesa here and the least OpenGL 4.1 guarantees.
+/// texture it warns ("falling back to maximum allowed") and uses that. 16384 is the limit
+/// ParaView 5.11 reports with Mesa (its warning names it); a GPU with a larger one only
+/// leaves room to spare.
 pub const PARAVIEW_TABLE_SIZE: usize = 16384;
 
 /// Smallest gap between exported points, as a fraction of the TF's range: 1/16000 keeps
