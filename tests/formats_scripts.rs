@@ -150,24 +150,40 @@ fn readers_per_source_format_and_missing_source() {
     let vti = volume(SourceFormat::Vti {
         array: "density".into(),
     });
-    let s = paraview_script(&tf, &vti, &view, [0.0; 3]).unwrap();
+    let s = paraview_script(&tf, &vti, &view, [0.0; 3], "t_paraview.py").unwrap();
     assert!(s.contains("pvs.XMLImageDataReader(FileName=[path])"));
     assert!(s.contains("ARRAY = \"density\""));
     let legacy = volume(SourceFormat::LegacyVtk {
         array: "scalars".into(),
     });
-    assert!(paraview_script(&tf, &legacy, &view, [0.0; 3])
-        .unwrap()
-        .contains("pvs.LegacyVTKReader(FileNames=[path])"));
+    assert!(
+        paraview_script(&tf, &legacy, &view, [0.0; 3], "t_paraview.py")
+            .unwrap()
+            .contains("pvs.LegacyVTKReader(FileNames=[path])")
+    );
     // 64-bit integers: ParaView 5.11's ImageReader has no "long long"; "long" is LP64 64-bit.
-    let s = paraview_script(&tf, &volume(raw(ScalarType::I64)), &view, [0.0; 3]).unwrap();
+    let s = paraview_script(
+        &tf,
+        &volume(raw(ScalarType::I64)),
+        &view,
+        [0.0; 3],
+        "t_paraview.py",
+    )
+    .unwrap();
     assert!(s.contains("reader.DataScalarType = \"long\""));
     // VisIt's BOV has no 64-bit integers: a clear error, and write_all skips that script.
-    let e = visit_script(&tf, &volume(raw(ScalarType::I64)), &view, [0.0; 3]).unwrap_err();
+    let e = visit_script(
+        &tf,
+        &volume(raw(ScalarType::I64)),
+        &view,
+        [0.0; 3],
+        "t_visit.py",
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("BOV"), "{e}");
     let mut none = volume(raw(ScalarType::U8));
     none.source = None;
-    let e = paraview_script(&tf, &none, &view, [0.0; 3]).unwrap_err();
+    let e = paraview_script(&tf, &none, &view, [0.0; 3], "t_paraview.py").unwrap_err();
     assert!(e.to_string().contains("not read from a file"));
     let d = tempfile::tempdir().unwrap();
     let files = write_all(d.path(), "x", &cp(), &none, &view, [0.0; 3], None).unwrap();

@@ -1,6 +1,6 @@
 //! `t2tf render`: one view, or a sheet of orbiting views, of a volume with a TF preset.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 
@@ -27,7 +27,7 @@ pub struct RenderArgs {
     /// Transfer function: ParaView JSON preset (.json), ParaView XML (.xml) or VisIt (.ct).
     #[arg(long, value_name = "PRESET")]
     pub tf: PathBuf,
-    /// Output PNG.
+    /// Output PNG (the name must end in .png).
     #[arg(long, value_name = "IMG.png")]
     pub out: PathBuf,
     /// Camera yaw around the up axis, degrees.
@@ -65,7 +65,22 @@ pub struct RenderArgs {
     pub orbit: Option<usize>,
 }
 
+/// `t2tf render` writes PNG only: refuse another extension before any work, rather than
+/// write PNG bytes under a name that promises JPEG.
+fn check_png_name(out: &Path) -> Result<()> {
+    let ext = out.extension().and_then(|e| e.to_str());
+    if ext.is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+        return Ok(());
+    }
+    let what = ext.map_or("no extension".to_string(), |e| format!("extension .{e}"));
+    bail!(
+        "{}: --out must end in .png (t2tf render writes PNG images only; {what} given)",
+        out.display()
+    )
+}
+
 pub fn run(args: RenderArgs) -> Result<()> {
+    check_png_name(&args.out)?;
     if args.size == 0 || args.size > 8192 {
         bail!("--size {} must be between 1 and 8192", args.size);
     }

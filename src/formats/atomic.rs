@@ -23,9 +23,15 @@ pub fn atomic_write(
         use std::os::unix::fs::PermissionsExt;
         builder.permissions(std::fs::Permissions::from_mode(0o644));
     }
-    let mut tmp = builder.tempfile_in(dir).with_context(|| {
-        format!(
-            "{}: cannot create a file in {}",
+    // tempfile's error names its own temporary file, which the user never asked for: say
+    // what went wrong with the folder instead.
+    let mut tmp = builder.tempfile_in(dir).map_err(|e| {
+        let why = match e.kind() {
+            std::io::ErrorKind::NotFound => "the folder does not exist".to_string(),
+            kind => std::io::Error::from(kind).to_string(),
+        };
+        anyhow::anyhow!(
+            "{}: cannot create a file in {}: {why}",
             path.display(),
             dir.display()
         )

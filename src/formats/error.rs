@@ -9,11 +9,12 @@ pub enum FormatError {
     /// A problem not tied to one file (e.g. a volume without a source for a script).
     #[error("{0}")]
     Message(String),
-    #[error("{path}: {source}")]
+    /// The io error is part of the message and not a `source`: the CLI prints the cause
+    /// chain (`{:#}`), which would say it twice.
+    #[error("{path}: {error}")]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -25,10 +26,14 @@ impl FormatError {
         }
     }
 
-    pub fn io(path: &Path, source: std::io::Error) -> Self {
+    /// A failed read or write of `path`; a missing file says so in words, as volumes do.
+    pub fn io(path: &Path, error: std::io::Error) -> Self {
+        if error.kind() == std::io::ErrorKind::NotFound {
+            return FormatError::file(path, "no such file");
+        }
         FormatError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         }
     }
 }

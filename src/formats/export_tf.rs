@@ -8,7 +8,7 @@ use sha2::{Digest, Sha256};
 use super::FormatError;
 use crate::tf::{
     default_unit_distance, interpolate, opacity_to_sigma, sigma_to_opacity, simplified_curves,
-    ControlPoints, EXPORT_TOLERANCE, SIGMA_MAX,
+    ControlPoints, EXPORT_TOLERANCE, MIN_GAP, SIGMA_MAX,
 };
 use crate::volume::Volume;
 
@@ -30,7 +30,8 @@ const HASH_LEN: usize = 8;
 
 impl ExportTf {
     /// Export `cp` for `volume`: opacity o = 1 − exp(−σ u / L) sampled densely and simplified
-    /// to within [`EXPORT_TOLERANCE`] (DESIGN.md), positions denormalized to data values.
+    /// to within [`EXPORT_TOLERANCE`] (DESIGN.md), points at least [`MIN_GAP`] of the range
+    /// apart (so ParaView's lookup tables resolve them), positions denormalized to data values.
     /// `unit_distance` defaults to [`default_unit_distance`]. The name gets a content hash.
     pub fn from_control_points(
         name: &str,
@@ -40,7 +41,7 @@ impl ExportTf {
     ) -> ExportTf {
         let u = unit_distance.unwrap_or_else(|| default_unit_distance(&volume.geometry));
         let ratio = u / volume.geometry.longest_side();
-        let s = simplified_curves(cp, ratio, EXPORT_TOLERANCE);
+        let s = simplified_curves(cp, ratio, EXPORT_TOLERANCE, MIN_GAP);
         let mut tf = ExportTf {
             name: name.to_string(),
             rgb_points: s

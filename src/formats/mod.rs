@@ -145,14 +145,14 @@ pub fn write_all(
         tf: tf.clone(),
     };
     if volume.source.is_some() {
-        let p = path("_paraview.py");
-        atomic_write_bytes(
-            &p,
-            paraview_script(&tf, volume, view, background)?.as_bytes(),
-        )?;
+        let script = format!("{name}_paraview.py");
+        let p = dir.join(&script);
+        let text = paraview_script(&tf, volume, view, background, &script)?;
+        atomic_write_bytes(&p, text.as_bytes())?;
         written.paraview_script = Some(p);
-        if let Ok(text) = visit_script(&tf, volume, view, background) {
-            let p = path("_visit.py");
+        let script = format!("{name}_visit.py");
+        if let Ok(text) = visit_script(&tf, volume, view, background, &script) {
+            let p = dir.join(&script);
             atomic_write_bytes(&p, text.as_bytes())?;
             written.visit_script = Some(p);
         }

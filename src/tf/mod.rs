@@ -15,7 +15,7 @@ pub use opacity::{default_unit_distance, opacity_to_sigma, sigma_to_opacity};
 pub use params::{TfParams, TfParamsGrad, SPACING_FLOOR};
 pub use simplify::{
     dense_curves, interpolate, simplified_curves, simplify_polyline, DenseCurves, SimplifiedCurves,
-    DENSE_SAMPLES, EXPORT_TOLERANCE, JUMP_WIDTH,
+    DENSE_SAMPLES, EXPORT_TOLERANCE, JUMP_WIDTH, MIN_GAP, PARAVIEW_TABLE_SIZE,
 };
 
 /// Largest density: σ = 255 · (tanh(p) + 1) / 2 (paper, Appendix A).

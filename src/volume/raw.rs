@@ -46,12 +46,29 @@ fn layout(path: &Path, opts: &ReadOptions) -> Result<([usize; 3], ScalarType), V
     };
     let dims = opts.dims.or(named.map(|n| n.0));
     let dtype = opts.dtype.or(named.map(|n| n.1));
-    let (Some(dims), Some(dtype)) = (dims, dtype) else {
-        return Err(VolumeError::file(
-            path,
-            "name does not follow NAME_XxYxZ_DTYPE.raw (e.g. head_256x256x99_uint8.raw): \
-             give --dims X,Y,Z and --dtype TYPE",
-        ));
+    let (dims, dtype) = match (dims, dtype) {
+        (Some(dims), Some(dtype)) => (dims, dtype),
+        // One flag given: name the other rather than repeat the naming rule.
+        (Some(_), None) => {
+            return Err(VolumeError::file(
+                path,
+                "--dtype TYPE is missing: the name does not give the scalar type \
+                 (e.g. --dtype uint8)",
+            ))
+        }
+        (None, Some(_)) => {
+            return Err(VolumeError::file(
+                path,
+                "--dims X,Y,Z is missing: the name does not give the dimensions",
+            ))
+        }
+        (None, None) => {
+            return Err(VolumeError::file(
+                path,
+                "name does not follow NAME_XxYxZ_DTYPE.raw (e.g. head_256x256x99_uint8.raw): \
+                 give --dims X,Y,Z and --dtype TYPE",
+            ))
+        }
     };
     if dims.contains(&0) {
         return Err(VolumeError::file(

@@ -107,8 +107,9 @@ fn reader_for(path: &Path, opts: &ReadOptions) -> Result<Kind, VolumeError> {
         "raw" => Kind::Raw,
         "vti" => Kind::Vti,
         "vtk" => Kind::Legacy,
-        // Headerless data under any other name, when the flags say how to read it.
-        _ if opts.dims.is_some() && opts.dtype.is_some() => Kind::Raw,
+        // Headerless data under any other name when a raw flag says how to read it (the raw
+        // reader names a missing --dims or --dtype).
+        _ if opts.dims.is_some() || opts.dtype.is_some() => Kind::Raw,
         "" => {
             return Err(VolumeError::file(
                 path,

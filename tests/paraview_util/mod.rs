@@ -36,9 +36,23 @@ pub fn paraview_available(test: &str) -> bool {
 pub static PVPYTHON: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// Run `xvfb-run -a pvpython --dr SCRIPT ARGS...`, panicking with its output on failure.
-/// A failure to reach the X server (another process on this machine won the same display)
-/// is retried twice; anything else fails at once.
 pub fn pvpython(script: &Path, args: &[&str]) -> String {
+    let out = pvpython_output(script, args);
+    let text = format!(
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    if !out.status.success() {
+        panic!("pvpython {} failed:\n{text}", script.display());
+    }
+    text
+}
+
+/// Run `xvfb-run -a pvpython --dr SCRIPT ARGS...` and return what it did, success or not.
+/// A failure to reach the X server (another process on this machine won the same display)
+/// is retried twice.
+pub fn pvpython_output(script: &Path, args: &[&str]) -> std::process::Output {
     let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
     let mut attempt = 0;
     loop {
@@ -49,19 +63,13 @@ pub fn pvpython(script: &Path, args: &[&str]) -> String {
             .args(args)
             .output()
             .expect("run xvfb-run");
-        let text = format!(
-            "{}\n{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        if out.status.success() {
-            return text;
-        }
-        if attempt < 3 && text.contains("bad X server connection") {
+        let lost_display = !out.status.success()
+            && String::from_utf8_lossy(&out.stderr).contains("bad X server connection");
+        if attempt < 3 && lost_display {
             eprintln!("pvpython could not reach Xvfb (attempt {attempt}); retrying");
             continue;
         }
-        panic!("pvpython {} failed:\n{text}", script.display());
+        return out;
     }
 }
 

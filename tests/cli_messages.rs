@@ -1,0 +1,191 @@
+//! What a new user sees when something is wrong, through the binary: one line on stderr
+//! that names the file or flag, says each cause once, a non-zero exit, and no output file.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const NUCLEON: &str = "../shared/data/volumes/nucleon_41x41x41_uint8.raw";
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn t2tf(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_t2tf"))
+        .args(args)
+        .output()
+        .expect("run t2tf")
+}
+
+/// Run a command that must fail: exit status 1, stderr one line that contains every
+/// `needle` and none of the `absent`, and in which no `: `-separated part is repeated
+/// (a cause said twice, e.g. an io error that is both the message and its source).
+fn fails(args: &[&str], needles: &[&str], absent: &[&str]) -> String {
+    let o = t2tf(args);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "not one line: {err}");
+    for n in needles {
+        assert!(err.contains(n), "{args:?}: lacks '{n}': {err}");
+    }
+    for a in absent {
+        assert!(!err.contains(a), "{args:?}: says '{a}': {err}");
+    }
+    let parts: Vec<&str> = err.trim_end().split(": ").collect();
+    for (i, p) in parts.iter().enumerate() {
+        assert!(!parts[..i].contains(p), "'{p}' said twice: {err}");
+    }
+    err
+}
+
+/// A ParaView preset for the 0..255 range (t2tf's JSON shape).
+fn write_preset(dir: &Path) -> PathBuf {
+    let p = dir.join("tf.json");
+    std::fs::write(
+        &p,
+        r#"[{"Name":"t","ColorSpace":"RGB","RGBPoints":[0,0,0,1, 255,1,1,1],
+            "Points":[0,0,0.5,0, 255,0.8,0.5,0]}]"#,
+    )
+    .unwrap();
+    p
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn missing_files_are_named_once() {
+    let d = tempfile::tempdir().unwrap();
+    let nucleon = repo().join(NUCLEON);
+    let tf = write_preset(d.path());
+    let out = d.path().join("r.png");
+    let gone_tf = d.path().join("gone.json");
+    let gone_vol = d.path().join("gone_8x8x8_uint8.raw");
+    let os_error = ["(os error", "No such file or directory"];
+    // A missing TF file (render and convert read it through the formats module).
+    let render_args = [
+        "render",
+        s(&nucleon),
+        "--tf",
+        s(&gone_tf),
+        "--out",
+        s(&out),
+        "--size",
+        "16",
+    ];
+    fails(&render_args, &[s(&gone_tf), "no such file"], &os_error);
+    let xml = d.path().join("out.xml");
+    fails(
+        &["convert", s(&gone_tf), s(&xml)],
+        &[s(&gone_tf), "no such file"],
+        &os_error,
+    );
+    // A missing volume, for every command that reads one.
+    fails(
+        &["info", s(&gone_vol)],
+        &[s(&gone_vol), "no such file"],
+        &os_error,
+    );
+    let render_args = [
+        "render",
+        s(&gone_vol),
+        "--tf",
+        s(&tf),
+        "--out",
+        s(&out),
+        "--size",
+        "16",
+    ];
+    fails(&render_args, &[s(&gone_vol)], &os_error);
+    assert!(!out.exists() && !xml.exists());
+    // An output folder that does not exist: the folder is named, not a temporary file.
+    let nowhere = d.path().join("no-such-folder").join("r.png");
+    let render_args = [
+        "render",
+        s(&nucleon),
+        "--tf",
+        s(&tf),
+        "--out",
+        s(&nowhere),
+        "--size",
+        "16",
+    ];
+    fails(
+        &render_args,
+        &[s(&nowhere), "the folder does not exist"],
+        &[".partial", "(os error"],
+    );
+}
+
+#[test]
+fn a_missing_raw_flag_is_named() {
+    let d = tempfile::tempdir().unwrap();
+    let rule = "NAME_XxYxZ_DTYPE";
+    for name in ["volume.raw", "volume.bin"] {
+        let p = d.path().join(name);
+        std::fs::write(&p, [0u8; 64]).unwrap();
+        fails(
+            &["info", s(&p), "--dims", "4,4,4"],
+            &[name, "--dtype TYPE is missing"],
+            &[rule, "--dims"],
+        );
+        fails(
+            &["info", s(&p), "--dtype", "uint8"],
+            &[name, "--dims X,Y,Z is missing"],
+            &[rule, "--dtype"],
+        );
+    }
+    // Neither flag on a .raw without the pattern: the naming rule is the answer.
+    let p = d.path().join("volume.raw");
+    fails(
+        &["info", s(&p)],
+        &["volume.raw", rule, "--dims", "--dtype"],
+        &[],
+    );
+}
+
+#[test]
+fn render_refuses_other_image_formats_before_rendering() {
+    let d = tempfile::tempdir().unwrap();
+    let nucleon = repo().join(NUCLEON);
+    let tf = write_preset(d.path());
+    for name in ["r.jpg", "r.jpeg", "r.tif", "r"] {
+        let out = d.path().join(name);
+        let args = [
+            "render",
+            s(&nucleon),
+            "--tf",
+            s(&tf),
+            "--out",
+            s(&out),
+            "--size",
+            "16",
+        ];
+        fails(&args, &[s(&out), "--out", ".png"], &[]);
+        assert!(!out.exists(), "{name} written");
+    }
+    // The check comes first: even a missing volume is not reached.
+    let out = d.path().join("r.jpg");
+    let missing = d.path().join("gone_8x8x8_uint8.raw");
+    let args = ["render", s(&missing), "--tf", s(&tf), "--out", s(&out)];
+    fails(&args, &["r.jpg", ".png"], &["gone_8x8x8_uint8.raw"]);
+    // Any case of .png is fine.
+    let out = d.path().join("r.PNG");
+    let o = t2tf(&[
+        "render",
+        s(&nucleon),
+        "--tf",
+        s(&tf),
+        "--out",
+        s(&out),
+        "--size",
+        "16",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        &std::fs::read(&out).unwrap()[..8],
+        b"\x89PNG\r\n\x1a\n",
+        "PNG bytes"
+    );
+}
