@@ -136,7 +136,7 @@ fn execute_writes_the_outputs_and_reuses_the_caption_cache() {
         calls: 0.into(),
         texts: 0.into(),
     };
-    let out = dir.path().join("out");
+    let out = dir.path().join("red-thing");
     let argv = [
         "t2tf",
         "toy.raw",
@@ -171,7 +171,8 @@ fn execute_writes_the_outputs_and_reuses_the_caption_cache() {
     assert!(report.caption_pool_size >= 5000);
     assert_eq!(report.render["step_size"], 0.5);
     for name in [
-        "a-red-and-yellow-thing.json",
+        // Named after the --out folder.
+        "red-thing.json",
         "tf.png",
         "preview.png",
         "report.json",

@@ -305,7 +305,8 @@ fn full_run_writes_valid_outputs_and_lowers_the_contrastive_loss() {
     let (out40, r40) = at("40", "run");
     check_outputs(&out0, &r0, 0);
     let name = check_outputs(&out40, &r40, 40);
-    assert_eq!(name, "a-protein-molecule");
+    // Files are named after the --out folder.
+    assert_eq!(name, "run");
     assert_eq!(
         r40["negatives"],
         serde_json::json!(["a blank image", "a red car"])
@@ -340,6 +341,9 @@ fn same_seed_and_threads_give_identical_tf_files() {
         "35",
         "--prior-start",
         "30",
+        // The same file names in both folders (by default they are named after the folder).
+        "--name",
+        "nucleus",
         "--seed",
         "7",
     ];

@@ -20,6 +20,9 @@ use crate::optimize::{ImageEncoder, Parameterization, Renderer};
 use crate::progress::{Progress, ProgressMode, StepReport};
 use crate::tf::ControlPoints;
 
+/// Output folder when `--out` is not given.
+const DEFAULT_OUT: &str = "t2tf-output";
+
 /// Optimize a transfer function so renderings of VOLUME match a text prompt.
 #[derive(clap::Args, Debug, Clone)]
 #[command(
@@ -41,10 +44,11 @@ pub struct OptimizeArgs {
     pub negatives: Vec<String>,
 
     /// Output folder (created if missing).
-    #[arg(long, default_value = "t2tf-output")]
+    #[arg(long, default_value = DEFAULT_OUT)]
     pub out: PathBuf,
 
-    /// Base name of the TF files; default: made from the prompt.
+    /// Base name of the TF files; default: the --out folder's name, or, without --out, made
+    /// from the prompt.
     #[arg(long)]
     pub name: Option<String>,
 
@@ -167,6 +171,14 @@ impl OptimizeArgs {
                 bail!("--name {n:?}: must be a plain file name (no slashes, not empty)");
             }
             return Ok(n.clone());
+        }
+        // A folder the user named says what the run is for: `--out aneurism-tf` writes
+        // aneurism-tf.json, not files named after the prompt.
+        if self.out != Path::new(DEFAULT_OUT) {
+            let folder = self.out.file_name().map(|f| slug(&f.to_string_lossy()));
+            if let Some(f) = folder.filter(|f| !f.is_empty()) {
+                return Ok(f);
+            }
         }
         let source = match (&self.prompt, &self.reference_image) {
             (Some(p), _) => p.clone(),
@@ -545,6 +557,18 @@ mod tests {
         assert_eq!(a.settings(), Settings::default());
         assert_eq!(a.model.model, crate::clip::DEFAULT_MODEL);
         assert_eq!(a.tf_name().unwrap(), "a-potted-tree");
+        let a = parse(&["--prompt", "a potted tree", "--out", "runs/Bonsai TF"]).unwrap();
+        assert_eq!(a.tf_name().unwrap(), "bonsai-tf");
+        let a = parse(&[
+            "--prompt",
+            "a potted tree",
+            "--out",
+            "runs/x",
+            "--name",
+            "y",
+        ])
+        .unwrap();
+        assert_eq!(a.tf_name().unwrap(), "y");
     }
 
     #[test]

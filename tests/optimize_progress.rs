@@ -1,0 +1,98 @@
+//! Progress of `t2tf optimize` where no terminal is watching: plain lines in a log or pipe,
+//! and one JSON object per line with `--progress json` (what the ParaView plugin parses).
+
+use std::path::Path;
+use std::process::Command;
+
+use serde_json::Value;
+
+const MODEL: &str = "tests/fixtures/clip/quick_gelu";
+const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
+const NUCLEON: &str = "../shared/data/volumes/nucleon_41x41x41_uint8.raw";
+
+/// A short run with stderr piped (so not a terminal); returns stderr.
+fn run(out: &Path, extra: &[&str]) -> String {
+    let negatives = out.with_extension("negatives.txt");
+    std::fs::write(&negatives, "a red car\na bowl of fruit\n").unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_t2tf"))
+        .env("XDG_CACHE_HOME", out.with_extension("cache"))
+        .args(["optimize", NUCLEON, "--prompt", "a nucleon"])
+        .args(["--model", MODEL, "--tokenizer", TOKENIZER, "--threads", "2"])
+        .args(["--steps", "6", "--views", "1", "--prior-start", "3"])
+        .arg("--negatives-file")
+        .arg(&negatives)
+        .arg("--out")
+        .arg(out)
+        .args(extra)
+        .output()
+        .expect("the t2tf binary runs");
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{err}");
+    err
+}
+
+#[test]
+fn a_pipe_gets_plain_step_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let err = run(&dir.path().join("run"), &[]);
+    // The first and the last step are always said; in between at most one line per 5 s.
+    let steps: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("t2tf: step "))
+        .collect();
+    assert!(
+        steps
+            .first()
+            .is_some_and(|l| l.starts_with("t2tf: step 1/6 ")),
+        "{err}"
+    );
+    assert!(
+        steps
+            .last()
+            .is_some_and(|l| l.starts_with("t2tf: step 6/6 ")),
+        "{err}"
+    );
+    for l in &steps {
+        assert!(l.contains("loss") && l.contains("ETA"), "{l}");
+    }
+    assert!(
+        !err.contains('\r') && !err.contains('\u{1b}'),
+        "terminal codes in a log: {err:?}"
+    );
+}
+
+#[test]
+fn json_progress_is_one_object_per_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let err = run(&out, &["--progress", "json"]);
+    let events: Vec<Value> = err
+        .lines()
+        .filter(|l| l.starts_with('{'))
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{l}: {e}")))
+        .collect();
+    let steps: Vec<&Value> = events.iter().filter(|e| e["event"] == "step").collect();
+    assert_eq!(steps.len(), 6, "{err}");
+    for (i, s) in steps.iter().enumerate() {
+        assert_eq!(s["step"], i + 1);
+        assert_eq!(s["steps"], 6);
+        for key in ["loss", "elapsed_s", "eta_s", "p_prompt"] {
+            assert!(s[key].as_f64().is_some_and(f64::is_finite), "{key}: {s}");
+        }
+    }
+    assert_eq!(steps[5]["eta_s"], 0.0);
+    let done = events.last().unwrap();
+    assert_eq!(done["event"], "done", "{err}");
+    assert_eq!(done["interrupted"], false);
+    let files: Vec<&str> = done["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap())
+        .collect();
+    // Files are named after the --out folder.
+    assert!(files.contains(&"run.json"), "{files:?}");
+    for f in files {
+        assert!(out.join(f).is_file(), "{f} listed but not written");
+    }
+}
