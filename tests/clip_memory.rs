@@ -1,0 +1,128 @@
+//! Loading a checkpoint costs at most ~1.3× its size in memory on top of what the model keeps:
+//! tensors are widened one at a time from the memory-mapped file, never from a second copy.
+//!
+//! Its own test binary (one test) so that the process's peak resident set (VmHWM in
+//! /proc/self/status, reset through /proc/self/clear_refs) is this load's alone.
+
+use std::cell::RefCell;
+use std::path::Path;
+
+use safetensors::tensor::TensorView;
+use safetensors::Dtype;
+use t2tf::clip::{ClipConfig, ModelFiles, RandomSource, TensorSource};
+
+/// Records the names and shapes the model asks for; hands out zeros.
+struct Recorder(RefCell<Vec<(String, Vec<usize>)>>);
+
+impl TensorSource for Recorder {
+    fn tensor(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>, t2tf::clip::ClipError> {
+        self.0.borrow_mut().push((name.to_string(), shape.to_vec()));
+        Ok(vec![0.0; shape.iter().product::<usize>().max(1)])
+    }
+}
+
+fn status_kb(field: &str) -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with(field))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// A mid-sized CLIP (about 36 M parameters, 145 MB in f32): big enough that a second copy of
+/// the file would stand out against the allocator's noise, small enough for a test.
+fn config() -> ClipConfig {
+    let mut c = ClipConfig::vit_b32();
+    c.text.tower.hidden_size = 256;
+    c.text.tower.intermediate_size = 1024;
+    c.text.tower.num_layers = 4;
+    c.text.tower.num_heads = 4;
+    c.vision.tower.num_layers = 5;
+    c.projection_dim = 256;
+    c
+}
+
+#[test]
+fn loading_needs_at_most_one_point_three_times_the_file_beyond_the_model() {
+    // Peak RSS resets need Linux's clear_refs; say so and stop elsewhere.
+    if std::fs::write("/proc/self/clear_refs", "5").is_err() || status_kb("VmHWM:").is_none() {
+        eprintln!("skipped: /proc/self/clear_refs or VmHWM unavailable on this system");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config();
+    let names = Recorder(RefCell::new(Vec::new()));
+    drop(t2tf::clip::Clip::from_source(cfg.clone(), &names).unwrap());
+    let weights = dir.path().join("model.safetensors");
+    {
+        let random = RandomSource::new(1);
+        let data: Vec<(String, Vec<usize>, Vec<u8>)> = names
+            .0
+            .borrow()
+            .iter()
+            .map(|(n, s)| {
+                let v = random.tensor(n, s).unwrap();
+                (
+                    n.clone(),
+                    s.clone(),
+                    v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+                )
+            })
+            .collect();
+        let views: Vec<(String, TensorView)> = data
+            .iter()
+            .map(|(n, s, b)| {
+                (
+                    n.clone(),
+                    TensorView::new(Dtype::F32, s.clone(), b).unwrap(),
+                )
+            })
+            .collect();
+        safetensors::serialize_to_file(views, None, &weights).unwrap();
+    }
+    let file_kb = std::fs::metadata(&weights).unwrap().len() / 1024;
+    assert!(
+        file_kb > 100_000,
+        "the test model is too small to measure: {file_kb} KB"
+    );
+    std::fs::write(dir.path().join("config.json"), config_json(&cfg)).unwrap();
+    let files = ModelFiles {
+        config: dir.path().join("config.json"),
+        weights: vec![weights],
+        format: t2tf::clip::load::WeightFormat::Safetensors,
+        tokenizer: Path::new("../shared/data/clip/tokenizer.json").to_path_buf(),
+    };
+
+    std::fs::write("/proc/self/clear_refs", "5").unwrap();
+    let clip = t2tf::clip::Clip::load_files(&files).unwrap();
+    let peak = status_kb("VmHWM:").unwrap();
+    // What the model keeps: resident now that the file is unmapped.
+    let kept = status_kb("VmRSS:").unwrap();
+    let transient = peak.saturating_sub(kept);
+    eprintln!(
+        "file {file_kb} KB; resident after load {kept} KB; peak {peak} KB; transient {transient} KB = {:.2}× the file",
+        transient as f64 / file_kb as f64
+    );
+    assert!(
+        transient as f64 <= 1.3 * file_kb as f64,
+        "loading needed {transient} KB beyond what the model keeps, more than 1.3× the {file_kb} KB file"
+    );
+    assert_eq!(clip.config(), &cfg);
+}
+
+/// The config as transformers writes it (only the fields that differ from the defaults matter).
+fn config_json(c: &ClipConfig) -> String {
+    serde_json::json!({
+        "model_type": "clip",
+        "projection_dim": c.projection_dim,
+        "text_config": {
+            "hidden_size": c.text.tower.hidden_size,
+            "intermediate_size": c.text.tower.intermediate_size,
+            "num_hidden_layers": c.text.tower.num_layers,
+            "num_attention_heads": c.text.tower.num_heads,
+            "eos_token_id": c.text.eos_token_id,
+        },
+        "vision_config": {
+            "num_hidden_layers": c.vision.tower.num_layers,
+        },
+    })
+    .to_string()
+}
