@@ -9,7 +9,7 @@
 //! the recovered TF, on those unseen views.
 //!
 //! ```sh
-//! cargo run --release --example demo_recover -- [--out docs/demo_recover.png] [--steps 80]
+//! cargo run --release --example demo_recover -- [--out docs/demo_recover.png] [--steps 200]
 //! ```
 //!
 //! What CLIP adds in `t2tf optimize`: the target is a sentence instead of pictures, so nobody
@@ -84,7 +84,7 @@ fn render_all(r: &VolumeRenderer, cp: &ControlPoints, views: &[View]) -> Result<
 
 fn main() -> Result<()> {
     let mut out = PathBuf::from("demo_recover.png");
-    let mut steps = 80usize;
+    let mut steps = 200usize;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
