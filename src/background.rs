@@ -11,6 +11,7 @@ use std::str::FromStr;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
 
 use crate::image::Image;
 
@@ -23,7 +24,45 @@ pub enum BackgroundError {
     Name(String),
 }
 
-/// What to draw behind the volume.
+/// Background behind one rendered view.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum Background {
+    /// Constant gray of this level in [0, 1].
+    Gray { level: f64 },
+    /// Checkerboard with colours, size and phase from `seed`.
+    Checkerboard { seed: u64 },
+    /// Noise image from `seed`.
+    Noise { seed: u64 },
+    /// Random Fourier features from `seed`.
+    Fourier { seed: u64 },
+}
+
+impl Background {
+    /// The kind's name, as `--background` takes it.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Background::Gray { .. } => "gray",
+            Background::Checkerboard { .. } => "checkerboard",
+            Background::Noise { .. } => "noise",
+            Background::Fourier { .. } => "fourier",
+        }
+    }
+
+    /// Draw it at `width` × `height`: a pure function of the background and the size.
+    pub fn draw(&self, width: usize, height: usize) -> Image {
+        let rng = |seed: u64| ChaCha8Rng::seed_from_u64(seed);
+        match *self {
+            Background::Gray { level } => Image::filled(width, height, [level as f32; 3]),
+            Background::Checkerboard { seed } => checkerboard(width, height, &mut rng(seed)),
+            Background::Noise { seed } => noise(width, height, &mut rng(seed)),
+            Background::Fourier { seed } => fourier(width, height, &mut rng(seed)),
+        }
+    }
+}
+
+/// What the user asks for behind the volume (`--background`): a kind, where the seed decides
+/// the rest (see `BackgroundKind::resolve`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum BackgroundKind {
     /// Constant gray; `None` draws the level uniformly in [0, 1] from the seed.
@@ -78,26 +117,32 @@ impl fmt::Display for BackgroundKind {
     }
 }
 
-/// Draw a `width` × `height` background of `kind` from `seed`.
-pub fn generate(kind: BackgroundKind, width: usize, height: usize, seed: u64) -> Image {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    match kind {
-        BackgroundKind::Gray(level) => {
-            let v = level.unwrap_or_else(|| rng.random::<f32>());
-            Image::filled(width, height, [v; 3])
-        }
-        BackgroundKind::Checkerboard => checkerboard(width, height, &mut rng),
-        BackgroundKind::Noise => noise(width, height, &mut rng),
-        BackgroundKind::Fourier => fourier(width, height, &mut rng),
-        BackgroundKind::Random => {
-            let pick = [
-                BackgroundKind::Checkerboard,
-                BackgroundKind::Noise,
-                BackgroundKind::Fourier,
-            ][rng.random_range(0..3)];
-            generate(pick, width, height, rng.random())
+impl BackgroundKind {
+    /// The concrete background `seed` picks for this kind.
+    pub fn resolve(self, seed: u64) -> Background {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        match self {
+            BackgroundKind::Gray(level) => Background::Gray {
+                level: level.unwrap_or_else(|| rng.random::<f32>()) as f64,
+            },
+            BackgroundKind::Checkerboard => Background::Checkerboard { seed },
+            BackgroundKind::Noise => Background::Noise { seed },
+            BackgroundKind::Fourier => Background::Fourier { seed },
+            BackgroundKind::Random => {
+                let pick = [
+                    BackgroundKind::Checkerboard,
+                    BackgroundKind::Noise,
+                    BackgroundKind::Fourier,
+                ][rng.random_range(0..3)];
+                pick.resolve(rng.random())
+            }
         }
     }
+}
+
+/// Draw a `width` × `height` background of `kind` from `seed`.
+pub fn generate(kind: BackgroundKind, width: usize, height: usize, seed: u64) -> Image {
+    kind.resolve(seed).draw(width, height)
 }
 
 /// Parse a name and draw it (the CLI's `--background NAME`).

@@ -16,4 +16,5 @@ pub mod optimize;
 pub mod progress;
 pub mod render;
 pub mod tf;
+pub mod units;
 pub mod volume;

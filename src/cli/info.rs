@@ -8,6 +8,7 @@ use anyhow::Result;
 use serde_json::json;
 
 use super::VolumeArgs;
+use crate::units::human_bytes;
 use crate::volume::{ByteOrder, SourceFormat, Volume, HISTOGRAM_BINS};
 
 /// Width of the longest histogram bar, in characters.
@@ -91,15 +92,6 @@ fn format_name(v: &Volume) -> String {
     }
 }
 
-/// Bytes in B, KiB or MiB.
-fn mib(bytes: u64) -> String {
-    match bytes {
-        0..1024 => format!("{bytes} B"),
-        1024..1_048_576 => format!("{:.1} KiB", bytes as f64 / 1024.0),
-        _ => format!("{:.1} MiB", bytes as f64 / 1_048_576.0),
-    }
-}
-
 /// A number for people: shortest form, but no float noise (201.60000000000002 → 201.6) and
 /// exponents for very large or small magnitudes.
 fn num(x: f64) -> String {
@@ -145,10 +137,10 @@ fn text_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f6
     let _ = writeln!(
         s,
         "memory      file {}, values {}; ours: f32 {} + pyramid {}",
-        mib(file_bytes),
-        mib((n * v.scalar_type.size()) as u64),
-        mib(level0),
-        mib(pyramid)
+        human_bytes(file_bytes as u128),
+        human_bytes((n * v.scalar_type.size()) as u128),
+        human_bytes(level0 as u128),
+        human_bytes(pyramid as u128)
     );
     let dims: Vec<String> = v
         .levels

@@ -7,6 +7,7 @@ use anyhow::{bail, Context, Result};
 use crate::clip::load::{looks_like_repo_id, resolve_with, WEIGHT_FILES};
 use crate::clip::{ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
 use crate::hub::{cached_repos, CachedRepo, Hub, HubSettings, RepoKind};
+use crate::units::human_bytes;
 
 /// Download or list CLIP models in the Hugging Face cache.
 #[derive(clap::Args, Debug)]
@@ -83,7 +84,7 @@ fn fetch(a: FetchArgs) -> Result<()> {
     for p in &paths {
         let size = std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
         let name = p.file_name().unwrap_or_default().to_string_lossy();
-        println!("  {name:<40} {:>10}", human_size(size));
+        println!("  {name:<40} {:>10}", human_bytes(size.into()));
     }
     println!("  {summary}");
     let snapshot = files.config.parent().unwrap_or(&files.config);
@@ -123,7 +124,7 @@ fn list(a: ListArgs) -> Result<()> {
         println!(
             "{:<48} {:>10}  {:<20} {}",
             r.repo_id,
-            human_size(r.size_on_disk),
+            human_bytes(r.size_on_disk.into()),
             refs(r),
             weight_files(r).join(", ")
         );
@@ -175,32 +176,4 @@ fn weight_files(r: &CachedRepo) -> Vec<String> {
     names.sort();
     names.dedup();
     names
-}
-
-/// Bytes as B / KiB / MiB / GiB with one decimal.
-pub fn human_size(bytes: u64) -> String {
-    const UNITS: [&str; 4] = ["B", "KiB", "MiB", "GiB"];
-    let mut v = bytes as f64;
-    let mut u = 0;
-    while v >= 1024.0 && u + 1 < UNITS.len() {
-        v /= 1024.0;
-        u += 1;
-    }
-    if u == 0 {
-        format!("{bytes} B")
-    } else {
-        format!("{v:.1} {}", UNITS[u])
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::human_size;
-
-    #[test]
-    fn sizes_read_well() {
-        assert_eq!(human_size(512), "512 B");
-        assert_eq!(human_size(2048), "2.0 KiB");
-        assert_eq!(human_size(605_000_000), "577.0 MiB");
-    }
 }

@@ -1,7 +1,7 @@
 //! `t2tf optimize`: the flags of Algorithm 1 with the paper's defaults, and their validation.
 //!
-//! The loop itself is `crate::optimize::optimize`; `run` validates everything it can without
-//! the renderer and CLIP (wired in by the lead once those land).
+//! The loop itself is `crate::optimize::optimize`; `run` validates everything it can before
+//! loading the volume and CLIP, then binds them to the loop through `optimize::adapters`.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -242,9 +242,9 @@ impl ClipConfig {
             return Err(format!(
                 "the weights this config describes would take {} in f32 ({} parameters), over \
                  the {} limit; the largest part is {} ({} × {})",
-                human_bytes(bytes),
+                crate::units::human_bytes(bytes),
                 human_count(self.params_u128()),
-                human_bytes(MAX_F32_BYTES as u128),
+                crate::units::human_bytes(MAX_F32_BYTES as u128),
                 big.what,
                 big.count,
                 big.each
@@ -548,23 +548,6 @@ fn mul(xs: &[u128]) -> u128 {
 
 fn add(xs: &[u128]) -> u128 {
     xs.iter().fold(0u128, |a, &b| a.saturating_add(b))
-}
-
-fn human_bytes(b: u128) -> String {
-    const UNITS: [&str; 7] = ["bytes", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
-    let mut x = b as f64;
-    let mut u = 0;
-    while x >= 1024.0 && u + 1 < UNITS.len() {
-        x /= 1024.0;
-        u += 1;
-    }
-    if u == 0 {
-        format!("{b} bytes")
-    } else if x < 10_000.0 {
-        format!("{x:.1} {}", UNITS[u])
-    } else {
-        format!("{x:.2e} {}", UNITS[u])
-    }
 }
 
 fn human_count(n: u128) -> String {

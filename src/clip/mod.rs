@@ -3,7 +3,7 @@
 //!
 //! The model is written by hand on the `gemm` crate; candle's CLIP was measured first and gave no
 //! input gradient (its fused layer norm has no backward) and, rebuilt from differentiable candle
-//! ops, ran ViT-B/32 forward+backward ~5–8× slower than the target (BENCHMARKS-clip.md).
+//! ops, ran ViT-B/32 forward+backward ~5–8× slower than the target (BENCHMARKS.md, CLIP).
 //!
 //! Parts, each reproducing a `transformers` modeling_clip.py class:
 //! `config` (CLIPConfig), `weights` (safetensors or PyTorch checkpoints, one file or shards;

@@ -1,7 +1,6 @@
 //! The optimizer's traits on the real components: the renderer (`crate::render`), CLIP
 //! (`crate::clip`) and the paper's TF parameterization (`crate::tf::TfParams`).
 
-use crate::background::{self, BackgroundKind};
 use crate::camera::{Camera, Orbit, UpAxis};
 use crate::clip::{Clip, ImageCache};
 use crate::image::{resize_bilinear, resize_bilinear_adjoint, Image};
@@ -10,7 +9,7 @@ use crate::tf::{ControlPoints, Lut, LutGrad, TfParams};
 use crate::volume::Volume;
 
 use super::driver::TextEncoder;
-use super::{Background, BoxError, ImageEncoder, Parameterization, PointGrad, Renderer, View};
+use super::{BoxError, ImageEncoder, Parameterization, PointGrad, Renderer, View};
 
 /// Side of each view in preview.png when CLIP's input is smaller.
 pub const PREVIEW_SIZE: usize = 256;
@@ -54,13 +53,7 @@ impl VolumeRenderer<'_> {
     }
 
     fn background_sized(&self, view: &View, size: usize) -> Image {
-        let (kind, seed) = match view.background {
-            Background::Gray { level } => (BackgroundKind::Gray(Some(level as f32)), 0),
-            Background::Checkerboard { seed } => (BackgroundKind::Checkerboard, seed),
-            Background::Noise { seed } => (BackgroundKind::Noise, seed),
-            Background::Fourier { seed } => (BackgroundKind::Fourier, seed),
-        };
-        background::generate(kind, size, size, seed)
+        view.background.draw(size, size)
     }
 }
 

@@ -7,37 +7,12 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+pub use crate::background::Background;
 use serde::{Deserialize, Serialize};
 
 use super::captions::sample_indices;
 use super::settings::Settings;
 use super::sgd::linear_lr;
-
-/// Background behind one rendered view.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "lowercase")]
-pub enum Background {
-    /// Constant gray of this level in [0, 1] (the first `gray_steps` steps).
-    Gray { level: f64 },
-    /// Checkerboard with colours, size and phase from `seed`.
-    Checkerboard { seed: u64 },
-    /// Noise image from `seed`.
-    Noise { seed: u64 },
-    /// Random Fourier features from `seed`.
-    Fourier { seed: u64 },
-}
-
-impl Background {
-    /// The background kind's name (as the renderer's background module names it).
-    pub fn name(&self) -> &'static str {
-        match self {
-            Background::Gray { .. } => "gray",
-            Background::Checkerboard { .. } => "checkerboard",
-            Background::Noise { .. } => "noise",
-            Background::Fourier { .. } => "fourier",
-        }
-    }
-}
 
 /// One camera and its background. Angles in radians; the camera orbits the volume centre.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

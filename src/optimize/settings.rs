@@ -39,10 +39,10 @@ pub mod defaults {
     pub const RHO: f64 = 0.05;
     /// Seed of every random choice (views, backgrounds, negatives, initial colours).
     pub const SEED: u64 = 0;
-    /// Pitch limit of random views, ±π/14 (paper).
-    pub const PITCH_LIMIT: f64 = std::f64::consts::PI / 14.0;
-    /// Camera distance range in bounding radii (paper: 2 to 4).
-    pub const DISTANCE: [f64; 2] = [2.0, 4.0];
+    /// Pitch limit of random views, ±π/14 (paper; defined with the camera).
+    pub const PITCH_LIMIT: f64 = crate::camera::PITCH_RANGE;
+    /// Camera distance range in bounding radii (paper: 2 to 4; defined with the camera).
+    pub const DISTANCE: [f64; 2] = crate::camera::DISTANCE_RANGE;
 }
 
 /// All numeric settings of one optimization run (what `report.json` records).

@@ -2,8 +2,8 @@
 //!
 //! Why hand-written: on the default x86-64 target (SSE2 only) `f32::ceil` is a call into libm
 //! (no `roundss` without SSE4.1); the march rounds once per block it crosses, and a call there
-//! makes the compiler spill the loop's live floats. (An inlined polynomial `exp` was tried too
-//! and was slower than glibc's FMA `expf`, since the baseline target has no FMA: not kept.)
+//! makes the compiler spill the loop's live floats. (`exp` is `crate::math::fast_exp`, shared
+//! with CLIP.)
 
 /// ⌈v⌉ for finite or infinite v (f32 values of magnitude ≥ 2²³ are already integers).
 #[inline(always)]

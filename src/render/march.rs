@@ -633,6 +633,12 @@ fn march_typed<T: Voxel, F: FnMut(&Sample)>(
     march_body(p, d, ray, visit)
 }
 
+/// `march_body` compiled with AVX2 enabled, so the chunk interpolator it inlines uses AVX2
+/// gathers.
+///
+/// # Safety
+/// The CPU must support AVX2 (`simd::available()`); calling it elsewhere is undefined
+/// behaviour (an illegal instruction at best).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn march_avx2<T: Voxel, F: FnMut(&Sample)>(

@@ -1,0 +1,34 @@
+//! Quantities written for people: byte sizes in binary units.
+
+/// Bytes as `512 B`, `1.5 KiB`, `577.0 MiB`, … `EiB` (one decimal; an exponent past 10⁴ EiB,
+/// which only absurd sizes from a broken header reach).
+pub fn human_bytes(bytes: u128) -> String {
+    const UNITS: [&str; 7] = ["B", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
+    let mut x = bytes as f64;
+    let mut u = 0;
+    while x >= 1024.0 && u + 1 < UNITS.len() {
+        x /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{bytes} B")
+    } else if x < 10_000.0 {
+        format!("{x:.1} {}", UNITS[u])
+    } else {
+        format!("{x:.2e} {}", UNITS[u])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::human_bytes;
+
+    #[test]
+    fn sizes_read_well() {
+        assert_eq!(human_bytes(512), "512 B");
+        assert_eq!(human_bytes(2048), "2.0 KiB");
+        assert_eq!(human_bytes(605_000_000), "577.0 MiB");
+        assert_eq!(human_bytes(16 << 30), "16.0 GiB");
+        assert_eq!(human_bytes(u128::MAX), "2.95e20 EiB");
+    }
+}
