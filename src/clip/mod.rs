@@ -50,7 +50,7 @@ use std::path::{Path, PathBuf};
 pub use config::{Activation, ClipConfig};
 pub use load::{ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
 pub use preprocess::preprocess;
-pub use similarity::{cosine, cosine_grad, softmax_scaled};
+pub use similarity::{cosine, cosine_checked, cosine_grad, softmax_scaled, unit, Incomparable};
 pub use source::{RandomSource, TensorSource};
 pub use tokenizer::ClipTokenizer;
 pub use vision::{ImageCache, MEAN, STD};

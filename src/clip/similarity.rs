@@ -11,10 +11,42 @@ fn norm(v: &[f32]) -> f64 {
         .max(MIN_NORM)
 }
 
-/// cos(a, b) = a·b / (|a| |b|).
+/// Why two embeddings have no cosine similarity.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum Incomparable {
+    #[error("embeddings of different lengths ({0} and {1}) cannot be compared")]
+    Lengths(usize, usize),
+    #[error("has a non-finite value at index {0}")]
+    NonFinite(usize),
+    #[error("has zero length: its cosine similarity is undefined")]
+    Zero,
+}
+
+/// `v / |v|` in f64, or why `v` has no direction (empty, zero, or a NaN/infinite value).
+pub fn unit(v: &[f32]) -> Result<Vec<f64>, Incomparable> {
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(Incomparable::NonFinite(i));
+    }
+    let n = v.iter().map(|&x| (x as f64).powi(2)).sum::<f64>().sqrt();
+    if n == 0.0 {
+        return Err(Incomparable::Zero);
+    }
+    Ok(v.iter().map(|&x| x as f64 / n).collect())
+}
+
+/// cos(a, b) = â·b̂ in f64, or why it is undefined. The one definition: the optimizer's loss
+/// refuses what this refuses, and [`cosine`] scores it as 0.
+pub fn cosine_checked(a: &[f32], b: &[f32]) -> Result<f64, Incomparable> {
+    if a.len() != b.len() {
+        return Err(Incomparable::Lengths(a.len(), b.len()));
+    }
+    let (u, v) = (unit(a)?, unit(b)?);
+    Ok(u.iter().zip(&v).map(|(x, y)| x * y).sum())
+}
+
+/// cos(a, b) for scoring: [`cosine_checked`], with 0 (no similarity) where it is undefined.
 pub fn cosine(a: &[f32], b: &[f32]) -> f32 {
-    let dot: f64 = a.iter().zip(b).map(|(&x, &y)| x as f64 * y as f64).sum();
-    (dot / (norm(a) * norm(b))) as f32
+    cosine_checked(a, b).unwrap_or(0.0) as f32
 }
 
 /// ∂cos(a, b)/∂a = b/(|a||b|) − cos · a/|a|².
@@ -54,6 +86,20 @@ mod tests {
             assert!((g[i] as f64 - fd).abs() < 5e-4, "{i}: {} vs {fd}", g[i]);
         }
         assert_eq!(cosine(&[0.0; 4], &b), 0.0);
+        assert_eq!(cosine_checked(&[0.0; 4], &b), Err(Incomparable::Zero));
+        assert_eq!(
+            cosine_checked(&a, &b[..3]),
+            Err(Incomparable::Lengths(4, 3))
+        );
+        assert_eq!(
+            cosine_checked(&[1.0, f32::NAN, 0.0, 0.0], &b),
+            Err(Incomparable::NonFinite(1))
+        );
+        assert!(
+            (cosine_checked(&[3.0, 4.0, 0.0, 0.0], &[0.0, 5.0, 12.0, 0.0]).unwrap() - 20.0 / 65.0)
+                .abs()
+                < 1e-15
+        );
         assert!(cosine_grad(&[0.0; 4], &b).iter().all(|v| v.is_finite()));
         let p = softmax_scaled(&[1.0, 0.0, -1.0], 100.0);
         assert!(p.iter().all(|v| v.is_finite()) && (p.iter().sum::<f32>() - 1.0).abs() < 1e-6);

@@ -8,6 +8,7 @@
 //! Each function returns the loss and the gradient of that loss with respect to its input.
 
 use super::OptimizeError;
+use crate::clip::Incomparable;
 
 /// T_N is clamped to [ε, 1 − ε] inside the Beta prior.
 ///
@@ -107,17 +108,13 @@ pub fn contrastive(
     })
 }
 
-/// Cosine similarity of two embeddings in f64 (errors as in [`contrastive`]).
+/// Cosine similarity of two embeddings in f64 (`clip::cosine_checked`, errors as in
+/// [`contrastive`]).
 pub fn cosine(a: &[f32], b: &[f32]) -> Result<f64, OptimizeError> {
-    if a.len() != b.len() {
-        return Err(OptimizeError::Embedding(format!(
-            "embeddings of different lengths ({} and {}) cannot be compared",
-            a.len(),
-            b.len()
-        )));
-    }
-    let (u, v) = (unit(a, "image embedding")?, unit(b, "text embedding")?);
-    Ok(u.iter().zip(&v).map(|(x, y)| x * y).sum())
+    crate::clip::cosine_checked(a, b).map_err(|e| match e {
+        Incomparable::Lengths(..) => OptimizeError::Embedding(e.to_string()),
+        _ => OptimizeError::Embedding(format!("an embedding {e}")),
+    })
 }
 
 fn norm(v: &[f32]) -> f64 {
@@ -127,20 +124,9 @@ fn norm(v: &[f32]) -> f64 {
         .sqrt()
 }
 
-/// `v / |v|` in f64; zero, empty or non-finite vectors are an error (no direction to compare).
+/// `clip::unit` with the embedding named in the error.
 fn unit(v: &[f32], what: &str) -> Result<Vec<f64>, OptimizeError> {
-    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-        return Err(OptimizeError::Embedding(format!(
-            "{what} has a non-finite value at index {i}"
-        )));
-    }
-    let n = norm(v);
-    if v.is_empty() || n == 0.0 {
-        return Err(OptimizeError::Embedding(format!(
-            "{what} has zero length: its cosine similarity is undefined"
-        )));
-    }
-    Ok(v.iter().map(|&x| x as f64 / n).collect())
+    crate::clip::unit(v).map_err(|e| OptimizeError::Embedding(format!("{what} {e}")))
 }
 
 /// The Beta(a, b) prior on per-pixel transmittance: mean over pixels of

@@ -5,9 +5,9 @@
 //! index), so step i's plan depends only on (seed, i, settings) and not on how many steps ran
 //! before it or whether the run was interrupted: same seed ⇒ same plan.
 
+pub use crate::background::Background;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-pub use crate::background::Background;
 use serde::{Deserialize, Serialize};
 
 use super::captions::sample_indices;
