@@ -177,62 +177,134 @@ pub fn step_gradient<R: Renderer, E: ImageEncoder, P: Parameterization>(
     let lut = cp.to_lut(tf.lut_size());
     lap(&mut times.other);
 
-    let mut images = Vec::with_capacity(plan.views.len());
-    let mut trans = Vec::with_capacity(plan.views.len());
-    let mut tapes = Vec::with_capacity(plan.views.len());
-    for view in &plan.views {
-        let (im, t, tape) = renderer
-            .render(&lut, view)
-            .map_err(OptimizeError::Renderer)?;
-        if t.len() != im.width * im.height {
-            return Err(OptimizeError::Renderer(
-                format!(
-                    "returned {} transmittances for a {}×{} image",
-                    t.len(),
-                    im.width,
-                    im.height
-                )
-                .into(),
-            ));
-        }
-        images.push(im);
-        trans.push(t);
-        tapes.push(tape);
-    }
+    let (images, trans, tapes) = render_views(renderer, &lut, &plan.views)?;
     lap(&mut times.render);
 
     let (emb, cache) = encoder.encode(&images).map_err(OptimizeError::Encoder)?;
-    if emb.len() != images.len() {
-        return Err(OptimizeError::Encoder(
-            format!(
-                "returned {} embeddings for {} images",
-                emb.len(),
-                images.len()
-            )
-            .into(),
-        ));
-    }
+    same_len(emb.len(), images.len(), || {
+        format!(
+            "returned {} embeddings for {} images",
+            emb.len(),
+            images.len()
+        )
+    })
+    .map_err(OptimizeError::Encoder)?;
     lap(&mut times.clip_forward);
 
-    let classes = targets.classes(&plan.negatives);
-    let v = plan.views.len() as f64;
     let mut log = StepLog {
         step: plan.step,
         lr: plan.lr,
         ..StepLog::default()
     };
+    let (d_emb, d_trans) = view_losses(&emb, &trans, targets, settings, plan, &mut log)?;
+    lap(&mut times.other);
+
+    let d_images = encoder
+        .backward(&cache, &d_emb)
+        .map_err(OptimizeError::Encoder)?;
+    same_len(d_images.len(), images.len(), || {
+        format!(
+            "backward returned {} gradients for {} images",
+            d_images.len(),
+            images.len()
+        )
+    })
+    .map_err(OptimizeError::Encoder)?;
+    for (d, im) in d_images.iter().zip(&images) {
+        same_len(d.data.len(), im.data.len(), || {
+            format!(
+                "backward returned a {}×{} gradient for a {}×{} image",
+                d.width, d.height, im.width, im.height
+            )
+        })
+        .map_err(OptimizeError::Encoder)?;
+    }
+    lap(&mut times.clip_backward);
+
+    let lut_grad = lut_gradient(renderer, &lut, &plan.views, &tapes, &d_images, &d_trans)?;
+    lap(&mut times.render_backward);
+
+    let (l1, g1) = loss::density_l1(&cp.sigma, settings.l1);
+    let (l2, g2) = loss::colour_l2(&cp.rgb, settings.l2);
+    log.l1 = l1;
+    log.l2 = l2;
+    log.total = log.clip + log.prior + l1 + l2;
+    let grad = tf
+        .backward(params, &lut_grad, &PointGrad { sigma: g1, rgb: g2 })
+        .map_err(OptimizeError::Parameters)?;
+    same_len(grad.len(), params.len(), || {
+        format!(
+            "backward returned {} values for {} parameters",
+            grad.len(),
+            params.len()
+        )
+    })
+    .map_err(OptimizeError::Parameters)?;
+    log.grad_norm = grad.iter().map(|g| g * g).sum::<f64>().sqrt();
+    lap(&mut times.other);
+    log.seconds = start.elapsed().as_secs_f64();
+    Ok((log, grad))
+}
+
+/// A component returned `got` items where `want` were due: its error, in its own words.
+fn same_len(got: usize, want: usize, what: impl FnOnce() -> String) -> Result<(), BoxError> {
+    if got == want {
+        Ok(())
+    } else {
+        Err(what().into())
+    }
+}
+
+/// Images, transmittances and tapes of every view of a step.
+type Renders<T> = (Vec<Image>, Vec<Vec<f32>>, Vec<T>);
+
+fn render_views<R: Renderer>(
+    renderer: &R,
+    lut: &Lut,
+    views: &[View],
+) -> Result<Renders<R::Tape>, OptimizeError> {
+    let mut out: Renders<R::Tape> = (Vec::new(), Vec::new(), Vec::new());
+    for view in views {
+        let (im, t, tape) = renderer
+            .render(lut, view)
+            .map_err(OptimizeError::Renderer)?;
+        same_len(t.len(), im.width * im.height, || {
+            format!(
+                "returned {} transmittances for a {}×{} image",
+                t.len(),
+                im.width,
+                im.height
+            )
+        })
+        .map_err(OptimizeError::Renderer)?;
+        out.0.push(im);
+        out.1.push(t);
+        out.2.push(tape);
+    }
+    Ok(out)
+}
+
+/// d loss / d embedding and d loss / d T_N, per view.
+type ViewGrads = (Vec<Vec<f32>>, Vec<Vec<f32>>);
+
+/// The contrastive loss and the Beta prior of each view, averaged over views into `log`.
+fn view_losses(
+    emb: &[Vec<f32>],
+    trans: &[Vec<f32>],
+    targets: &Targets,
+    settings: &Settings,
+    plan: &StepPlan,
+    log: &mut StepLog,
+) -> Result<ViewGrads, OptimizeError> {
+    let classes = targets.classes(&plan.negatives);
+    let v = plan.views.len() as f64;
     let mut d_emb = Vec::with_capacity(emb.len());
     let mut d_trans = Vec::with_capacity(emb.len());
-    for (e, t) in emb.iter().zip(&trans) {
+    for (e, t) in emb.iter().zip(trans) {
         let c = loss::contrastive(e, &classes, targets.logit_scale)?;
         log.clip += c.loss / v;
         log.prompt_probability += (c.logits[0] - logsumexp(&c.logits)).exp() / v;
-        d_emb.push(
-            c.d_image
-                .iter()
-                .map(|g| (g / v) as f32)
-                .collect::<Vec<f32>>(),
-        );
+        d_emb.push(c.d_image.iter().map(|g| (g / v) as f32).collect());
         log.mean_transmittance +=
             t.iter().map(|&x| x as f64).sum::<f64>() / t.len().max(1) as f64 / v;
         if plan.prior && settings.prior_weight > 0.0 {
@@ -247,73 +319,34 @@ pub fn step_gradient<R: Renderer, E: ImageEncoder, P: Parameterization>(
             d_trans.push(vec![0.0f32; t.len()]);
         }
     }
-    lap(&mut times.other);
+    Ok((d_emb, d_trans))
+}
 
-    let d_images = encoder
-        .backward(&cache, &d_emb)
-        .map_err(OptimizeError::Encoder)?;
-    if d_images.len() != images.len() {
-        return Err(OptimizeError::Encoder(
-            format!(
-                "backward returned {} gradients for {} images",
-                d_images.len(),
-                images.len()
-            )
-            .into(),
-        ));
-    }
-    lap(&mut times.clip_backward);
-
-    if let Some(i) = (0..images.len()).find(|&i| d_images[i].data.len() != images[i].data.len()) {
-        return Err(OptimizeError::Encoder(
-            format!(
-                "backward returned a {}×{} gradient for a {}×{} image",
-                d_images[i].width, d_images[i].height, images[i].width, images[i].height
-            )
-            .into(),
-        ));
-    }
+/// The renderer's backward of every view, summed into one LUT gradient.
+fn lut_gradient<R: Renderer>(
+    renderer: &R,
+    lut: &Lut,
+    views: &[View],
+    tapes: &[R::Tape],
+    d_images: &[Image],
+    d_trans: &[Vec<f32>],
+) -> Result<LutGrad, OptimizeError> {
     let mut lut_grad = LutGrad::zeros(lut.entries.len());
-    for (((view, tape), di), dt) in plan.views.iter().zip(&tapes).zip(&d_images).zip(&d_trans) {
+    for (((view, tape), di), dt) in views.iter().zip(tapes).zip(d_images).zip(d_trans) {
         let g = renderer
-            .backward(&lut, view, tape, &di.data, dt)
+            .backward(lut, view, tape, &di.data, dt)
             .map_err(OptimizeError::Renderer)?;
-        if g.entries.len() != lut.entries.len() {
-            return Err(OptimizeError::Renderer(
-                format!(
-                    "backward returned {} LUT entries, expected {}",
-                    g.entries.len(),
-                    lut.entries.len()
-                )
-                .into(),
-            ));
-        }
+        same_len(g.entries.len(), lut.entries.len(), || {
+            format!(
+                "backward returned {} LUT entries, expected {}",
+                g.entries.len(),
+                lut.entries.len()
+            )
+        })
+        .map_err(OptimizeError::Renderer)?;
         lut_grad.add(&g);
     }
-    lap(&mut times.render_backward);
-
-    let (l1, g1) = loss::density_l1(&cp.sigma, settings.l1);
-    let (l2, g2) = loss::colour_l2(&cp.rgb, settings.l2);
-    log.l1 = l1;
-    log.l2 = l2;
-    log.total = log.clip + log.prior + l1 + l2;
-    let grad = tf
-        .backward(params, &lut_grad, &PointGrad { sigma: g1, rgb: g2 })
-        .map_err(OptimizeError::Parameters)?;
-    if grad.len() != params.len() {
-        return Err(OptimizeError::Parameters(
-            format!(
-                "backward returned {} values for {} parameters",
-                grad.len(),
-                params.len()
-            )
-            .into(),
-        ));
-    }
-    log.grad_norm = grad.iter().map(|g| g * g).sum::<f64>().sqrt();
-    lap(&mut times.other);
-    log.seconds = start.elapsed().as_secs_f64();
-    Ok((log, grad))
+    Ok(lut_grad)
 }
 
 fn logsumexp(l: &[f64]) -> f64 {
