@@ -16,7 +16,7 @@ use std::path::Path;
 use t2tf::clip::Clip;
 use t2tf::image::Image;
 use t2tf::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer};
-use t2tf::optimize::recover::{descend, pixel_loss, psnr};
+use t2tf::optimize::recover::{descend, pixel_loss, psnr, LossAndGrad};
 use t2tf::optimize::{
     initialize, Background, ImageEncoder, OptimizeError, Parameterization, Renderer, Settings, View,
 };
@@ -194,7 +194,7 @@ fn test_losses_match_central_differences() {
 fn embedding_loss<'a, E: ImageEncoder>(
     encoder: &'a E,
     targets: &'a [Vec<f32>],
-) -> impl FnMut(&[Image]) -> Result<(f64, Vec<Vec<f32>>), OptimizeError> + 'a {
+) -> impl FnMut(&[Image]) -> Result<LossAndGrad, OptimizeError> + 'a {
     move |images| {
         let (emb, cache) = encoder.encode(images).unwrap();
         let n = images.len() as f64;

@@ -11,8 +11,11 @@ use super::{OptimizeError, Parameterization, PointGrad, Renderer, View};
 use crate::image::Image;
 use crate::tf::LutGrad;
 
-/// A loss on a batch of renders: the loss (mean over views) and d loss / d image of each view.
-pub type ImageLoss<'a> = dyn FnMut(&[Image]) -> Result<(f64, Vec<Vec<f32>>), OptimizeError> + 'a;
+/// The loss (mean over views) and d loss / d image of each view.
+pub type LossAndGrad = (f64, Vec<Vec<f32>>);
+
+/// A loss on a batch of renders.
+pub type ImageLoss<'a> = dyn FnMut(&[Image]) -> Result<LossAndGrad, OptimizeError> + 'a;
 
 /// Momentum for recovery: the paper's 0.75.
 const MOMENTUM: f64 = 0.75;
@@ -76,7 +79,7 @@ pub fn descend<R: Renderer, P: Parameterization>(
 /// views).
 pub fn pixel_loss(
     targets: &[Image],
-) -> impl FnMut(&[Image]) -> Result<(f64, Vec<Vec<f32>>), OptimizeError> + '_ {
+) -> impl FnMut(&[Image]) -> Result<LossAndGrad, OptimizeError> + '_ {
     move |images| {
         if images.len() != targets.len() {
             return Err(OptimizeError::Embedding(format!(
