@@ -24,6 +24,7 @@ use memmap2::Mmap;
 use zip::{CompressionMethod, ZipArchive};
 
 use super::pickle::{self, DType, PickleError, Tensor};
+use crate::clip::weights::{check_finite, check_shape};
 use crate::clip::ClipError;
 
 /// The pickle of a state dict is tens of kilobytes for CLIP and a few megabytes for the
@@ -114,18 +115,10 @@ impl TorchCheckpoint {
             .tensors
             .get(name)
             .ok_or_else(|| self.err(format!("tensor \"{name}\" is missing")))?;
-        let got = loc.tensor.shape.as_slice();
-        let scalar_ok = shape.is_empty() && (got.is_empty() || got == [1]);
-        if got != shape && !scalar_ok {
-            return Err(self.err(format!(
-                "tensor \"{name}\" has shape {got:?}, expected {shape:?}"
-            )));
-        }
+        check_shape(name, &loc.tensor.shape, shape).map_err(|m| self.err(m))?;
         let out =
             read_f32(&self.mmap, loc).map_err(|m| self.err(format!("tensor \"{name}\" {m}")))?;
-        if let Some(i) = out.iter().position(|v| !v.is_finite()) {
-            return Err(self.err(format!("tensor \"{name}\" has a non-finite value at {i}")));
-        }
+        check_finite(name, &out).map_err(|m| self.err(m))?;
         Ok(out)
     }
 }
