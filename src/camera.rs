@@ -19,7 +19,7 @@ use rand::Rng;
 
 use crate::volume::Geometry;
 
-/// Vertical field of view in degrees (DESIGN.md "Camera"; written into pvpython scripts).
+/// Vertical field of view in degrees (docs/DESIGN.md "Camera"; written into pvpython scripts).
 pub const VIEW_ANGLE_DEG: f64 = 45.0;
 
 /// The paper's random-view ranges (Appendix A).

@@ -262,7 +262,7 @@ fn generated_script_renders_the_volume_in_paraview() {
 
 #[test]
 fn unit_distance_does_not_change_the_paraview_image() {
-    // DESIGN.md: with o = 1 − exp(−σu/L) and ScalarOpacityUnitDistance = u, VTK renders
+    // docs/DESIGN.md: with o = 1 − exp(−σu/L) and ScalarOpacityUnitDistance = u, VTK renders
     // 1 − exp(−σΔ/L) whatever u is. Two exports for u = 0.5 and u = 4 must render alike
     // (differences: the export tolerance and VTK's 1024-entry opacity table); a wrong
     // conversion (e.g. o = σu without the exponential) changes the image grossly.

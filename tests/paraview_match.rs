@@ -1,5 +1,5 @@
 //! `t2tf optimize` output in real ParaView (`xvfb-run -a pvpython --dr`), and ParaView's
-//! image against our renderer's image of the same view (DESIGN.md "Tests that use real
+//! image against our renderer's image of the same view (docs/DESIGN.md "Tests that use real
 //! outside software").
 //!
 //! 1. The optimizer's `NAME_paraview.py` screenshot shows the volume inside its projected box

@@ -1,4 +1,4 @@
-//! Every setting of the optimization, with the paper's defaults (Appendix A; DESIGN.md).
+//! Every setting of the optimization, with the paper's defaults (Appendix A; docs/DESIGN.md).
 //!
 //! The constants in [`defaults`] are the single source: `Settings::default()` and the clap
 //! flags of `t2tf optimize` both read them, so `--help` prints what the code uses.
@@ -17,7 +17,7 @@ pub mod defaults {
     pub const LR: f64 = 10.0;
     /// SGD momentum (paper: 0.75).
     pub const MOMENTUM: f64 = 0.75;
-    /// Weight of the Beta prior on T_N (paper: data dependent; 0.02 in DESIGN.md).
+    /// Weight of the Beta prior on T_N (paper: data dependent; 0.02 in docs/DESIGN.md).
     pub const PRIOR_WEIGHT: f64 = 0.02;
     /// a = b of the Beta prior; < 1 biases rays towards fully opaque or fully clear.
     pub const PRIOR_AB: f64 = 0.5;

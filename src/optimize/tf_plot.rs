@@ -5,7 +5,7 @@
 //! the TF colour at each value. The x axis is the normalized value, 0 at the left.
 //!
 //! Opacity is what ParaView shows for the same TF: o = 1 − exp(−σ u / L) for the exported
-//! unit distance u and the box's longest side L (DESIGN.md). Sampled per pixel column, so the
+//! unit distance u and the box's longest side L (docs/DESIGN.md). Sampled per pixel column, so the
 //! curve between control points is the true one, not a straight line.
 
 use std::path::Path;

@@ -195,7 +195,7 @@ pub(crate) struct Marched {
 pub(crate) struct MarchParams<'a> {
     pub grid: Grid<'a>,
     pub lut: &'a Lut,
-    /// 1 / L (L = the box's longest side, DESIGN.md density units).
+    /// 1 / L (L = the box's longest side, docs/DESIGN.md density units).
     pub inv_l: f32,
     /// Stop once T falls below this (0 = never).
     pub stop_below: f32,
