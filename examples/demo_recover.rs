@@ -103,7 +103,10 @@ fn main() -> Result<()> {
         render_size: SIZE,
         jitter: false,
     };
-    let tf = PaperTf { k: K, lut_size: LUT };
+    let tf = PaperTf {
+        k: K,
+        lut_size: LUT,
+    };
     // Training views on checkerboards (a colour equal to a flat background would look
     // transparent); held-out views at other angles on a dark background never trained on.
     let train = views(8, 0.0, 0.2, true);
@@ -117,7 +120,15 @@ fn main() -> Result<()> {
     let (p0, _) = initialize(&r, &tf, &volume.histogram, &settings)?;
     let t0 = Instant::now();
     // lr 30, the recovery test's measured best on the nucleon.
-    let (p, losses) = descend(&r, &tf, &train, p0.clone(), steps, 30.0, &mut pixel_loss(&targets))?;
+    let (p, losses) = descend(
+        &r,
+        &tf,
+        &train,
+        p0.clone(),
+        steps,
+        30.0,
+        &mut pixel_loss(&targets),
+    )?;
     let secs = t0.elapsed().as_secs_f64();
     let cp0 = tf.control_points(&p0).map_err(|e| anyhow::anyhow!("{e}"))?;
     let cp = tf.control_points(&p).map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -136,6 +147,9 @@ fn main() -> Result<()> {
     );
     let rows: Vec<Image> = want.into_iter().chain(before).chain(after).collect();
     Image::grid(&rows, 4).save_png(&out)?;
-    println!("wrote {} (rows: reference, initialization, recovered)", out.display());
+    println!(
+        "wrote {} (rows: reference, initialization, recovered)",
+        out.display()
+    );
     Ok(())
 }

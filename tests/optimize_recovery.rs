@@ -18,8 +18,7 @@ use t2tf::image::Image;
 use t2tf::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer};
 use t2tf::optimize::recover::{descend, pixel_loss, psnr};
 use t2tf::optimize::{
-    initialize, Background, ImageEncoder, OptimizeError, Parameterization, Renderer, Settings,
-    View,
+    initialize, Background, ImageEncoder, OptimizeError, Parameterization, Renderer, Settings, View,
 };
 use t2tf::render::RenderOptions;
 use t2tf::tf::ControlPoints;

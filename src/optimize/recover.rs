@@ -38,9 +38,7 @@ pub fn descend<R: Renderer, P: Parameterization>(
         let mut images = Vec::with_capacity(views.len());
         let mut tapes = Vec::with_capacity(views.len());
         for v in views {
-            let (im, _, tape) = renderer
-                .render(&lut, v)
-                .map_err(OptimizeError::Renderer)?;
+            let (im, _, tape) = renderer.render(&lut, v).map_err(OptimizeError::Renderer)?;
             images.push(im);
             tapes.push(tape);
         }
