@@ -132,6 +132,8 @@ fn address_space_left() -> Option<u64> {
     if lim.rlim_cur == libc::RLIM_INFINITY {
         return None;
     }
+    // rlim_t is u64 on Linux but not on every Unix.
+    #[allow(clippy::useless_conversion)]
     let limit = u64::try_from(lim.rlim_cur).ok()?;
     Some(limit.saturating_sub(mapped_now().unwrap_or(0)))
 }

@@ -341,7 +341,7 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
         image_encoder,
         text_encoder,
         tf,
-        &stop,
+        stop,
         &mut on_step,
     )
     .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;

@@ -432,6 +432,7 @@ fn read_array(
                     values.len()
                 ));
             }
+            TypedBuffer::check_text_values(&values, ty)?;
             Ok(TypedBuffer::from_f64_as(values, ty))
         }
         "binary" => {

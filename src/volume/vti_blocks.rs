@@ -230,4 +230,14 @@ mod tests {
         );
         assert!(header_int(&s, 4, l(ByteOrder::Little, 8)).is_err());
     }
+
+    #[test]
+    fn lzma_stops_at_the_declared_size() {
+        // A small stream that expands to 1 MiB, declared as 512 bytes.
+        let mut xz = Vec::new();
+        lzma_rs::xz_compress(&mut &vec![0u8; 1 << 20][..], &mut xz).unwrap();
+        let mut dst = vec![0u8; 512];
+        let e = inflate(Compressor::Lzma, &xz, &mut dst).unwrap_err();
+        assert!(e.contains("more than 512 bytes"), "{e}");
+    }
 }
