@@ -99,6 +99,16 @@ impl Image {
         let mut reader = decoder
             .read_info()
             .with_context(|| format!("{}: not a readable PNG", path.display()))?;
+        // The header's size is the file's claim: check it before allocating (a 74-byte file
+        // can claim 100000² pixels).
+        let (w, h) = reader.info().size();
+        crate::memory::check(
+            format!("{}: a {w}×{h} image", path.display()),
+            crate::memory::product(&[w as usize, h as usize]),
+            // the decoded 16-bit RGBA row bytes and the f32 RGB copy
+            8 + 12,
+            "use a smaller picture",
+        )?;
         let mut buf = vec![0; reader.output_buffer_size()];
         let info = reader
             .next_frame(&mut buf)

@@ -51,9 +51,21 @@ fn parse_range(s: &str) -> Result<Range, String> {
 pub fn run(args: ConvertArgs) -> anyhow::Result<()> {
     // Check the output's format before reading, so a typo fails fast.
     TfFormat::from_path(&args.output)?;
+    crate::fs::check_writable(&args.output)?;
     let mut tf = read_tf(&args.input)?;
     if let Some(r) = args.rescale {
         tf = tf.rescaled(r.min, r.max);
+        // A width beyond f64 (e.g. -1e308,1e308) turns points into inf or NaN.
+        let [lo, hi] = tf.data_range();
+        let finite = tf.rgb_points.iter().all(|p| p.0.is_finite())
+            && tf.opacity_points.iter().all(|p| p.0.is_finite());
+        if !(lo.is_finite() && hi.is_finite() && finite) {
+            anyhow::bail!(
+                "--rescale {},{}: the range is too wide to represent (MAX - MIN overflows); give a narrower one",
+                r.min,
+                r.max
+            );
+        }
     }
     // Errors from here name the output file already.
     write_tf(&args.output, &tf)?;

@@ -4,8 +4,8 @@
 //! loading the volume and CLIP, then binds them to the loop through `optimize::adapters`.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, OnceLock};
+use std::sync::atomic::AtomicBool;
+use std::sync::OnceLock;
 
 use anyhow::{bail, Context, Result};
 
@@ -134,9 +134,14 @@ pub struct OptimizeArgs {
     #[arg(long, value_enum, default_value = "auto")]
     pub progress: ProgressMode,
 
-    /// Worker threads; default: all cores.
+    /// Worker threads; default: all cores (more than the logical CPUs are capped).
     #[arg(long)]
     pub threads: Option<usize>,
+
+    /// Memory budget for sizes read from files and flags (e.g. 512M, 16G); default: what
+    /// the system has available (MemAvailable, within `ulimit -v`).
+    #[arg(long, value_name = "SIZE", value_parser = crate::memory::parse_size)]
+    pub max_memory: Option<u64>,
 }
 
 impl OptimizeArgs {
@@ -279,24 +284,16 @@ pub struct Loaded {
 /// returns the names written. `crate::formats` provides them.
 pub type Exporter<'a> = dyn FnMut(&Path, &str, &ControlPoints) -> Result<Vec<String>> + 'a;
 
-/// The Ctrl-C flag: installed once per process; raising it ends the loop after the current
-/// step with that step's TF.
-pub fn stop_flag() -> Arc<AtomicBool> {
-    static FLAG: OnceLock<Arc<AtomicBool>> = OnceLock::new();
-    FLAG.get_or_init(|| {
-        let flag = Arc::new(AtomicBool::new(false));
-        let f = flag.clone();
-        if let Err(e) = ctrlc::set_handler(move || {
-            if f.swap(true, Ordering::SeqCst) {
-                // Second Ctrl-C: the user does not want to wait for the step to finish.
-                std::process::exit(130);
-            }
-        }) {
+/// The stop flag: SIGINT, SIGTERM or SIGHUP raise it (`crate::signals`), which ends the loop
+/// after the current step with that step's TF; handlers are installed on first use.
+pub fn stop_flag() -> &'static AtomicBool {
+    static INSTALLED: OnceLock<()> = OnceLock::new();
+    INSTALLED.get_or_init(|| {
+        if let Err(e) = crate::signals::install() {
             eprintln!("warning: Ctrl-C will not stop cleanly: {e}");
         }
-        flag
-    })
-    .clone()
+    });
+    &crate::signals::STOP
 }
 
 /// The whole command once the volume and model are loaded: validate, run Algorithm 1 with a
@@ -338,8 +335,9 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
         logit_scale: ctx.model.logit_scale,
         preview_views: ctx.preview_views,
     };
+    // Not cleared here: a signal received while the volume and model loaded must still stop
+    // the run (after one step) and be reported by the exit code.
     let stop = stop_flag();
-    stop.store(false, Ordering::SeqCst);
     let mut progress = Progress::new(args.progress, settings.steps);
     progress.phase("optimizing (caption embeddings are computed first if not cached)");
     let mut on_step = |log: &StepLog, _total: usize| {
@@ -355,7 +353,7 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
         image_encoder,
         text_encoder,
         tf,
-        &stop,
+        stop,
         &mut on_step,
     )
     .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
@@ -379,6 +377,8 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
 
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create the output folder", args.out.display()))?;
+    // The files go out as one set: staged, then moved in with report.json last.
+    let set = crate::fs::OutputSet::begin(&args.out)?;
     let mut report = Report::new(settings);
     report.prompt = args.prompt.clone();
     report.reference_image = args
@@ -396,15 +396,16 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
     report.render = ctx.render.clone();
     finished.fill_report(&mut report);
     let t0 = std::time::Instant::now();
-    report.outputs = export(&args.out, &name, &finished.outcome.control_points)?;
+    report.outputs = export(set.dir(), &name, &finished.outcome.control_points)?;
     report.timings.output += t0.elapsed().as_secs_f64();
     driver::write_outputs(
-        &args.out,
+        set.dir(),
         &mut report,
         &finished,
         &ctx.histogram,
         ctx.tf_curve,
     )?;
+    set.commit(&report.outputs)?;
     eprintln!(
         "wrote {} files to {}",
         report.outputs.len(),
@@ -425,14 +426,24 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     }
     args.validate()
         .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
+    // Before any work: --out is ours (locked against a second run, which proves it can be
+    // created and written), and what killed runs left there is cleaned up.
+    let _lock = crate::fs::OutputLock::acquire(&args.out)?;
+    for name in crate::fs::clean_stale(&args.out)? {
+        eprintln!("t2tf: cleaned up {name}, left in --out by an interrupted run");
+    }
+    // Installed now, so a SIGTERM while loading still ends with a written result.
+    stop_flag();
+    crate::memory::set_limit(args.max_memory);
     if let Some(t) = args.threads {
         rayon::ThreadPoolBuilder::new()
-            .num_threads(t)
+            .num_threads(crate::memory::thread_count(t))
             .build_global()
             .context("--threads: cannot start the thread pool")?;
     }
     let volume = args.volume_args.load(&args.volume)?;
     let files = crate::clip::load::resolve(&args.model.request())?;
+    check_model_size(&files)?;
     let clip = crate::clip::Clip::load_files(&files)?;
     if let Some(prompt) = args.prompt.as_deref() {
         // CLIP reads at most its context length; a prompt that fills it was cut (the tokenizer
@@ -531,6 +542,26 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         lut_size: LUT_SIZE,
     };
     execute(&args, &ctx, &renderer, &model, &model, &tf, &mut export)?;
+    if let Some(sig) = crate::signals::received() {
+        eprintln!(
+            "t2tf: stopped by {}: the TF of the last finished step was written to {}",
+            crate::signals::name(sig),
+            args.out.display()
+        );
+        std::process::exit(128 + sig);
+    }
+    Ok(())
+}
+
+/// The model's f32 weights must fit the memory budget before they are read.
+fn check_model_size(files: &crate::clip::load::ModelFiles) -> Result<()> {
+    let config = crate::clip::ClipConfig::from_file(&files.config)?;
+    crate::memory::check(
+        "the CLIP model's weights",
+        Some(config.f32_bytes()),
+        1,
+        "choose a smaller --model",
+    )?;
     Ok(())
 }
 

@@ -63,6 +63,27 @@ pub struct RenderArgs {
     /// Render N views on a ring (yaw evenly spaced, same pitch and distance) into one sheet.
     #[arg(long, value_name = "N")]
     pub orbit: Option<usize>,
+    /// Memory budget for sizes read from files and flags (e.g. 512M, 16G); default: what the
+    /// system has available.
+    #[arg(long, value_name = "SIZE", value_parser = crate::memory::parse_size)]
+    pub max_memory: Option<u64>,
+}
+
+/// The images `--size` and `--orbit` ask for must fit the memory budget before any is made:
+/// each view (RGB f32, and its transmittance) and the sheet that tiles them.
+fn check_image_memory(size: usize, orbit: Option<usize>) -> Result<()> {
+    let views = orbit.unwrap_or(1);
+    let cols = (views as f64).sqrt().ceil() as usize;
+    let cells = cols.checked_mul(views.div_ceil(cols.max(1)));
+    let pixels = cells.and_then(|c| crate::memory::product(&[c, size, size]));
+    crate::memory::check(
+        format!("{views} view(s) of {size}×{size} pixels"),
+        pixels,
+        // each view's RGB and transmittance, the sheet's RGB, the 8-bit PNG row data
+        16 + 12 + 3,
+        "lower --size or --orbit",
+    )?;
+    Ok(())
 }
 
 /// `t2tf render` writes PNG only: refuse another extension before any work, rather than
@@ -87,6 +108,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if !(args.step_size.is_finite() && args.step_size > 0.0) {
         bail!("--step-size {} must be a positive number", args.step_size);
     }
+    crate::memory::set_limit(args.max_memory);
+    check_image_memory(args.size, args.orbit)?;
+    // Before any work: the name is free or a regular file, and its folder takes new files.
+    crate::fs::check_writable(&args.out)?;
     let volume = args.read.load(&args.volume)?;
     let cp = load_tf(&args.tf, &volume, args.unit_distance)?;
     let lut = cp.to_lut(LUT_SIZE);

@@ -5,7 +5,6 @@
 //! ParaView XML colour map (`.xml`), VisIt colour table (`.ct`), and the scripts
 //! `NAME_paraview.py` (pvpython) and `NAME_visit.py` (VisIt CLI).
 
-mod atomic;
 mod error;
 mod export_tf;
 mod paraview_json;
@@ -15,7 +14,7 @@ mod points;
 mod visit_ct;
 mod visit_script;
 
-pub use atomic::{atomic_write, atomic_write_bytes};
+pub use crate::fs::{atomic_write, atomic_write_bytes};
 pub use error::{read_text, FormatError};
 pub use export_tf::{load_tf, ExportTf};
 pub use paraview_json::{from_paraview_json, to_paraview_json};

@@ -35,6 +35,21 @@ impl ScalarType {
         ScalarType::F64,
     ];
 
+    /// The smallest and largest value of an integer type (as f64); `None` for floats.
+    pub fn integer_range(self) -> Option<(f64, f64)> {
+        Some(match self {
+            ScalarType::U8 => (0.0, u8::MAX as f64),
+            ScalarType::I8 => (i8::MIN as f64, i8::MAX as f64),
+            ScalarType::U16 => (0.0, u16::MAX as f64),
+            ScalarType::I16 => (i16::MIN as f64, i16::MAX as f64),
+            ScalarType::U32 => (0.0, u32::MAX as f64),
+            ScalarType::I32 => (i32::MIN as f64, i32::MAX as f64),
+            ScalarType::U64 => (0.0, u64::MAX as f64),
+            ScalarType::I64 => (i64::MIN as f64, i64::MAX as f64),
+            ScalarType::F32 | ScalarType::F64 => return None,
+        })
+    }
+
     pub fn size(self) -> usize {
         match self {
             ScalarType::U8 | ScalarType::I8 => 1,
@@ -170,6 +185,26 @@ impl TypedBuffer {
     pub fn from_f64(values: Vec<f64>) -> Self {
         let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
         Self::new(ScalarType::F64, ByteOrder::Little, bytes)
+    }
+
+    /// Text values of an integer array must be integers its declared type holds (VTK would
+    /// wrap 300 in a UInt8 array to 44; rendering the value 300 instead would disagree with
+    /// ParaView silently). Float arrays take any value.
+    pub fn check_text_values(values: &[f64], declared: ScalarType) -> Result<(), String> {
+        let Some((lo, hi)) = declared.integer_range() else {
+            return Ok(());
+        };
+        match values
+            .iter()
+            .position(|&v| !(v.fract() == 0.0 && v >= lo && v <= hi))
+        {
+            None => Ok(()),
+            Some(i) => Err(format!(
+                "value {i} ({}) is not an integer its declared type {} holds ({lo} to {hi})",
+                values[i],
+                declared.vtk_xml_name()
+            )),
+        }
     }
 
     /// Like [`TypedBuffer::from_f64`] but keeps the scalar type the file declared.

@@ -415,6 +415,9 @@ fn read_array(
                 v
             });
         }
+        if let Some(t) = ty {
+            TypedBuffer::check_text_values(&values, t)?;
+        }
         Ok(ty.map(|t| TypedBuffer::from_f64_as(values, t)))
     } else {
         let Some(t) = ty else {

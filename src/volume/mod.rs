@@ -190,6 +190,19 @@ impl Volume {
             }
         }
 
+        check_box(name, &geometry)?;
+        // The f32 copy, its mip levels (1/7 more) and the renderer's bricked copy (aprons
+        // make it up to 1.42× the f32 data): 12 bytes per point is a safe bound.
+        crate::memory::check(
+            format!(
+                "{}x{}x{} points",
+                geometry.dims[0], geometry.dims[1], geometry.dims[2]
+            ),
+            crate::memory::product(&geometry.dims),
+            12,
+            "use a smaller volume or crop it",
+        )
+        .map_err(|e| VolumeError::file(name, e.to_string()))?;
         let Some(Normalized {
             range,
             norm_range,
@@ -237,7 +250,14 @@ impl Volume {
 
     /// Map a normalized value in [0, 1] back to data units.
     pub fn denormalize(&self, t: f64) -> f64 {
-        self.norm_range[0] + t * (self.norm_range[1] - self.norm_range[0])
+        let [lo, hi] = self.norm_range;
+        let width = hi - lo;
+        if width.is_finite() {
+            lo + t * width
+        } else {
+            // f64 data spanning more than f64's range: interpolate without the width.
+            lo * (1.0 - t) + hi * t
+        }
     }
 
     /// Bytes held by the normalized data and the pyramid.
@@ -255,6 +275,28 @@ struct Normalized {
     data: Vec<f32>,
 }
 
+/// The renderer works in f32 world coordinates: the box (origin to far corner) must be finite
+/// there and each side with more than one point must not vanish, or rays miss the box and the
+/// render is blank.
+fn check_box(name: &Path, g: &Geometry) -> Result<(), VolumeError> {
+    let extent = g.extent();
+    let finite = (0..3).all(|a| {
+        (g.origin[a] as f32).is_finite() && ((g.origin[a] + extent[a]) as f32).is_finite()
+    });
+    let sides = (0..3).all(|a| g.dims[a] < 2 || (extent[a] as f32).is_normal());
+    if finite && sides {
+        return Ok(());
+    }
+    Err(VolumeError::file(
+        name,
+        format!(
+            "spacing {:?} with origin {:?} gives a box of {:?} that single precision cannot \
+             represent; give a spacing near 1 with --spacing X,Y,Z",
+            g.spacing, g.origin, extent
+        ),
+    ))
+}
+
 /// The range that maps to [0, 1]: the finite range, widened by ±0.5 when it is one value.
 fn norm_range(lo: f64, hi: f64) -> [f64; 2] {
     if hi > lo {
@@ -264,11 +306,17 @@ fn norm_range(lo: f64, hi: f64) -> [f64; 2] {
     }
 }
 
-/// A finite value's normalized sample and histogram bin (`scale` = 1 / range width). Shared
-/// by both normalization paths so that they agree bit for bit.
+/// `scale` of [`normalize_value`]: 1 / half the range width. Halves, because the width of
+/// f64 data near ±f64::MAX overflows (halving is exact, so other data normalize as before).
+fn half_scale(norm_range: [f64; 2]) -> f64 {
+    1.0 / (norm_range[1] * 0.5 - norm_range[0] * 0.5)
+}
+
+/// A finite value's normalized sample and histogram bin (`scale` from [`half_scale`]).
+/// Shared by both normalization paths so that they agree bit for bit.
 #[inline]
 fn normalize_value(v: f64, norm_range: [f64; 2], scale: f64) -> (f32, usize) {
-    let t = ((v - norm_range[0]) * scale).clamp(0.0, 1.0);
+    let t = ((v * 0.5 - norm_range[0] * 0.5) * scale).clamp(0.0, 1.0);
     let bin = ((t * HISTOGRAM_BINS as f64) as usize).min(HISTOGRAM_BINS - 1);
     (t as f32, bin)
 }
@@ -291,7 +339,7 @@ fn normalize(buffer: &TypedBuffer) -> Option<Normalized> {
     let norm_range = norm_range(lo, hi);
 
     // Pass 2: the one f32 copy, normalized; non-finite voxels become NaN.
-    let scale = 1.0 / (norm_range[1] - norm_range[0]);
+    let scale = half_scale(norm_range);
     let mut data = Vec::with_capacity(buffer.len());
     let mut histogram = vec![0u64; HISTOGRAM_BINS];
     buffer.for_each(|v| {

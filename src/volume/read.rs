@@ -71,6 +71,13 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
     if reader_for(path, opts)? == Kind::Raw {
         raw::check_size(path, opts, meta.len())?;
     }
+    crate::memory::check(
+        "reading the volume file",
+        Some(meta.len()),
+        1,
+        "use a smaller volume",
+    )
+    .map_err(|e| VolumeError::file(path, e.to_string()))?;
     let bytes = std::fs::read(path).map_err(|e| VolumeError::Io {
         path: path.to_path_buf(),
         error: e,

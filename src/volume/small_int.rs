@@ -5,7 +5,9 @@
 //! results equal the generic path's bit for bit (same formula per value; tested below).
 
 use super::HISTOGRAM_BINS;
-use super::{norm_range, normalize_value, ByteOrder, Normalized, ScalarType, TypedBuffer};
+use super::{
+    half_scale, norm_range, normalize_value, ByteOrder, Normalized, ScalarType, TypedBuffer,
+};
 
 /// `None` unless the buffer stores 8- or 16-bit integers.
 pub(super) fn normalize(buffer: &TypedBuffer) -> Option<Normalized> {
@@ -46,7 +48,7 @@ pub(super) fn normalize(buffer: &TypedBuffer) -> Option<Normalized> {
         hi = hi.max(value(c));
     }
     let norm_range = norm_range(lo, hi);
-    let scale = 1.0 / (norm_range[1] - norm_range[0]);
+    let scale = half_scale(norm_range);
     let mut histogram = vec![0u64; HISTOGRAM_BINS];
     let lut: Vec<f32> = counts
         .iter()

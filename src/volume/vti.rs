@@ -401,6 +401,15 @@ fn read_array(
     let nbytes = n
         .checked_mul(ty.size())
         .ok_or_else(|| "size overflows".to_string())?;
+    // ASCII values are parsed into f64 first.
+    let held = if decl.format == "ascii" { 8 } else { ty.size() };
+    crate::memory::check(
+        format!("{n} values of its extent"),
+        u64::try_from(n).ok(),
+        held as u64,
+        "the extent is larger than fits",
+    )
+    .map_err(|e| e.to_string())?;
     match decl.format.as_str() {
         "ascii" => {
             let text: &str = &decl.text;
@@ -423,6 +432,7 @@ fn read_array(
                     values.len()
                 ));
             }
+            TypedBuffer::check_text_values(&values, ty)?;
             Ok(TypedBuffer::from_f64_as(values, ty))
         }
         "binary" => {

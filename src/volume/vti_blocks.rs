@@ -108,6 +108,13 @@ pub(super) fn unpack(stream: &[u8], layout: Layout, nbytes: usize) -> Result<Vec
             "its block header says {total} bytes but the extent needs {nbytes}"
         ));
     }
+    crate::memory::check(
+        "the array's decompressed data",
+        u64::try_from(total).ok(),
+        1,
+        "the file declares more data than fits",
+    )
+    .map_err(|e| e.to_string())?;
     let mut sizes = Vec::with_capacity(nblocks.min(1 << 20));
     for b in 0..nblocks {
         sizes.push(header_int(stream, (3 + b) * h, layout)?);
@@ -125,6 +132,29 @@ pub(super) fn unpack(stream: &[u8], layout: Layout, nbytes: usize) -> Result<Vec
             .map_err(|m| format!("block {b} of {nblocks}: {m}"))?;
     }
     Ok(out)
+}
+
+/// A writer into a fixed slice that fails (and notes it) once more than fits is written.
+struct Bounded<'a> {
+    dst: &'a mut [u8],
+    len: usize,
+    over: bool,
+}
+
+impl std::io::Write for Bounded<'_> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let Some(room) = self.dst.get_mut(self.len..self.len + buf.len()) else {
+            self.over = true;
+            return Err(std::io::Error::other("more data than declared"));
+        };
+        room.copy_from_slice(buf);
+        self.len += buf.len();
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 /// Decompress one block into exactly `dst.len()` bytes.
@@ -147,13 +177,18 @@ fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), String> {
         }
         Compressor::Lzma => {
             // VTK's LZMA compressor writes .xz streams (lzma_easy_buffer_encode).
-            let mut v = Vec::with_capacity(want);
-            lzma_rs::xz_decompress(&mut std::io::Cursor::new(input), &mut v)
-                .map_err(|e| format!("lzma: {e}"))?;
-            if v.len() == want {
-                dst.copy_from_slice(&v);
+            // Bounded by the declared size: a small stream can expand without limit.
+            let mut out = Bounded {
+                dst,
+                len: 0,
+                over: false,
+            };
+            let r = lzma_rs::xz_decompress(&mut std::io::Cursor::new(input), &mut out);
+            if out.over {
+                return Err(format!("lzma: decompresses to more than {want} bytes"));
             }
-            v.len()
+            r.map_err(|e| format!("lzma: {e}"))?;
+            out.len
         }
     };
     if got != want {
@@ -194,5 +229,15 @@ mod tests {
             (1 << 56) + 2
         );
         assert!(header_int(&s, 4, l(ByteOrder::Little, 8)).is_err());
+    }
+
+    #[test]
+    fn lzma_stops_at_the_declared_size() {
+        // A small stream that expands to 1 MiB, declared as 512 bytes.
+        let mut xz = Vec::new();
+        lzma_rs::xz_compress(&mut &vec![0u8; 1 << 20][..], &mut xz).unwrap();
+        let mut dst = vec![0u8; 512];
+        let e = inflate(Compressor::Lzma, &xz, &mut dst).unwrap_err();
+        assert!(e.contains("more than 512 bytes"), "{e}");
     }
 }

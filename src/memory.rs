@@ -1,0 +1,199 @@
+//! The memory budget: every size read from a file or a flag is checked here before it is
+//! allocated, so a hostile header or a large flag ends in an error that says what was asked,
+//! what is available and what to do, never in an allocation abort (exit 134).
+//!
+//! The budget is `--max-memory` when given, else what the system can give this process: the
+//! smaller of the kernel's MemAvailable and the room left under the address-space limit
+//! (`ulimit -v`).
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// `--max-memory` in bytes (0: derive from the system).
+static LIMIT: AtomicU64 = AtomicU64::new(0);
+
+/// What the budget refused.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "{what} needs {} but only {} is available for it; {hint} (or set the budget with --max-memory, e.g. --max-memory 16G)",
+    human(*.asked), human(*.available)
+)]
+pub struct MemoryError {
+    pub what: String,
+    pub asked: u64,
+    pub available: u64,
+    pub hint: String,
+}
+
+/// Set the budget (`None`: derive it from the system).
+pub fn set_limit(bytes: Option<u64>) {
+    LIMIT.store(bytes.unwrap_or(0), Ordering::SeqCst);
+}
+
+/// Bytes this process may still allocate.
+pub fn budget() -> u64 {
+    match LIMIT.load(Ordering::SeqCst) {
+        0 => system_available(),
+        n => n,
+    }
+}
+
+/// Check that `count` items of `item_bytes` each fit the budget; `None` counts (an overflowed
+/// product) never do. `hint` says how to ask for less.
+pub fn check(
+    what: impl Into<String>,
+    count: Option<u64>,
+    item_bytes: u64,
+    hint: &str,
+) -> Result<(), MemoryError> {
+    let asked = count.and_then(|c| c.checked_mul(item_bytes));
+    let available = budget();
+    match asked {
+        Some(a) if a <= available => Ok(()),
+        _ => Err(MemoryError {
+            what: what.into(),
+            asked: asked.unwrap_or(u64::MAX),
+            available,
+            hint: hint.to_string(),
+        }),
+    }
+}
+
+/// The product of `dims`, `None` on overflow.
+pub fn product(dims: &[usize]) -> Option<u64> {
+    dims.iter()
+        .try_fold(1u64, |acc, &d| acc.checked_mul(u64::try_from(d).ok()?))
+}
+
+/// Parse `--max-memory`: bytes, or a number with K, M, G or T (powers of 1024; a trailing B
+/// or iB is accepted).
+pub fn parse_size(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let t = t
+        .strip_suffix("iB")
+        .or_else(|| t.strip_suffix('B'))
+        .unwrap_or(t);
+    let (num, shift) = match t.chars().last().map(|c| c.to_ascii_uppercase()) {
+        Some('K') => (&t[..t.len() - 1], 10),
+        Some('M') => (&t[..t.len() - 1], 20),
+        Some('G') => (&t[..t.len() - 1], 30),
+        Some('T') => (&t[..t.len() - 1], 40),
+        _ => (t, 0),
+    };
+    let v: f64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("\"{s}\" is not a size like 512M or 16G"))?;
+    let bytes = v * (1u64 << shift) as f64;
+    if !(bytes.is_finite() && bytes >= 1.0 && bytes < u64::MAX as f64) {
+        return Err(format!("\"{s}\" is not a positive size like 512M or 16G"));
+    }
+    Ok(bytes as u64)
+}
+
+/// A size for messages: "1.5 GiB".
+pub fn human(bytes: u64) -> String {
+    let units = ["bytes", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
+    let mut v = bytes as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < units.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{bytes} bytes")
+    } else {
+        format!("{v:.1} {}", units[u])
+    }
+}
+
+/// MemAvailable, capped by the room under RLIMIT_AS; `u64::MAX` where neither is known.
+fn system_available() -> u64 {
+    let mem = meminfo_available().unwrap_or(u64::MAX);
+    mem.min(address_space_left().unwrap_or(u64::MAX))
+}
+
+fn meminfo_available() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    kib.checked_mul(1024)
+}
+
+#[cfg(unix)]
+fn address_space_left() -> Option<u64> {
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes into the struct it is given.
+    if unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut lim) } != 0 {
+        return None;
+    }
+    if lim.rlim_cur == libc::RLIM_INFINITY {
+        return None;
+    }
+    // rlim_t is u64 on Linux but not on every Unix.
+    #[allow(clippy::useless_conversion)]
+    let limit = u64::try_from(lim.rlim_cur).ok()?;
+    Some(limit.saturating_sub(mapped_now().unwrap_or(0)))
+}
+
+#[cfg(not(unix))]
+fn address_space_left() -> Option<u64> {
+    None
+}
+
+/// Virtual memory mapped by this process (what RLIMIT_AS counts).
+fn mapped_now() -> Option<u64> {
+    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: u64 = statm.split_whitespace().next()?.parse().ok()?;
+    // SAFETY: sysconf only reads a constant.
+    let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    pages.checked_mul(u64::try_from(page).ok()?)
+}
+
+/// Worker threads for `--threads requested`: at most the logical CPUs (more only adds
+/// switching and start-up time), with a warning when capped.
+pub fn thread_count(requested: usize) -> usize {
+    let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+    if requested > cpus {
+        eprintln!(
+            "t2tf: warning: --threads {requested} is more than the {cpus} logical CPUs; using {cpus}"
+        );
+        cpus
+    } else {
+        requested
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse() {
+        assert_eq!(parse_size("512M"), Ok(512 << 20));
+        assert_eq!(parse_size("16G"), Ok(16 << 30));
+        assert_eq!(parse_size("1.5GiB"), Ok(3 << 29));
+        assert_eq!(parse_size("4096"), Ok(4096));
+        assert!(parse_size("-1G").is_err());
+        assert!(parse_size("lots").is_err());
+    }
+
+    #[test]
+    fn overflowing_requests_are_refused_with_the_numbers() {
+        let e = check("x", product(&[usize::MAX, 2]), 4, "ask for less").unwrap_err();
+        let m = e.to_string();
+        assert!(
+            m.contains("ask for less") && m.contains("--max-memory"),
+            "{m}"
+        );
+        assert!(check("y", Some(1), 1, "").is_ok());
+    }
+
+    #[test]
+    fn humans_read_sizes() {
+        assert_eq!(human(512), "512 bytes");
+        assert_eq!(human(3 << 29), "1.5 GiB");
+    }
+}

@@ -1,0 +1,346 @@
+//! Issue #13, through the binary: outputs that are not ours are refused (devices, FIFOs,
+//! folders) and symlinks are followed; sizes from headers and flags end in a clean error under
+//! an address-space limit, never in an abort (exit 134); `optimize` writes its files as one
+//! set under a lock, stops on SIGTERM with exit 143 after writing, and a SIGKILL leaves the
+//! previous complete set, cleaned up by the next run. Every bad file is made by the test.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+
+const MODEL: &str = "tests/fixtures/clip/quick_gelu";
+const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
+const VOLUME: &str = "tests/fixtures/volumes/ramp_7x6x5_uint16.raw";
+
+fn t2tf() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_t2tf"))
+}
+
+fn run(cmd: &mut Command) -> (i32, String) {
+    let out: Output = cmd.output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    (out.status.code().unwrap_or(-1), err)
+}
+
+/// A ParaView JSON preset over 0..65535 (the ramp's range is inside it).
+fn preset(dir: &Path) -> PathBuf {
+    let p = dir.join("tf.json");
+    std::fs::write(
+        &p,
+        r#"[{"Name":"t","ColorSpace":"RGB","RGBPoints":[0,1,0,0,65535,0,0,1],"Points":[0,0,0.5,0,65535,1,0.5,0]}]"#,
+    )
+    .unwrap();
+    p
+}
+
+fn render(out: &Path, extra: &[&str]) -> (i32, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let tf = preset(dir.path());
+    run(t2tf()
+        .args(["render", VOLUME, "--size", "16", "--tf"])
+        .arg(&tf)
+        .arg("--out")
+        .arg(out)
+        .args(extra))
+}
+
+fn make_fifo(p: &Path) {
+    let c = std::ffi::CString::new(p.to_str().unwrap()).unwrap();
+    // SAFETY: mkfifo reads a NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+}
+
+#[test]
+fn render_refuses_dev_full_and_fifos_and_follows_symlinks() {
+    let dir = tempfile::tempdir().unwrap();
+    // /dev/full itself, through a symlink named .png: refused, the device untouched.
+    let link = dir.path().join("full.png");
+    std::os::unix::fs::symlink("/dev/full", &link).unwrap();
+    let (code, err) = render(&link, &[]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("not a regular file"), "{err}");
+    let fifo = dir.path().join("pipe.png");
+    make_fifo(&fifo);
+    let (code, err) = render(&fifo, &[]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("a FIFO"), "{err}");
+    use std::os::unix::fs::FileTypeExt;
+    assert!(std::fs::symlink_metadata(&fifo)
+        .unwrap()
+        .file_type()
+        .is_fifo());
+    // A symlink to a regular file: the link stays, its target gets the image.
+    let real = dir.path().join("real.png");
+    std::fs::write(&real, b"old").unwrap();
+    let link = dir.path().join("view.png");
+    std::os::unix::fs::symlink("real.png", &link).unwrap();
+    let (code, err) = render(&link, &[]);
+    assert_eq!(code, 0, "{err}");
+    assert!(std::fs::symlink_metadata(&link)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+    assert!(std::fs::read(&real).unwrap().starts_with(b"\x89PNG"));
+}
+
+#[test]
+fn convert_refuses_devices_and_fifos_and_overflowing_rescale() {
+    let dir = tempfile::tempdir().unwrap();
+    let tf = preset(dir.path());
+    let fifo = dir.path().join("out.ct");
+    make_fifo(&fifo);
+    let (code, err) = run(t2tf().arg("convert").arg(&tf).arg(&fifo));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("a FIFO"), "{err}");
+    let link = dir.path().join("null.json");
+    std::os::unix::fs::symlink("/dev/null", &link).unwrap();
+    let (code, err) = run(t2tf().arg("convert").arg(&tf).arg(&link));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("a device"), "{err}");
+    let out = dir.path().join("wide.json");
+    let (code, err) = run(t2tf()
+        .arg("convert")
+        .arg(&tf)
+        .arg(&out)
+        .arg("--rescale=-1e308,1e308"));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("too wide"), "{err}");
+    assert!(!out.exists());
+}
+
+/// Limit the child's address space (as `ulimit -v` does) so a huge allocation would abort.
+fn limit_address_space(cmd: &mut Command, bytes: u64) -> &mut Command {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: setrlimit is async-signal-safe and touches no memory of the parent.
+    unsafe {
+        cmd.pre_exec(move || {
+            let lim = libc::rlimit {
+                rlim_cur: bytes,
+                rlim_max: bytes,
+            };
+            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        })
+    }
+}
+
+const AS_LIMIT: u64 = 2 << 30;
+
+#[test]
+fn huge_orbit_sheets_are_a_clean_error_under_a_memory_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let tf = preset(dir.path());
+    for extra in [
+        &["--orbit", "64", "--size", "8192"][..],
+        &["--orbit", "100000"][..],
+    ] {
+        let (code, err) = run(limit_address_space(
+            t2tf()
+                .args(["render", VOLUME, "--tf"])
+                .arg(&tf)
+                .arg("--out")
+                .arg(dir.path().join("sheet.png"))
+                .args(extra),
+            AS_LIMIT,
+        ));
+        assert_eq!(code, 1, "{extra:?}: {err}");
+        assert!(err.contains("--max-memory"), "{err}");
+    }
+}
+
+/// A valid PNG header claiming `w`×`h` pixels followed by one tiny IDAT: 74 bytes or so.
+fn lying_png(path: &Path, w: u32, h: u32) {
+    fn chunk(out: &mut Vec<u8>, kind: &[u8], data: &[u8]) {
+        out.extend((data.len() as u32).to_be_bytes());
+        let mut crc = flate2::Crc::new();
+        crc.update(kind);
+        crc.update(data);
+        out.extend(kind);
+        out.extend(data);
+        out.extend(crc.sum().to_be_bytes());
+    }
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = Vec::new();
+    ihdr.extend(w.to_be_bytes());
+    ihdr.extend(h.to_be_bytes());
+    ihdr.extend([8, 2, 0, 0, 0]);
+    chunk(&mut png, b"IHDR", &ihdr);
+    chunk(
+        &mut png,
+        b"IDAT",
+        &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01],
+    );
+    chunk(&mut png, b"IEND", &[]);
+    std::fs::write(path, png).unwrap();
+}
+
+fn optimize(out: &Path, cache: &Path, extra: &[&str]) -> Command {
+    let mut c = t2tf();
+    c.env("XDG_CACHE_HOME", cache)
+        .args([
+            "optimize",
+            VOLUME,
+            "--model",
+            MODEL,
+            "--tokenizer",
+            TOKENIZER,
+        ])
+        .args(["--threads", "1", "--progress", "json", "--out"])
+        .arg(out)
+        .args(extra);
+    c
+}
+
+#[test]
+fn a_png_claiming_100000_squared_pixels_is_a_clean_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("liar.png");
+    lying_png(&png, 100_000, 100_000);
+    let (code, err) = run(limit_address_space(
+        optimize(&dir.path().join("out"), dir.path(), &["--steps", "1"])
+            .arg("--reference-image")
+            .arg(&png),
+        8 << 30,
+    ));
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("100000×100000") && err.contains("--max-memory"),
+        "{err}"
+    );
+}
+
+#[test]
+fn spacings_whose_box_single_precision_cannot_hold_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let tf = preset(dir.path());
+    for s in ["1e300,1,1", "1e-300,1e-300,1e-300"] {
+        let (code, err) = run(t2tf()
+            .args(["render", VOLUME, "--spacing", s, "--tf"])
+            .arg(&tf)
+            .arg("--out")
+            .arg(dir.path().join("v.png")));
+        assert_eq!(code, 1, "{s}: {err}");
+        assert!(err.contains("single precision"), "{err}");
+    }
+}
+
+/// Start a long `optimize` and return once it has finished a step (its progress line).
+fn start_long_run(out: &Path, cache: &Path) -> Child {
+    let mut child = optimize(out, cache, &["--steps", "100000", "--prompt", "x"])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let mut lines = BufReader::new(stderr).lines();
+    loop {
+        let line = lines.next().expect("optimize ended before a step").unwrap();
+        if line.contains("\"event\":\"step\"") {
+            break;
+        }
+    }
+    // Keep draining so the child never blocks on a full pipe.
+    std::thread::spawn(move || for _ in lines {});
+    child
+}
+
+fn signal(child: &Child, sig: i32) {
+    // SAFETY: kill sends a signal to our own child.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, sig) }, 0);
+}
+
+/// The folder holds exactly one complete set: report.json lists files that all exist, and no
+/// staging folder or temporary is left.
+fn one_complete_set(out: &Path) -> serde_json::Value {
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    for name in report["outputs"].as_array().unwrap() {
+        assert!(out.join(name.as_str().unwrap()).is_file(), "{name} missing");
+    }
+    for e in std::fs::read_dir(out).unwrap() {
+        let n = e.unwrap().file_name().to_string_lossy().into_owned();
+        assert!(!n.starts_with(".t2tf-"), "{n} left in {}", out.display());
+    }
+    report
+}
+
+#[test]
+fn sigterm_and_sighup_write_the_result_and_exit_128_plus_the_signal() {
+    for (sig, code) in [
+        (libc::SIGTERM, 143),
+        (libc::SIGHUP, 129),
+        (libc::SIGINT, 130),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let mut child = start_long_run(&out, dir.path());
+        signal(&child, sig);
+        let status = child.wait().unwrap();
+        assert_eq!(status.code(), Some(code), "signal {sig}");
+        let report = one_complete_set(&out);
+        assert!(report["outputs"].as_array().unwrap().len() >= 5);
+    }
+}
+
+#[test]
+fn a_second_run_into_the_same_folder_is_refused_naming_the_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let mut first = start_long_run(&out, dir.path());
+    let (code, err) = run(&mut optimize(
+        &out,
+        dir.path(),
+        &["--steps", "1", "--prompt", "x"],
+    ));
+    signal(&first, libc::SIGTERM);
+    assert_eq!(first.wait().unwrap().code(), Some(143));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains(&format!("process {}", first.id())), "{err}");
+    one_complete_set(&out);
+}
+
+#[test]
+fn sigkill_keeps_the_previous_set_and_the_next_run_cleans_up() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let (code, err) = run(&mut optimize(
+        &out,
+        dir.path(),
+        &["--steps", "1", "--prompt", "x"],
+    ));
+    assert_eq!(code, 0, "{err}");
+    let before = std::fs::read(out.join("report.json")).unwrap();
+    for _ in 0..3 {
+        let mut child = start_long_run(&out, dir.path());
+        signal(&child, libc::SIGKILL);
+        child.wait().unwrap();
+        assert_eq!(std::fs::read(out.join("report.json")).unwrap(), before);
+        one_complete_set(&out);
+    }
+    // What a run killed while writing leaves: a temporary and a half-staged set.
+    std::fs::write(out.join(".t2tf-2147483632-x.partial"), "half").unwrap();
+    std::fs::create_dir(out.join(".t2tf-set-2147483632")).unwrap();
+    let (code, err) = run(&mut optimize(
+        &out,
+        dir.path(),
+        &["--steps", "1", "--prompt", "x"],
+    ));
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("cleaned up"), "{err}");
+    one_complete_set(&out);
+}
+
+#[test]
+fn out_is_checked_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, "x").unwrap();
+    let (code, err) = run(&mut optimize(
+        &file.join("out"),
+        dir.path(),
+        &["--steps", "1", "--prompt", "x"],
+    ));
+    assert_eq!(code, 1, "{err}");
+    assert!(!err.contains("\"event\":\"step\""), "{err}");
+}

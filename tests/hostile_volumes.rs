@@ -1,0 +1,71 @@
+//! Issue #13, volume values: ASCII integers that do not fit the declared type are refused,
+//! float64 data near ±f64::MAX normalizes to finite values, and spacings whose box single
+//! precision cannot hold are refused. Every file is made by the test.
+
+use std::path::Path;
+
+use t2tf::volume::{decode_bytes, ReadOptions, Volume};
+
+fn load(name: &str, text: &str) -> Result<Volume, String> {
+    let path = Path::new(name);
+    let d = decode_bytes(path, text.as_bytes().to_vec(), &ReadOptions::default())
+        .map_err(|e| e.to_string())?;
+    Volume::from_buffer(path, d.geometry, &d.buffer).map_err(|e| e.to_string())
+}
+
+fn legacy(ty: &str, values: &str) -> String {
+    format!(
+        "# vtk DataFile Version 3.0\nt\nASCII\nDATASET STRUCTURED_POINTS\nDIMENSIONS 2 2 2\n\
+         SPACING 1 1 1\nORIGIN 0 0 0\nPOINT_DATA 8\nSCALARS v {ty} 1\nLOOKUP_TABLE default\n{values}\n"
+    )
+}
+
+fn vti(ty: &str, values: &str) -> String {
+    format!(
+        r#"<?xml version="1.0"?>
+<VTKFile type="ImageData" version="1.0" byte_order="LittleEndian">
+<ImageData WholeExtent="0 1 0 1 0 1" Origin="0 0 0" Spacing="1 1 1">
+<Piece Extent="0 1 0 1 0 1"><PointData Scalars="v">
+<DataArray type="{ty}" Name="v" format="ascii">{values}</DataArray>
+</PointData></Piece></ImageData></VTKFile>"#
+    )
+}
+
+#[test]
+fn ascii_integers_must_fit_their_declared_type() {
+    let bad = "0 1 2 300 4 5 6 -5";
+    let e = load("a.vtk", &legacy("unsigned_char", bad)).unwrap_err();
+    assert!(e.contains("300") && e.contains("UInt8"), "{e}");
+    let e = load("a.vti", &vti("UInt8", bad)).unwrap_err();
+    assert!(e.contains("300"), "{e}");
+    let e = load("a.vti", &vti("Int16", "0 1 2 3 4 5 6 2.5")).unwrap_err();
+    assert!(e.contains("2.5"), "{e}");
+    load("a.vti", &vti("UInt8", "0 1 2 255 4 5 6 7")).unwrap();
+    load("a.vti", &vti("Float32", bad)).unwrap();
+}
+
+#[test]
+fn float64_beyond_f32_range_normalizes_to_finite_values() {
+    let v = load(
+        "a.vti",
+        &vti("Float64", "-1.7e308 1.7e308 0 1e300 -1e300 5 6 7"),
+    )
+    .unwrap();
+    assert!(v.data().iter().all(|x| x.is_finite()), "{:?}", v.data());
+    assert_eq!(v.data()[0], 0.0);
+    assert_eq!(v.data()[1], 1.0);
+    for t in [0.0, 0.25, 0.5, 1.0] {
+        assert!(v.denormalize(t).is_finite(), "{t}");
+    }
+    assert_eq!(v.histogram.iter().sum::<u64>(), 8);
+}
+
+#[test]
+fn spacings_that_single_precision_cannot_hold_are_refused() {
+    for s in ["1e300 1 1", "1e-300 1e-300 1e-300", "1 1e-60 1"] {
+        let text = vti("UInt8", "0 1 2 3 4 5 6 7")
+            .replace("Spacing=\"1 1 1\"", &format!("Spacing=\"{s}\""));
+        let e = load("a.vti", &text).unwrap_err();
+        assert!(e.contains("single precision"), "{s}: {e}");
+    }
+}
