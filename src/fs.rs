@@ -216,12 +216,31 @@ fn finish_or_drop_set(dir: &Path, staged: &Path) -> Result<()> {
 #[derive(Debug)]
 pub struct OutputLock {
     _file: std::fs::File,
+    /// The folder, if this lock created it: a run that fails before writing anything takes
+    /// it away again rather than leave an empty folder behind.
+    created: Option<PathBuf>,
+}
+
+impl Drop for OutputLock {
+    fn drop(&mut self) {
+        let Some(dir) = &self.created else { return };
+        let only_the_lock = std::fs::read_dir(dir).is_ok_and(|entries| {
+            entries
+                .filter_map(|e| e.ok())
+                .all(|e| e.file_name() == LOCK_NAME)
+        });
+        if only_the_lock {
+            let _ = std::fs::remove_file(dir.join(LOCK_NAME));
+            let _ = std::fs::remove_dir(dir);
+        }
+    }
 }
 
 impl OutputLock {
     /// Lock `dir` (created if missing) or fail naming the process that holds it. The lock
     /// file is left in place when released: removing it would let two runs lock two files.
     pub fn acquire(dir: &Path) -> Result<OutputLock> {
+        let created = (!dir.exists()).then(|| dir.to_path_buf());
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;
         if !dir.is_dir() {
@@ -239,7 +258,10 @@ impl OutputLock {
         file.set_len(0)
             .and_then(|()| writeln!(file, "{}", std::process::id()))
             .with_context(|| format!("{}: cannot write to the output folder", dir.display()))?;
-        Ok(OutputLock { _file: file })
+        Ok(OutputLock {
+            _file: file,
+            created,
+        })
     }
 }
 
@@ -358,6 +380,23 @@ fn sync_dir(dir: &Path) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_folder_the_lock_created_goes_away_if_nothing_was_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("run");
+        drop(OutputLock::acquire(&out).unwrap());
+        assert!(!out.exists(), "an empty output folder was left behind");
+        let lock = OutputLock::acquire(&out).unwrap();
+        std::fs::write(out.join("tf.json"), "[]").unwrap();
+        drop(lock);
+        assert!(out.join("tf.json").is_file());
+        // A folder that was there before is never removed, even when empty.
+        let before = dir.path().join("mine");
+        std::fs::create_dir(&before).unwrap();
+        drop(OutputLock::acquire(&before).unwrap());
+        assert!(before.is_dir());
+    }
 
     #[test]
     fn failed_fill_leaves_no_file() {
