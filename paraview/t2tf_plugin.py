@@ -365,9 +365,11 @@ def _upstream_file(proxy, array):
     except AttributeError:
         return None
     if name == "XMLImageDataReader":
-        path = reader.FileName[0] if isinstance(reader.FileName, (list, tuple)) else reader.FileName
-        return (path, []) if str(path).lower().endswith(".vti") else None
-    if name == "ImageReader" and len(reader.FileNames) == 1:
+        names = list(reader.FileName)  # a FileNameProperty, not a str
+        if len(names) == 1 and names[0].lower().endswith(".vti"):
+            return (names[0], [])
+        return None
+    if name == "ImageReader" and len(list(reader.FileNames)) == 1:
         types = {"unsigned char": "uint8", "char": "int8", "unsigned short": "uint16",
                  "short": "int16", "unsigned int": "uint32", "int": "int32",
                  "float": "float32", "double": "float64"}
@@ -379,7 +381,7 @@ def _upstream_file(proxy, array):
         dims = "%d,%d,%d" % (e[1] + 1, e[3] + 1, e[5] + 1)
         spacing = ",".join(repr(float(s)) for s in reader.DataSpacing)
         order = "big" if _text(reader.DataByteOrder) == "BigEndian" else "little"
-        return (reader.FileNames[0],
+        return (list(reader.FileNames)[0],
                 ["--dims", dims, "--dtype", dtype, "--spacing", spacing, "--byte-order", order])
     return None
 

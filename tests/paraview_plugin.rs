@@ -112,7 +112,8 @@ fn check_display(res: &serde_json::Value, array: &str) -> PathBuf {
 }
 
 /// `t2tf render` of `volume` with `preset` from the camera the plugin applies (t2tf's script
-/// camera: yaw 0, pitch 0, 3 bounding radii, z up) on ParaView's gray background.
+/// camera: yaw 0, pitch 0, 3 bounding radii, z up) on ParaView's gray background, with a fine
+/// ray step (0.1 voxel) as tests/paraview_match.rs does, so sampling differences stay small.
 fn our_render(volume: &Path, preset: &Path, png: &Path) -> Image {
     let run = Command::new(env!("CARGO_BIN_EXE_t2tf"))
         .arg("render")
@@ -121,7 +122,16 @@ fn our_render(volume: &Path, preset: &Path, png: &Path) -> Image {
         .arg(preset)
         .arg("--out")
         .arg(png)
-        .args(["--yaw", "0", "--pitch", "0", "--distance", "3"])
+        .args([
+            "--yaw",
+            "0",
+            "--pitch",
+            "0",
+            "--distance",
+            "3",
+            "--step-size",
+            "0.1",
+        ])
         .args(["--size", &SIZE.to_string(), "--background", "gray:0.3"])
         .output()
         .expect("run t2tf render");
