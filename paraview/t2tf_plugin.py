@@ -126,7 +126,10 @@ class Run:
             self.proc.wait()
         finally:
             _RUNS.remove(self)
-        if self.proc.returncode != 0 or self.done is None:
+        # A run stopped by a signal (the cancel sends SIGINT) exits with 128 + the signal after
+        # writing the last finished step's result; its done event says so.
+        stopped = self.done is not None and self.done.get("interrupted")
+        if self.done is None or (self.proc.returncode != 0 and not stopped):
             raise T2tfError(
                 "t2tf failed (exit status %s): %s"
                 % (self.proc.returncode, " | ".join(self.tail[-3:]) or "no output")
@@ -375,7 +378,9 @@ def _upstream_file(proxy, array):
                  "float": "float32", "double": "float64"}
         dtype = types.get(_text(reader.DataScalarType))
         e = list(reader.DataExtent)
-        if (dtype is None or reader.NumberOfScalarComponents != 1 or reader.FileDimensionality != 3
+        # FileDimensionality is an enumeration property: compare its text.
+        if (dtype is None or reader.NumberOfScalarComponents != 1
+                or _text(reader.FileDimensionality) != "3"
                 or any(e[i] != 0 for i in (0, 2, 4)) or any(reader.DataOrigin)):
             return None
         dims = "%d,%d,%d" % (e[1] + 1, e[3] + 1, e[5] + 1)
