@@ -269,7 +269,8 @@ pub struct Loaded {
     pub histogram: Vec<u64>,
     pub volume: VolumeInfo,
     pub model: ModelInfo,
-    /// SHA-256 of the weights file: key of the caption-embedding cache (`None`: no cache).
+    /// Key of the caption-embedding cache: the weights, tokenizer and config hashed together
+    /// (`captions::model_key`; `None`: no cache).
     pub weights_hash: Option<Vec<u8>>,
     /// Renderer settings for the report (step size, level, threads, …).
     pub render: serde_json::Value,
@@ -457,6 +458,11 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     }
     let weights_hash = captions::hash_files(&files.weights)?;
     let hex: String = weights_hash.iter().map(|b| format!("{b:02x}")).collect();
+    // Cached caption embeddings belong to the weights, the tokenizer and the config together.
+    let cache_key = captions::model_key(
+        &weights_hash,
+        &[files.tokenizer.clone(), files.config.clone()],
+    )?;
     let g = volume.geometry;
     let unit = crate::tf::default_unit_distance(&g);
     let options = crate::render::RenderOptions {
@@ -490,7 +496,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             weights_sha256: Some(hex),
             logit_scale: clip.logit_scale() as f64,
         },
-        weights_hash: Some(weights_hash.to_vec()),
+        weights_hash: Some(cache_key.to_vec()),
         render: serde_json::json!({
             "step_voxels": options.step,
             "level": options.level,

@@ -53,6 +53,7 @@ pub use preprocess::preprocess;
 pub use similarity::{cosine, cosine_checked, cosine_grad, softmax_scaled, unit, Incomparable};
 pub use source::{RandomSource, TensorSource};
 pub use tokenizer::ClipTokenizer;
+pub use weights::Checkpoint;
 pub use vision::{ImageCache, MEAN, STD};
 
 use crate::image::Image;

@@ -62,6 +62,14 @@ impl Checkpoint {
         }
     }
 
+    /// The stored shape of tensor `name`.
+    pub fn shape(&self, name: &str) -> Option<Vec<usize>> {
+        match self.owner.get(name).map(|&i| &self.parts[i])? {
+            Part::Safetensors(f) => f.metadata.info(name).map(|i| i.shape.clone()),
+            Part::Torch(f) => f.shape(name).map(<[usize]>::to_vec),
+        }
+    }
+
     /// Every tensor name, sorted.
     pub fn names(&self) -> Vec<&str> {
         let mut v: Vec<&str> = self.owner.keys().map(String::as_str).collect();

@@ -123,6 +123,15 @@ pub fn hash_file(path: &Path) -> Result<[u8; 32], OptimizeError> {
     hash_files(&[path.to_path_buf()])
 }
 
+/// The cache key's model part: the weights' hash with the tokenizer and config files that
+/// turn captions into embeddings with them (another tokenizer, other embeddings).
+pub fn model_key(weights_hash: &[u8; 32], others: &[PathBuf]) -> Result<[u8; 32], OptimizeError> {
+    let mut h = Sha256::new();
+    h.update(weights_hash);
+    h.update(hash_files(others)?);
+    Ok(h.finalize().into())
+}
+
 /// SHA-256 of several files one after the other (a sharded checkpoint); for one file, its
 /// SHA-256, so caches keyed by a single weights file stay valid.
 pub fn hash_files(paths: &[PathBuf]) -> Result<[u8; 32], OptimizeError> {
@@ -159,8 +168,10 @@ pub fn cache_key(model_hash: &[u8], captions: &[String]) -> [u8; 32] {
     h.finalize().into()
 }
 
-const MAGIC: &[u8; 8] = b"T2TFEMB1";
-const HEADER: usize = 8 + 32 + 8 + 8;
+/// Version 2 adds the SHA-256 of the values after the header (version 1 files are
+/// recomputed: their magic does not match).
+const MAGIC: &[u8; 8] = b"T2TFEMB2";
+const HEADER: usize = 8 + 32 + 8 + 8 + 32;
 
 /// Where the embeddings for `key` live inside the cache directory `dir`.
 pub fn cache_path(dir: &Path, key: &[u8; 32]) -> PathBuf {
@@ -168,20 +179,23 @@ pub fn cache_path(dir: &Path, key: &[u8; 32]) -> PathBuf {
     dir.join("text-embeddings").join(format!("{hex}.bin"))
 }
 
-/// Serialize embeddings: magic, key, count (u64), dimension (u64), then count × dim f32, all
-/// little-endian.
+/// Serialize embeddings: magic, key, count (u64), dimension (u64), SHA-256 of the values,
+/// then count × dim f32, all little-endian. The checksum catches a file changed on disk
+/// (flipped bytes keep the size and the finiteness, and would silently change the TF).
 fn encode(key: &[u8; 32], embeddings: &[Vec<f32>]) -> Vec<u8> {
     let dim = embeddings.first().map_or(0, Vec::len);
-    let mut out = Vec::with_capacity(HEADER + embeddings.len() * dim * 4);
+    let values: Vec<u8> = embeddings
+        .iter()
+        .flatten()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let mut out = Vec::with_capacity(HEADER + values.len());
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(key);
     out.extend_from_slice(&(embeddings.len() as u64).to_le_bytes());
     out.extend_from_slice(&(dim as u64).to_le_bytes());
-    for e in embeddings {
-        for v in e {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    }
+    out.extend_from_slice(&Sha256::digest(&values));
+    out.extend_from_slice(&values);
     out
 }
 
@@ -196,6 +210,7 @@ fn decode(bytes: &[u8], key: &[u8; 32], count: usize) -> Option<Vec<Vec<f32>>> {
     if n != count
         || dim == 0
         || bytes.len() != HEADER.checked_add(n.checked_mul(dim)?.checked_mul(4)?)?
+        || Sha256::digest(&bytes[HEADER..]).as_slice() != &bytes[56..HEADER]
     {
         return None;
     }
@@ -377,6 +392,14 @@ mod tests {
         assert_eq!(e3, emb);
         assert_eq!(calls.get(), 4);
         assert_eq!(std::fs::read(&p).unwrap().len(), HEADER + 2 * 3 * 4);
+        // Two bytes of a value swapped: same size, still finite, caught by the checksum.
+        let mut bytes = std::fs::read(&p).unwrap();
+        bytes.swap(HEADER, HEADER + 1);
+        std::fs::write(&p, &bytes).unwrap();
+        let (e4, o4) = cached_embeddings(Some(dir.path()), b"model A", &caps, compute).unwrap();
+        assert!(matches!(o4, CacheOutcome::Stored(_)), "{o4:?}");
+        assert_eq!(e4, emb);
+        assert_eq!(calls.get(), 5);
     }
 
     #[test]

@@ -101,7 +101,6 @@ impl TorchCheckpoint {
         self.tensors.keys().map(String::as_str).collect()
     }
 
-    #[cfg(test)]
     pub(crate) fn shape(&self, name: &str) -> Option<&[usize]> {
         self.tensors.get(name).map(|l| l.tensor.shape.as_slice())
     }
