@@ -176,7 +176,11 @@ fn choose<'a>(
             ),
         )),
         Some(n) => {
-            let hits: Vec<usize> = (0..names.len()).filter(|&i| names[i] == n).collect();
+            let mut hits: Vec<usize> = (0..names.len()).filter(|&i| names[i] == n).collect();
+            // ParaView's library names some maps twice, once continuous and once categorical.
+            if hits.len() > 1 {
+                hits.retain(|&i| presets[i].get("RGBPoints").is_some());
+            }
             match hits.as_slice() {
                 [i] => Ok(presets[*i]),
                 [] => Err(FormatError::file(
