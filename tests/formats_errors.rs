@@ -57,7 +57,7 @@ fn bad_json_presets() {
     );
     expect(
         "a.json",
-        "[{\"ColorSpace\":\"Lab\",\"RGBPoints\":[0,0,0,0]}]",
+        "[{\"ColorSpace\":\"XYZ\",\"RGBPoints\":[0,0,0,0]}]",
         "colour space",
     );
 }

@@ -57,7 +57,10 @@ fn parse_args() -> Result<Options> {
                 Some(t) => o.targets.push(t),
                 None => {
                     let names: Vec<&str> = TARGETS.iter().map(|t| t.name).collect();
-                    bail!("unknown target {name:?}; targets: {}, or --all", names.join(", "))
+                    bail!(
+                        "unknown target {name:?}; targets: {}, or --all",
+                        names.join(", ")
+                    )
                 }
             },
         }
@@ -112,8 +115,17 @@ fn mutate(input: &mut Vec<u8>, others: &[Vec<u8>], rng: &mut ChaCha8Rng) {
                 // A run of digits becomes a huge, negative or zero number.
                 let digits: Vec<usize> = (0..len).filter(|&i| input[i].is_ascii_digit()).collect();
                 if let Some(&i) = digits.get(rng.random_range(0..digits.len().max(1))) {
-                    let j = (i..len).find(|&j| !input[j].is_ascii_digit()).unwrap_or(len);
-                    let pick = ["0", "-1", "4294967296", "18446744073709551615", "1e308", "99999999999"];
+                    let j = (i..len)
+                        .find(|&j| !input[j].is_ascii_digit())
+                        .unwrap_or(len);
+                    let pick = [
+                        "0",
+                        "-1",
+                        "4294967296",
+                        "18446744073709551615",
+                        "1e308",
+                        "99999999999",
+                    ];
                     let with = pick[rng.random_range(0..pick.len())].as_bytes().to_vec();
                     input.splice(i..j, with);
                 }
@@ -192,7 +204,11 @@ fn fuzz(t: &Target, o: &Options, root: &Path, work: &Path) -> Result<Summary> {
             panics += 1;
             let p = work.join(format!("crash-{}-{i}", t.name));
             std::fs::write(&p, &input)?;
-            eprintln!("{}: PANIC at execution {i}, input saved to {}: {sig}", t.name, p.display());
+            eprintln!(
+                "{}: PANIC at execution {i}, input saved to {}: {sig}",
+                t.name,
+                p.display()
+            );
         }
         if !seen.contains_key(&sig) {
             seen.insert(sig, i as usize);

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::formats::{read_tf, write_tf, TfFormat};
+use crate::formats::{list_paraview_json, read_preset, read_text, write_preset, TfFormat};
 
 /// Convert a transfer function between ParaView JSON (.json), ParaView XML (.xml) and VisIt
 /// colour tables (.ct); the formats follow the file extensions.
@@ -17,7 +17,14 @@ pub struct ConvertArgs {
     /// Input transfer function (.json, .xml or .ct).
     pub input: PathBuf,
     /// Output file; its extension picks the format (.json, .xml or .ct).
-    pub output: PathBuf,
+    #[arg(required_unless_present = "list")]
+    pub output: Option<PathBuf>,
+    /// The preset to convert from a file holding several (see --list).
+    #[arg(long, value_name = "NAME")]
+    pub preset: Option<String>,
+    /// List the presets of INPUT (name, colour space, points) and exit.
+    #[arg(long)]
+    pub list: bool,
     /// Map the TF's data range linearly onto MIN,MAX (data units).
     #[arg(long, value_name = "MIN,MAX", value_parser = parse_range, allow_hyphen_values = true)]
     pub rescale: Option<Range>,
@@ -48,14 +55,38 @@ fn parse_range(s: &str) -> Result<Range, String> {
     Ok(Range { min, max })
 }
 
+/// `--list`: one line per preset of a JSON file (XML and .ct files hold one map).
+fn list(input: &std::path::Path) -> anyhow::Result<()> {
+    if TfFormat::from_path(input)? != TfFormat::ParaViewJson {
+        let p = read_preset(input, None)?;
+        println!("{}\t{}", p.tf.name, p.space.paraview_name());
+        return Ok(());
+    }
+    for s in list_paraview_json(&read_text(input)?, input)? {
+        let kind = s
+            .space
+            .unwrap_or_else(|| "categorical (not convertible)".into());
+        println!(
+            "{}\t{kind}\t{} colour points\t{} opacity points",
+            s.name, s.colour_points, s.opacity_points
+        );
+    }
+    Ok(())
+}
+
 pub fn run(args: ConvertArgs) -> anyhow::Result<()> {
+    if args.list {
+        return list(&args.input);
+    }
+    let output = args.output.expect("clap requires OUTPUT without --list");
     // Check the output's format before reading, so a typo fails fast.
-    TfFormat::from_path(&args.output)?;
-    crate::fs::check_writable(&args.output)?;
-    let mut tf = read_tf(&args.input)?;
+    TfFormat::from_path(&output)?;
+    crate::fs::check_writable(&output)?;
+    let mut preset = read_preset(&args.input, args.preset.as_deref())?;
     if let Some(r) = args.rescale {
-        tf = tf.rescaled(r.min, r.max);
+        preset.tf = preset.tf.rescaled(r.min, r.max);
         // A width beyond f64 (e.g. -1e308,1e308) turns points into inf or NaN.
+        let tf = &preset.tf;
         let [lo, hi] = tf.data_range();
         let finite = tf.rgb_points.iter().all(|p| p.0.is_finite())
             && tf.opacity_points.iter().all(|p| p.0.is_finite());
@@ -68,11 +99,13 @@ pub fn run(args: ConvertArgs) -> anyhow::Result<()> {
         }
     }
     // Errors from here name the output file already.
-    write_tf(&args.output, &tf)?;
+    write_preset(&output, &preset)?;
+    let tf = &preset.tf;
     let [lo, hi] = tf.data_range();
     println!(
-        "wrote {} ({}: {} colour points, {} opacity points, data range {lo} to {hi})",
-        args.output.display(),
+        "wrote {} ({}, {}: {} colour points, {} opacity points, data range {lo} to {hi})",
+        output.display(),
+        preset.space.paraview_name(),
         tf.name,
         tf.rgb_points.len(),
         tf.opacity_points.len()

@@ -53,13 +53,12 @@ pub use preprocess::preprocess;
 pub use similarity::{cosine, cosine_checked, cosine_grad, softmax_scaled, unit, Incomparable};
 pub use source::{RandomSource, TensorSource};
 pub use tokenizer::ClipTokenizer;
-pub use weights::Checkpoint;
 pub use vision::{ImageCache, MEAN, STD};
+pub use weights::Checkpoint;
 
 use crate::image::Image;
 use text::TextModel;
 use vision::VisionModel;
-use weights::Checkpoint;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ClipError {

@@ -11,15 +11,22 @@ mod paraview_json;
 mod paraview_script;
 mod paraview_xml;
 mod points;
+mod preset;
 mod visit_ct;
 mod visit_script;
 
 pub use crate::fs::{atomic_write, atomic_write_bytes};
 pub use error::{read_text, FormatError};
 pub use export_tf::{load_tf, ExportTf};
-pub use paraview_json::{from_paraview_json, to_paraview_json};
+pub use paraview_json::{
+    from_paraview_json, list_paraview_json, preset_from_paraview_json, preset_to_paraview_json,
+    to_paraview_json, PresetSummary,
+};
 pub use paraview_script::paraview_script;
-pub use paraview_xml::{from_paraview_xml, to_paraview_xml};
+pub use paraview_xml::{
+    from_paraview_xml, preset_from_paraview_xml, preset_to_paraview_xml, to_paraview_xml,
+};
+pub use preset::Preset;
 pub use visit_ct::{from_visit_ct, to_visit_ct};
 pub use visit_script::{freeform_opacity, visit_script, FREEFORM_SAMPLES};
 
@@ -87,6 +94,36 @@ pub fn read_tf(path: &Path) -> Result<ExportTf, FormatError> {
         TfFormat::ParaViewXml => from_paraview_xml(&text, path),
         TfFormat::VisItCt => from_visit_ct(&text, path),
     }
+}
+
+/// Read the preset `name` (or the file's only one) in its own colour space. XML and .ct
+/// files hold one map; `name` must then be absent or equal to it.
+pub fn read_preset(path: &Path, name: Option<&str>) -> Result<Preset, FormatError> {
+    let format = TfFormat::from_path(path)?;
+    let text = read_text(path)?;
+    let preset = match format {
+        TfFormat::ParaViewJson => return preset_from_paraview_json(&text, path, name),
+        TfFormat::ParaViewXml => preset_from_paraview_xml(&text, path)?,
+        TfFormat::VisItCt => Preset::rgb(from_visit_ct(&text, path)?),
+    };
+    match name {
+        Some(n) if n != preset.tf.name => Err(FormatError::file(
+            path,
+            format!("has no preset \"{n}\"; it holds \"{}\"", preset.tf.name),
+        )),
+        _ => Ok(preset),
+    }
+}
+
+/// Write a preset in the format its extension names: JSON and XML keep its colour space,
+/// a VisIt table (RGB only) gets the densified colours.
+pub fn write_preset(path: &Path, preset: &Preset) -> anyhow::Result<()> {
+    let text = match TfFormat::from_path(path)? {
+        TfFormat::ParaViewJson => preset_to_paraview_json(preset),
+        TfFormat::ParaViewXml => preset_to_paraview_xml(preset),
+        TfFormat::VisItCt => to_visit_ct(&preset.rgb_linear()),
+    };
+    atomic_write_bytes(path, text.as_bytes())
 }
 
 /// Write a TF file in the format its extension names (atomically).

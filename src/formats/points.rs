@@ -2,7 +2,7 @@
 //! (ParaView XML, VisIt .ct): merging the two curves and un-merging them on read.
 
 use super::ExportTf;
-use crate::tf::{interpolate, simplify_polyline};
+use crate::tf::{interpolate, simplify_polyline, ColorMap, ColorSpace};
 
 /// Colour points (data value, rgb) and opacity points (data value, o).
 pub(crate) type RgbPoints = Vec<(f64, [f64; 3])>;
@@ -17,7 +17,21 @@ pub(crate) struct MergedPoint {
 
 /// Both curves evaluated at the union of their positions (they are piecewise linear, so the
 /// merged polyline is the same function).
-pub(crate) fn merge(tf: &ExportTf) -> Vec<MergedPoint> {
+/// The RGB map of an [`ExportTf`] (its colours are RGB-linear).
+pub(crate) fn rgb_map(tf: &ExportTf) -> ColorMap {
+    ColorMap {
+        points: tf.rgb_points.clone(),
+        space: ColorSpace::Rgb,
+        hsv_wrap: false,
+    }
+}
+
+/// Colours come from `colors` (the map in its own space) at positions only opacity has.
+/// Outside RGB the colour points are all kept, repeated x included: in another space a
+/// jump cannot be rebuilt from the merged values.
+/// `keep_jumps` keeps every colour point in RGB too (XML can hold a repeated x; VisIt
+/// tables get one value per position).
+pub(crate) fn merge(tf: &ExportTf, colors: &ColorMap, keep_jumps: bool) -> Vec<MergedPoint> {
     let mut xs: Vec<f64> = tf
         .rgb_points
         .iter()
@@ -27,13 +41,43 @@ pub(crate) fn merge(tf: &ExportTf) -> Vec<MergedPoint> {
     xs.sort_by(f64::total_cmp);
     xs.dedup();
     let opacity: Vec<(f64, [f64; 1])> = tf.opacity_points.iter().map(|&(x, o)| (x, [o])).collect();
-    xs.into_iter()
-        .map(|x| MergedPoint {
+    let o_at = |x: f64| (!opacity.is_empty()).then(|| interpolate(&opacity, x)[0]);
+    if colors.space == ColorSpace::Rgb && !keep_jumps {
+        // RGB keeps the right-hand value at a repeated x, as this format always did.
+        return xs
+            .into_iter()
+            .map(|x| MergedPoint {
+                x,
+                rgb: interpolate(&tf.rgb_points, x),
+                opacity: o_at(x),
+            })
+            .collect();
+    }
+    let only_opacity: Vec<f64> = xs
+        .into_iter()
+        .filter(|x| !tf.rgb_points.iter().any(|p| p.0 == *x))
+        .collect();
+    let mut points: Vec<MergedPoint> = tf
+        .rgb_points
+        .iter()
+        .map(|&(x, rgb)| MergedPoint {
             x,
-            rgb: interpolate(&tf.rgb_points, x),
-            opacity: (!opacity.is_empty()).then(|| interpolate(&opacity, x)[0]),
+            rgb,
+            opacity: o_at(x),
         })
-        .collect()
+        .chain(
+            only_opacity
+                .iter()
+                .zip(colors.colors_at(&only_opacity))
+                .map(|(&x, rgb)| MergedPoint {
+                    x,
+                    rgb,
+                    opacity: o_at(x),
+                }),
+        )
+        .collect();
+    points.sort_by(|a, b| a.x.total_cmp(&b.x));
+    points
 }
 
 /// Points whose removal changes a curve by less than this are dropped on read, undoing the

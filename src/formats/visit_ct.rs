@@ -11,7 +11,7 @@ use quick_xml::events::Event;
 use quick_xml::Reader;
 
 use super::paraview_xml::{attr, number};
-use super::points::{merge, split, MergedPoint};
+use super::points::{merge, rgb_map, split, MergedPoint};
 use super::{ExportTf, FormatError};
 
 const RANGE_FIELD: &str = "t2tfDataRange";
@@ -36,7 +36,7 @@ pub fn to_visit_ct(tf: &ExportTf) -> String {
         ));
     }
     s.push_str("    <Object name=\"ColorControlPointList\">\n");
-    for p in merge(tf) {
+    for p in merge(tf, &rgb_map(tf), false) {
         let a = p.opacity.map_or(255, byte);
         let [r, g, b] = p.rgb.map(byte);
         // VisIt stores positions as float: f32 precision is what the format holds.

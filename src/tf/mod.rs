@@ -5,11 +5,15 @@
 //! All positions here are *normalized* scalar values in [0, 1] (the renderer's input);
 //! exporters map them to data units with `Volume::denormalize`.
 
+mod ciede2000;
+mod color_convert;
+mod colorspace;
 mod lut;
 mod opacity;
 mod params;
 mod simplify;
 
+pub use colorspace::{ColorMap, ColorSpace};
 pub use lut::ControlPointsGrad;
 pub use opacity::{default_unit_distance, opacity_to_sigma, sigma_to_opacity};
 pub use params::{TfParams, TfParamsGrad, SPACING_FLOOR};
