@@ -394,7 +394,7 @@ mod tests {
         assert_eq!(std::fs::read(&p).unwrap().len(), HEADER + 2 * 3 * 4);
         // Two bytes of a value swapped: same size, still finite, caught by the checksum.
         let mut bytes = std::fs::read(&p).unwrap();
-        bytes.swap(HEADER, HEADER + 1);
+        bytes.swap(HEADER + 2, HEADER + 3);
         std::fs::write(&p, &bytes).unwrap();
         let (e4, o4) = cached_embeddings(Some(dir.path()), b"model A", &caps, compute).unwrap();
         assert!(matches!(o4, CacheOutcome::Stored(_)), "{o4:?}");

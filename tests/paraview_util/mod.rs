@@ -65,8 +65,11 @@ pub fn pvpython_output(script: &Path, args: &[&str]) -> std::process::Output {
             .expect("run xvfb-run");
         let lost_display = !out.status.success()
             && String::from_utf8_lossy(&out.stderr).contains("bad X server connection");
-        if attempt < 3 && lost_display {
+        // Under load, or with other processes starting X servers at the same time (two
+        // `xvfb-run -a` can probe the same free display), the server may not answer yet.
+        if attempt < 5 && lost_display {
             eprintln!("pvpython could not reach Xvfb (attempt {attempt}); retrying");
+            std::thread::sleep(std::time::Duration::from_millis(500 * attempt));
             continue;
         }
         return out;
