@@ -15,7 +15,7 @@
 
 mod targets;
 
-use std::collections::HashMap;
+use std::collections::HashSet;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -191,7 +191,7 @@ fn fuzz(t: &Target, o: &Options, root: &Path, work: &Path) -> Result<Summary> {
         }
     }
     let file = work.join(t.file_name);
-    let mut seen: HashMap<String, usize> = HashMap::new();
+    let mut seen: HashSet<String> = HashSet::new();
     let mut panics = 0;
     let mut saved = 0;
     let start = Instant::now();
@@ -210,8 +210,7 @@ fn fuzz(t: &Target, o: &Options, root: &Path, work: &Path) -> Result<Summary> {
                 p.display()
             );
         }
-        if !seen.contains_key(&sig) {
-            seen.insert(sig, i as usize);
+        if seen.insert(sig) {
             if corpus.len() < 4096 {
                 corpus.push(input.clone());
             }
