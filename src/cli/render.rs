@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use crate::background;
 use crate::camera::{Camera, Orbit, UpAxis};
 use crate::cli::VolumeArgs;
-use crate::formats::load_tf;
+use crate::formats::read_preset;
 use crate::render::{self, RenderOptions, DEFAULT_STEP};
 
 /// Number of LUT entries the CLI renders with (the optimizer uses the same).
@@ -27,6 +27,9 @@ pub struct RenderArgs {
     /// Transfer function: ParaView JSON preset (.json), ParaView XML (.xml) or VisIt (.ct).
     #[arg(long, value_name = "PRESET")]
     pub tf: PathBuf,
+    /// Which preset of a file that holds several (`t2tf convert --list FILE` lists them).
+    #[arg(long, value_name = "NAME")]
+    pub preset: Option<String>,
     /// Output PNG (the name must end in .png).
     #[arg(long, value_name = "IMG.png")]
     pub out: PathBuf,
@@ -113,7 +116,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
     // Before any work: the name is free or a regular file, and its folder takes new files.
     crate::fs::check_writable(&args.out)?;
     let volume = args.read.load(&args.volume)?;
-    let cp = load_tf(&args.tf, &volume, args.unit_distance)?;
+    // Colours interpolated in the preset's own space (HSV, Lab, Diverging, …) become RGB
+    // segments within the export tolerance, as the renderer's LUT needs.
+    let tf = read_preset(&args.tf, args.preset.as_deref())?.rgb_linear();
+    let cp = tf.to_control_points(&args.tf, &volume, args.unit_distance)?;
     let lut = cp.to_lut(LUT_SIZE);
     let bg = background::from_name(&args.background, args.size, args.size, args.seed)
         .context("--background")?;
