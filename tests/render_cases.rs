@@ -130,13 +130,25 @@ fn nan_voxels_are_empty() {
 
 #[test]
 fn one_and_two_voxel_thick_volumes() {
-    let thin = volume_from([9, 9, 1], [1.0; 3], (0..81).map(|i| i as f64).collect());
+    // One point thick: a slab one spacing thick around the points (render::march's BoxFrame),
+    // so a 9 × 9 × 1 image shows, much as the same slice doubled into a two-point-thick volume
+    // (whose box is also one spacing thick; only the bounding radius, and so the camera
+    // distance, differs by 0.4 %).
+    let slice: Vec<f64> = (0..81).map(|i| i as f64).collect();
+    let thin = volume_from([9, 9, 1], [1.0; 3], slice.clone());
     let cam = orbit(&thin, 0.4, 0.5, 2.0);
-    // A flat box has no thickness: nothing to integrate, the background shows, nothing breaks.
-    let r = assert_finite_everywhere(&thin, &random_lut(8, 10.0, 200.0, 3), &cam, "1-thick");
-    assert!(r.transmittance.iter().all(|&t| t == 1.0));
+    let lut = random_lut(8, 10.0, 200.0, 3);
+    let r = assert_finite_everywhere(&thin, &lut, &cam, "1-thick");
+    assert!(
+        r.transmittance.iter().any(|&t| t < 0.9),
+        "the slab is not seen"
+    );
+    let doubled = volume_from([9, 9, 2], [1.0; 3], [slice.clone(), slice].concat());
+    let r2 = assert_finite_everywhere(&doubled, &lut, &orbit(&doubled, 0.4, 0.5, 2.0), "2-thick");
+    let p = psnr(&r.image, &r2.image);
+    assert!(p > 25.0, "one-point slab vs doubled slice: {p:.1} dB");
     let two = volume_from([9, 9, 2], [1.0; 3], (0..162).map(|i| i as f64).collect());
-    let r = assert_finite_everywhere(&two, &random_lut(8, 10.0, 200.0, 3), &cam, "2-thick");
+    let r = assert_finite_everywhere(&two, &lut, &cam, "2-thick");
     assert!(r.transmittance.iter().any(|&t| t < 1.0));
 }
 

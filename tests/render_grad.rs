@@ -132,6 +132,22 @@ fn saturated_view() {
 }
 
 #[test]
+fn one_point_thick_slab() {
+    // 1 × 9 × 8 points: rendered as a slab one spacing thick (render::march's BoxFrame), seen
+    // obliquely so that rays cross the slab's two faces and its rim.
+    let vals: Vec<f64> = (0..72).map(|i| ((i * 37) % 29) as f64).collect();
+    let v = volume_from([1, 9, 8], [1.5, 1.0, 1.0], vals);
+    let c = case(&v, orbit(&v, 0.3, 0.25, 1.8), 12, 10, smooth_opts(), 3);
+    let lut = random_lut(7, 5.0, 80.0, 8);
+    let r = render::forward(&v, &lut, &c.cam, &c.bg, &c.opts).unwrap();
+    assert!(
+        r.transmittance.iter().any(|&t| t < 0.99),
+        "the slab is not seen"
+    );
+    c.check(&lut, "one point thick");
+}
+
+#[test]
 fn grazing_a_corner() {
     // Look straight at the box's far corner: the central rays enter and leave within a voxel.
     let v = blob([9, 10, 11]);

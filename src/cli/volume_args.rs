@@ -41,7 +41,22 @@ impl VolumeArgs {
 
     /// Read and normalize the volume at `path` with these flags.
     pub fn load(&self, path: &Path) -> anyhow::Result<Volume> {
-        Ok(volume::load(path, &self.read_options())?)
+        let v = volume::load(path, &self.read_options())?;
+        let thin: Vec<&str> = ["x", "y", "z"]
+            .into_iter()
+            .zip(v.geometry.dims)
+            .filter(|&(_, n)| n == 1)
+            .map(|(axis, _)| axis)
+            .collect();
+        if !thin.is_empty() {
+            // Said, since a slab seen edge-on shows almost nothing (docs: ARCHITECTURE.md).
+            eprintln!(
+                "t2tf: warning: {} has one point along {}: it is drawn as a slab one spacing thick",
+                path.display(),
+                thin.join(" and ")
+            );
+        }
+        Ok(v)
     }
 }
 

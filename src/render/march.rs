@@ -90,7 +90,11 @@ pub(crate) struct BoxFrame {
     /// The eye in index coordinates.
     eye: DVec3,
     inv_spacing: DVec3,
-    /// dims − 1 per axis: the box is [0, hi].
+    /// The box is [lo, hi] per axis: [0, dims − 1], except that an axis with one point is a
+    /// slab one spacing thick, [−½, ½] (a 1 × 64 × 64 image would otherwise have no
+    /// thickness and show nothing; its samples all read that one point, as the clamped
+    /// trilinear lookup gives).
+    lo: DVec3,
     hi: DVec3,
     delta: f64,
     inv_delta: f64,
@@ -110,7 +114,8 @@ impl BoxFrame {
         BoxFrame {
             eye: (eye - origin) * inv_spacing,
             inv_spacing,
-            hi: DVec3::from_array(dims.map(|d| (d - 1) as f64)),
+            lo: DVec3::from_array(dims.map(|d| if d == 1 { -0.5 } else { 0.0 })),
+            hi: DVec3::from_array(dims.map(|d| if d == 1 { 0.5 } else { (d - 1) as f64 })),
             delta,
             inv_delta: 1.0 / delta,
         }
@@ -126,12 +131,15 @@ impl BoxFrame {
         for ax in 0..3 {
             if b[ax].abs() < 1e-300 {
                 // Parallel to this slab: inside it or never.
-                if a[ax] < 0.0 || a[ax] > self.hi[ax] {
+                if a[ax] < self.lo[ax] || a[ax] > self.hi[ax] {
                     return None;
                 }
                 continue;
             }
-            let (ta, tb) = (-a[ax] * inv_b[ax], (self.hi[ax] - a[ax]) * inv_b[ax]);
+            let (ta, tb) = (
+                (self.lo[ax] - a[ax]) * inv_b[ax],
+                (self.hi[ax] - a[ax]) * inv_b[ax],
+            );
             t0 = t0.max(ta.min(tb));
             t1 = t1.min(ta.max(tb));
         }
@@ -551,6 +559,11 @@ fn walk(
     let mut bound = [0.0f32; 3];
     let mut u_exit = [f32::INFINITY; 3];
     for ax in 0..3 {
+        if g.max_coord[ax] == 0.0 {
+            // One point on this axis: one block, never left through this axis (the slab
+            // around the point reaches below coordinate 0).
+            continue;
+        }
         if ray.bd[ax] > 0.0 {
             bound[ax] = (bc[ax] + 1) as f32 * cells;
         } else if ray.bd[ax] < 0.0 {
