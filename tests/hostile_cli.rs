@@ -344,3 +344,48 @@ fn out_is_checked_before_any_work() {
     assert_eq!(code, 1, "{err}");
     assert!(!err.contains("\"event\":\"step\""), "{err}");
 }
+
+#[test]
+fn a_volume_too_large_for_memory_is_a_clean_error_not_an_abort() {
+    // 8 GiB of uint8 (a sparse file: no disk is used) under a 2 GiB address-space limit.
+    let dir = tempfile::tempdir().unwrap();
+    let raw = dir.path().join("big_2048x2048x2048_uint8.raw");
+    std::fs::File::create(&raw)
+        .unwrap()
+        .set_len(2048 * 2048 * 2048)
+        .unwrap();
+    let (code, err) = run(limit_address_space(t2tf().arg("info").arg(&raw), AS_LIMIT));
+    assert_eq!(code, 1, "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("big_2048x2048x2048_uint8.raw"), "{err}");
+    assert!(err.contains("GiB"), "does not say how much: {err}");
+}
+
+#[test]
+fn threads_beyond_the_cpus_are_capped_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let negatives = dir.path().join("negatives.txt");
+    std::fs::write(&negatives, "a red car\n").unwrap();
+    let start = std::time::Instant::now();
+    let (code, err) = run(t2tf()
+        .env("XDG_CACHE_HOME", dir.path().join("cache"))
+        .args([
+            "optimize", VOLUME, "--prompt", "x", "--steps", "1", "--views", "1",
+        ])
+        .args([
+            "--model",
+            MODEL,
+            "--tokenizer",
+            TOKENIZER,
+            "--threads",
+            "10000",
+        ])
+        .arg("--negatives-file")
+        .arg(&negatives)
+        .arg("--out")
+        .arg(dir.path().join("out")));
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("--threads 10000 is more than"), "{err}");
+    // 10,000 threads took over a minute to start; the capped pool takes none of that.
+    assert!(start.elapsed().as_secs() < 60, "took {:?}", start.elapsed());
+}
