@@ -129,3 +129,29 @@ fn cli_defaults_are_the_final_quality_options() {
     assert_eq!(default, explicit, "the defaults are level 0, step 0.25");
     assert_ne!(default, coarse, "--step-size and --level still override");
 }
+
+#[test]
+fn paraview_lut_is_close_to_the_exact_tf_but_not_equal() {
+    let dir = tempfile::tempdir().unwrap();
+    let tf = Path::new("tests/fixtures/paraview/colorspace_RGB.json");
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let o = Command::new(env!("CARGO_BIN_EXE_t2tf"))
+            .args(["render", "../shared/data/volumes/neghip_64x64x64_uint8.raw"])
+            .args(["--size", "40", "--tf"])
+            .arg(tf)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        Image::load_png(&out).unwrap()
+    };
+    let exact = run("exact.png", &[]);
+    let pv = run("pv.png", &["--paraview-lut"]);
+    let p = psnr(&exact, &pv);
+    eprintln!("exact vs --paraview-lut: {p:.1} dB");
+    // A 1024-entry table of a TF with nodes far apart changes little, but something.
+    assert!(p > 35.0 && p.is_finite(), "{p:.1} dB");
+}
