@@ -89,7 +89,10 @@ impl Renderer for VolumeRenderer<'_> {
         let size = self.size.max(PREVIEW_SIZE);
         let camera = self.camera(view)?;
         let bg = self.background_sized(view, size);
-        Ok(render::forward(self.volume, lut, &camera, &bg, &self.options(view))?.image)
+        // A picture for people: final quality (BENCHMARKS.md, render defaults), not the loop's
+        // cheaper settings.
+        let opts = RenderOptions::final_quality();
+        Ok(render::forward(self.volume, lut, &camera, &bg, &opts)?.image)
     }
 
     fn backward(
