@@ -10,12 +10,13 @@ use rayon::prelude::*;
 
 use super::config::Activation;
 use super::matmul::{matmul, Mat, Op};
-use super::packed::{self, Engine, PackedB};
+use super::packed::{self, Engine, Kernel, PackedB};
 
 /// `torch.nn.Linear`: `y = x Wᵀ + b`, `W` being `[out, in]` in the checkpoint.
 ///
-/// How `W` is stored depends on the GEMM engine (`packed::Engine`, chosen when the layer is
-/// built): packed twice for the hand-written kernel, or plainly for the `gemm` crate.
+/// How `W` is stored depends on the GEMM engine, kernel and precision in force when the layer
+/// is built (`packed::layer_kernel`): packed twice for a hand-written kernel, or plainly for
+/// the `gemm` crate.
 pub struct Linear {
     w: Weight,
     /// `[out]`, absent for the bias-free projections.
@@ -37,18 +38,19 @@ enum Weight {
 }
 
 impl Linear {
-    /// From the checkpoint's `[out, in]` weight, for `Engine::current()`.
+    /// From the checkpoint's `[out, in]` weight, for `packed::layer_kernel()` (the engine,
+    /// precision and kernel settings of this thread).
     pub fn new(w: Vec<f32>, b: Option<Vec<f32>>, in_dim: usize, out_dim: usize) -> Linear {
         assert_eq!(w.len(), in_dim * out_dim, "Linear weight size");
         if let Some(b) = &b {
             assert_eq!(b.len(), out_dim, "Linear bias size");
         }
-        let w = match Engine::current() {
-            Engine::Packed => Weight::Packed {
-                fwd: PackedB::from_cols(&w, in_dim, out_dim),
-                bwd: PackedB::from_rows(&w, out_dim, in_dim),
+        let w = match packed::layer_kernel() {
+            Some(kernel) => Weight::Packed {
+                fwd: PackedB::from_cols_for(kernel, &w, in_dim, out_dim),
+                bwd: PackedB::from_rows_for(kernel, &w, out_dim, in_dim),
             },
-            Engine::Crate => {
+            None => {
                 let transposed = in_dim > out_dim;
                 let w = if transposed {
                     let mut t = vec![0.0; w.len()];
@@ -77,6 +79,14 @@ impl Linear {
         match self.w {
             Weight::Packed { .. } => Engine::Packed,
             Weight::Plain { .. } => Engine::Crate,
+        }
+    }
+
+    /// The micro-kernel of a packed layer (`None` for the `gemm` crate).
+    pub fn kernel(&self) -> Option<Kernel> {
+        match &self.w {
+            Weight::Packed { fwd, .. } => Some(fwd.kernel()),
+            Weight::Plain { .. } => None,
         }
     }
 
