@@ -29,7 +29,21 @@ impl Segments {
     pub fn total(&self) -> usize {
         self.spans.last().map_or(0, |&(s, l)| s + l)
     }
+
+    /// For each token row: its sequence and position in it (`None` in a gap between spans).
+    fn owners(&self) -> Vec<Option<(usize, usize)>> {
+        let mut o = vec![None; self.total()];
+        for (sq, &(start, len)) in self.spans.iter().enumerate() {
+            for i in 0..len {
+                o[start + i] = Some((sq, i));
+            }
+        }
+        o
+    }
 }
+
+/// Rows per parallel task in the scatter loops below (each row is D..3D floats).
+const ROWS_PER_TASK: usize = 8;
 
 pub struct Attention {
     /// q, k and v projections stacked: weight `[3D, D]`, bias `[3D]`, rows q then k then v.
@@ -59,9 +73,9 @@ impl Attention {
         let t = seg.total();
         // qkv: [T, 3D]; q is scaled by dh^-1/2 right after its projection, as in CLIPAttention.
         let mut qkv = self.qkv.forward(x, t);
-        for row in qkv.chunks_exact_mut(3 * d) {
-            row[..d].iter_mut().for_each(|v| *v *= scale);
-        }
+        qkv.par_chunks_mut(3 * d)
+            .with_min_len(ROWS_PER_TASK)
+            .for_each(|row| row[..d].iter_mut().for_each(|v| *v *= scale));
         let h = self.num_heads;
         // One task per (sequence, head): P = softmax(Q Kᵀ + mask), O = P V.
         let results: Vec<(Vec<f32>, Vec<f32>)> = (0..seg.spans.len() * h)
@@ -92,16 +106,19 @@ impl Attention {
                 (p, o)
             })
             .collect();
-        // ctx: [T, D], heads side by side.
+        // ctx: [T, D], heads side by side, gathered row by row in parallel.
         let mut ctx = vec![0.0f32; t * d];
-        for (task, (_, o)) in results.iter().enumerate() {
-            let (start, len) = seg.spans[task / h];
-            let head = task % h;
-            for i in 0..len {
-                let dst = (start + i) * d + head * dh;
-                ctx[dst..dst + dh].copy_from_slice(&o[i * dh..(i + 1) * dh]);
-            }
-        }
+        let owners = seg.owners();
+        ctx.par_chunks_mut(d)
+            .zip(&owners)
+            .with_min_len(ROWS_PER_TASK)
+            .for_each(|(dst, owner)| {
+                if let Some((sq, i)) = *owner {
+                    for (head, dst) in dst.chunks_exact_mut(dh).enumerate() {
+                        dst.copy_from_slice(&results[sq * h + head].1[i * dh..][..dh]);
+                    }
+                }
+            });
         let y = self.out.forward(&ctx, t);
         let saved = save.then(|| AttnSaved {
             qkv,
@@ -169,20 +186,22 @@ impl Attention {
             })
             .collect();
         let mut dqkv = vec![0.0f32; t * 3 * d];
-        for (task, g) in results.iter().enumerate() {
-            let (start, len) = seg.spans[task / h];
-            let head = task % h;
-            for i in 0..len {
-                let row = &mut dqkv[(start + i) * 3 * d..(start + i + 1) * 3 * d];
-                let src = &g[i * 3 * dh..(i + 1) * 3 * dh];
-                // q was scaled after its projection, so its gradient picks up the scale too.
-                for (dst, s) in row[head * dh..(head + 1) * dh].iter_mut().zip(&src[..dh]) {
-                    *dst = s * scale;
+        let owners = seg.owners();
+        dqkv.par_chunks_mut(3 * d)
+            .zip(&owners)
+            .with_min_len(ROWS_PER_TASK)
+            .for_each(|(row, owner)| {
+                let Some((sq, i)) = *owner else { return };
+                for head in 0..h {
+                    let src = &results[sq * h + head][i * 3 * dh..][..3 * dh];
+                    // q was scaled after its projection, so its gradient picks up the scale.
+                    for (dst, s) in row[head * dh..][..dh].iter_mut().zip(&src[..dh]) {
+                        *dst = s * scale;
+                    }
+                    row[d + head * dh..][..dh].copy_from_slice(&src[dh..2 * dh]);
+                    row[2 * d + head * dh..][..dh].copy_from_slice(&src[2 * dh..]);
                 }
-                row[d + head * dh..d + (head + 1) * dh].copy_from_slice(&src[dh..2 * dh]);
-                row[2 * d + head * dh..2 * d + (head + 1) * dh].copy_from_slice(&src[2 * dh..]);
-            }
-        }
+            });
         self.qkv.backward(&dqkv, t)
     }
 }
@@ -301,23 +320,28 @@ impl Attention {
                 (dq, g)
             })
             .collect();
-        let mut dkv = vec![0.0f32; t * 2 * d];
         let mut dq = vec![0.0f32; ns * d];
-        for (task, (dqh, g)) in results.iter().enumerate() {
+        for (task, (dqh, _)) in results.iter().enumerate() {
             let (sq, head) = (task / h, task % h);
-            let (start, len) = seg.spans[sq];
             // q was scaled after its projection.
             dq[sq * d + head * dh..][..dh]
                 .iter_mut()
                 .zip(dqh)
                 .for_each(|(a, b)| *a = b * scale);
-            for j in 0..len {
-                let row = &mut dkv[(start + j) * 2 * d..][..2 * d];
-                let src = &g[j * 2 * dh..][..2 * dh];
-                row[head * dh..][..dh].copy_from_slice(&src[..dh]);
-                row[d + head * dh..][..dh].copy_from_slice(&src[dh..]);
-            }
         }
+        let mut dkv = vec![0.0f32; t * 2 * d];
+        let owners = seg.owners();
+        dkv.par_chunks_mut(2 * d)
+            .zip(&owners)
+            .with_min_len(ROWS_PER_TASK)
+            .for_each(|(row, owner)| {
+                let Some((sq, j)) = *owner else { return };
+                for head in 0..h {
+                    let src = &results[sq * h + head].1[j * 2 * dh..][..2 * dh];
+                    row[head * dh..][..dh].copy_from_slice(&src[..dh]);
+                    row[d + head * dh..][..dh].copy_from_slice(&src[dh..]);
+                }
+            });
         let mut dx = self.qkv.backward_part(&dkv, t, d..3 * d);
         let dxq = self.qkv.backward_part(&dq, ns, 0..d);
         for ((&(start, _), &r), g) in seg.spans.iter().zip(rows).zip(dxq.chunks_exact(d)) {

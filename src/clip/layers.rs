@@ -208,35 +208,48 @@ impl LayerNorm {
     }
 
     /// `x: [rows, dim]` → `y: [rows, dim]`, and the saved state when `save`.
+    ///
+    /// One parallel pass over the rows writes x̂ (when saved) and y = x̂ γ + β: the affine step
+    /// and the copy of x̂ used to be serial loops after the parallel normalisation (with two
+    /// threads, serial work costs twice its share of the image pass).
     pub fn forward(&self, x: &[f32], save: bool) -> (Vec<f32>, Option<LnSaved>) {
         let d = self.dim();
         let rows = x.len() / d;
         let mut y = vec![0.0; x.len()];
         let mut rstd = vec![0.0; rows];
+        let mut xhat = if save { vec![0.0; x.len()] } else { Vec::new() };
         let rows_per_task = (CHUNK / d).max(1);
-        y.par_chunks_mut(d)
-            .zip(x.par_chunks(d))
-            .zip(rstd.par_iter_mut())
-            .with_min_len(rows_per_task)
-            .for_each(|((yr, xr), rs)| {
-                // Two passes in f64: exact enough that a constant row (variance 0) gives y = β.
-                let mean = xr.iter().map(|&v| v as f64).sum::<f64>() / d as f64;
-                let var = xr.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / d as f64;
-                let r = 1.0 / (var + self.eps as f64).sqrt();
-                *rs = r as f32;
-                for (yv, &xv) in yr.iter_mut().zip(xr) {
-                    *yv = ((xv as f64 - mean) * r) as f32;
-                }
-            });
-        let saved = save.then(|| LnSaved {
-            xhat: y.clone(),
-            rstd: rstd.clone(),
-        });
-        for yr in y.chunks_exact_mut(d) {
+        let row = |xr: &[f32], yr: &mut [f32], hr: Option<&mut [f32]>, rs: &mut f32| {
+            // Two passes in f64: exact enough that a constant row (variance 0) gives y = β.
+            let mean = xr.iter().map(|&v| v as f64).sum::<f64>() / d as f64;
+            let var = xr.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / d as f64;
+            let r = 1.0 / (var + self.eps as f64).sqrt();
+            *rs = r as f32;
+            for (yv, &xv) in yr.iter_mut().zip(xr) {
+                *yv = ((xv as f64 - mean) * r) as f32;
+            }
+            if let Some(hr) = hr {
+                hr.copy_from_slice(yr);
+            }
             for ((yv, g), b) in yr.iter_mut().zip(&self.gamma).zip(&self.beta) {
                 *yv = *yv * g + b;
             }
+        };
+        if save {
+            y.par_chunks_mut(d)
+                .zip(xhat.par_chunks_mut(d))
+                .zip(x.par_chunks(d))
+                .zip(rstd.par_iter_mut())
+                .with_min_len(rows_per_task)
+                .for_each(|(((yr, hr), xr), rs)| row(xr, yr, Some(hr), rs));
+        } else {
+            y.par_chunks_mut(d)
+                .zip(x.par_chunks(d))
+                .zip(rstd.par_iter_mut())
+                .with_min_len(rows_per_task)
+                .for_each(|((yr, xr), rs)| row(xr, yr, None, rs));
         }
+        let saved = save.then_some(LnSaved { xhat, rstd });
         (y, saved)
     }
 
@@ -274,6 +287,32 @@ const SQRT_2_OVER_PI: f32 = 0.797_884_6;
 /// activation of three ViT-B/32 views is 150 × 3072 values, enough exp/erf calls to matter
 /// next to the GEMMs.
 const CHUNK: usize = 8192;
+
+/// `x += y`, in parallel chunks (the residual connections).
+pub fn add_assign(x: &mut [f32], y: &[f32]) {
+    assert_eq!(x.len(), y.len(), "add_assign: lengths");
+    x.par_chunks_mut(CHUNK)
+        .zip(y.par_chunks(CHUNK))
+        .for_each(|(x, y)| x.iter_mut().zip(y).for_each(|(x, y)| *x += y));
+}
+
+/// The activation of `pre` into a new vector (`pre` itself is kept for the backward pass:
+/// this replaces a serial copy followed by the in-place activation).
+pub fn activation_forward_copy(act: Activation, pre: &[f32]) -> Vec<f32> {
+    let mut out = vec![0.0; pre.len()];
+    out.par_chunks_mut(CHUNK)
+        .zip(pre.par_chunks(CHUNK))
+        .for_each(|(o, p)| {
+            o.copy_from_slice(p);
+            #[cfg(target_arch = "x86_64")]
+            if avx2_fma() {
+                // SAFETY: the CPU has AVX2 and FMA (checked just above).
+                return unsafe { act_forward_avx2(act, o) };
+            }
+            act_forward_chunk(act, o)
+        });
+    out
+}
 
 /// Apply the activation in place.
 pub fn activation_forward(act: Activation, x: &mut [f32]) {
