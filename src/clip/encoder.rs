@@ -3,10 +3,7 @@
 
 use super::attention::{Attention, AttnSaved, PooledAttnSaved, Segments};
 use super::config::Activation;
-use super::layers::{
-    activation_backward, activation_forward, activation_forward_copy, add_assign, LayerNorm,
-    Linear, LnSaved,
-};
+use super::layers::{add_assign, LayerNorm, Linear, LnSaved};
 
 pub struct EncoderLayer {
     pub ln1: LayerNorm,
@@ -48,8 +45,7 @@ impl EncoderLayer {
     /// `dy: [T, D]`, the gradient at the layer's output, becomes the gradient at its input.
     pub fn backward(&self, dy: &mut [f32], seg: &Segments, s: &LayerSaved) {
         let t = seg.total();
-        let mut dm = self.fc2.backward(dy, t);
-        activation_backward(self.act, &s.pre_act, &mut dm);
+        let dm = self.fc2.backward_act(dy, t, self.act, &s.pre_act);
         let dn2 = self.fc1.backward(&dm, t);
         let dh = self.ln2.backward(&dn2, &s.ln2);
         add_assign(dy, &dh);
@@ -60,14 +56,7 @@ impl EncoderLayer {
 
     /// `act(fc1(n2))`, and fc1's output itself when `save` (for the backward pass).
     fn mlp_hidden(&self, n2: &[f32], rows: usize, save: bool) -> (Vec<f32>, Option<Vec<f32>>) {
-        let mut m = self.fc1.forward(n2, rows);
-        if save {
-            let post = activation_forward_copy(self.act, &m);
-            (post, Some(m))
-        } else {
-            activation_forward(self.act, &mut m);
-            (m, None)
-        }
+        self.fc1.forward_act(n2, rows, self.act, save)
     }
 
     /// The layer's output at one token per sequence only (`rows[s]` within sequence s):
@@ -115,8 +104,7 @@ impl EncoderLayer {
     ) -> Vec<f32> {
         let d = self.ln1.dim();
         let ns = seg.spans.len();
-        let mut dm = self.fc2.backward(dy, ns);
-        activation_backward(self.act, &s.pre_act, &mut dm);
+        let dm = self.fc2.backward_act(dy, ns, self.act, &s.pre_act);
         let dn2 = self.fc1.backward(&dm, ns);
         let mut dh = self.ln2.backward(&dn2, &s.ln2);
         dh.iter_mut().zip(dy).for_each(|(g, d)| *g += d);
