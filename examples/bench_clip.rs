@@ -22,11 +22,25 @@ use t2tf::clip::packed::{self, Engine, Kernel, Precision};
 use t2tf::clip::{cosine_grad, Clip, ClipConfig, ClipError, ClipTokenizer, RandomSource};
 use t2tf::image::Image;
 
-/// CPU seconds (user + system, all threads) this process has used so far, from
-/// /proc/self/stat (clock ticks of 1/100 s). On a machine shared with other jobs, CPU time /
-/// threads estimates what the wall time would be on an idle machine (an upper bound: idle
-/// rayon workers spin a little).
+/// CPU seconds this process's threads have run so far: the sum of the nanosecond run times in
+/// /proc/self/task/*/schedstat (the rayon workers live as long as the process), else user +
+/// system time from /proc/self/stat (ticks of 1/100 s, too coarse for a 0.1 s product). On a
+/// machine shared with other jobs, CPU time / threads estimates the wall time on an idle one
+/// (a lower bound where threads wait on each other, an upper one where idle workers spin).
 fn cpu_seconds() -> f64 {
+    let from_schedstat = std::fs::read_dir("/proc/self/task").ok().and_then(|dir| {
+        let mut ns = 0u64;
+        let mut any = false;
+        for task in dir.flatten() {
+            let text = std::fs::read_to_string(task.path().join("schedstat")).ok()?;
+            ns += text.split_whitespace().next()?.parse::<u64>().ok()?;
+            any = true;
+        }
+        any.then_some(ns as f64 * 1e-9)
+    });
+    if let Some(s) = from_schedstat {
+        return s;
+    }
     let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
     // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
     let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
