@@ -8,7 +8,7 @@
 //! thread, CPU time, m = 150 and the ViT-B/32 shapes, in a stand-alone copy of this driver
 //! (GFLOPS; FMA peak measured with register-only loops: 113 for ymm and zmm alike, 226 for
 //! `vdpbf16ps` zmm): f32 6 × 16 ymm 98–107, 6 × 32 101–108, 12 × 32 97–103 (150 rows pad to
-//! 156), 14 × 32 97–106, 8 × 48 101–107, 6 × 64 100–109; bf16 12 × 32 192–210, 8 × 48
+//! 156), 14 × 32 97–106, 8 × 48 101–107, 6 × 64 100–108; bf16 12 × 32 192–210, 8 × 48
 //! 200–215, 6 × 64 203–218. Six rows divide 150 (3 views × 50 tokens) and 147 (patches)
 //! nearly exactly, and 64 columns divide every width of the CLIP family (512 … 5120). Zen 4
 //! executes a zmm FMA on its two 256-bit pipes, so f32 gains little over AVX2 there; on Intel
