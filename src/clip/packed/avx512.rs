@@ -1,8 +1,8 @@
 //! AVX-512 micro-kernels, 6 × 64: f32 FMA (`Kernel::Avx512F`) and bf16 pairs with `vdpbf16ps`
 //! (`Kernel::Avx512Bf16`). Both keep C's 6 × 64 tile in 24 zmm accumulators (rows × four
-//! 16-lane vectors) and per k step (f32) or k pair (bf16) load four B vectors and broadcast six
-//! A values straight into the multiply-adds (embedded broadcasts), so 28 of the 32 zmm
-//! registers are in use and nothing spills.
+//! 16-lane vectors) and per k step (f32) or k pair (bf16) load four B vectors and broadcast
+//! six A values (one `vbroadcastss` each, shared by four multiply-adds): 29–30 of the 32 zmm
+//! registers, and the compiled loop has no spills.
 //!
 //! Why 6 × 64, measured on the 2-core AMD EPYC Zen 4 (AVX-512F/BW/DQ/VL, AVX512_BF16), single
 //! thread, CPU time, m = 150 and the ViT-B/32 shapes, in a stand-alone copy of this driver
