@@ -1,30 +1,46 @@
 //! CLIP speed benchmark with ViT-B/32 shapes and random weights made here (timings do not
-//! depend on values):
-//!   1. GEMM microbenchmark of the shapes the model runs, in GFLOPS, against the peak measured
-//!      in the same run (large square product), f32 and f16;
+//! depend on values), one row per way of running the weight products that this CPU has — the
+//! `gemm` crate and every SIMD micro-kernel of `clip::packed` (f32 and bf16) — all measured in
+//! the same run, interleaved, against the f32 GEMM peak measured in that run (the `gemm`
+//! crate's best of 2048³ / 1536³, before and after):
+//!   1. GEMM microbenchmark of the shapes the model runs, in GFLOPS;
 //!   2. image encoder forward + input backward for a batch of 3 views at 224²;
 //!   3. text encoder for 128 typical short captions;
-//!   4. reduced precision: embedding and gradient error when weights are rounded to bf16 / f16.
+//!   4. bf16: embedding and input-gradient error against f32 (relative L2, worst view).
 //!
 //! Run from the repository root (the tokenizer is read from ../shared/data/clip):
-//!     cargo run --release --example bench_clip [-- --reps N] [--engine packed|crate] [--image-only]
+//!     cargo run --release --example bench_clip [-- --reps N] [--image-only]
+//!         [--only crate|avx2|avx512f|bf16] [--engine packed|crate]
+//! `--image-only` runs just the image loop (for profilers); `--only` keeps one setup (and
+//! `--engine` is `--only` for the detected f32 kernel or the crate).
 
 use std::path::Path;
 use std::time::Instant;
 
-use gemm::Parallelism;
 use t2tf::clip::matmul::{matmul, Mat, Op};
-use t2tf::clip::packed::{self, Engine};
-use t2tf::clip::{
-    cosine_grad, Clip, ClipConfig, ClipError, ClipTokenizer, RandomSource, TensorSource,
-};
+use t2tf::clip::packed::{self, Engine, Kernel, Precision};
+use t2tf::clip::{cosine_grad, Clip, ClipConfig, ClipError, ClipTokenizer, RandomSource};
 use t2tf::image::Image;
 
-/// CPU seconds (user + system, all threads) this process has used so far, from
-/// /proc/self/stat (clock ticks of 1/100 s). On a machine shared with other jobs, CPU time /
-/// threads estimates what the wall time would be on an idle machine (an upper bound: idle
-/// rayon workers spin a little).
+/// CPU seconds this process's threads have run so far: the sum of the nanosecond run times in
+/// /proc/self/task/*/schedstat (the rayon workers live as long as the process), else user +
+/// system time from /proc/self/stat (ticks of 1/100 s, too coarse for a 0.1 s product). On a
+/// machine shared with other jobs, CPU time / threads estimates the wall time on an idle one
+/// (a lower bound where threads wait on each other, an upper one where idle workers spin).
 fn cpu_seconds() -> f64 {
+    let from_schedstat = std::fs::read_dir("/proc/self/task").ok().and_then(|dir| {
+        let mut ns = 0u64;
+        let mut any = false;
+        for task in dir.flatten() {
+            let text = std::fs::read_to_string(task.path().join("schedstat")).ok()?;
+            ns += text.split_whitespace().next()?.parse::<u64>().ok()?;
+            any = true;
+        }
+        any.then_some(ns as f64 * 1e-9)
+    });
+    if let Some(s) = from_schedstat {
+        return s;
+    }
     let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
     // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
     let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
@@ -79,11 +95,49 @@ fn gemm_gflops(m: usize, n: usize, k: usize, bt: bool, reps: usize) -> f64 {
     2.0 * (m * n * k) as f64 / best / 1e9
 }
 
-/// GFLOPS of the same product with B packed once beforehand (`clip::packed`, what `Linear`
-/// does with its weights at load time); `bt` only changes how B is given, not the packed copy.
-fn packed_gflops(m: usize, n: usize, k: usize, reps: usize) -> f64 {
+/// The f32 GEMM peak of this run: the `gemm` crate's best of 2048³ and 1536³ by wall time,
+/// and by CPU time (FLOPs per CPU second × threads, the best rep): on a shared machine the
+/// CPU-time figure is what the cores deliver while this process runs, whatever the wall time.
+fn peak_gflops(threads: usize) -> (f64, f64) {
+    let (mut wall, mut cpu) = (0.0f64, 0.0f64);
+    for n in [2048usize, 1536] {
+        let a = vec![0.5f32; n * n];
+        let b = vec![0.25f32; n * n];
+        let mut c = vec![0.0f32; n * n];
+        let flops = 2.0 * (n * n * n) as f64;
+        for rep in 0..4 {
+            let c0 = cpu_seconds();
+            let t = Instant::now();
+            matmul(
+                &mut c,
+                n,
+                Mat::new(&a, n),
+                Op::N,
+                Mat::new(&b, n),
+                Op::N,
+                n,
+                n,
+                n,
+                false,
+            );
+            let (dt, dc) = (t.elapsed().as_secs_f64(), cpu_seconds() - c0);
+            if rep > 0 {
+                wall = wall.max(flops / dt / 1e9);
+                // CPU time has 10 ms ticks: only trust reps long enough to resolve.
+                if dc > 0.05 {
+                    cpu = cpu.max(flops / (dc / threads as f64) / 1e9);
+                }
+            }
+        }
+    }
+    (wall, cpu)
+}
+
+/// GFLOPS of the same product with B packed once beforehand for `kernel` (what `Linear`
+/// does with its weights at load time), activations packed (bf16: rounded) in the timing.
+fn packed_gflops(kernel: Kernel, m: usize, n: usize, k: usize, reps: usize) -> f64 {
     let a = vec![0.5f32; m * k];
-    let b = packed::PackedB::from_rows(&vec![0.25f32; k * n], k, n);
+    let b = packed::PackedB::from_rows_for(kernel, &vec![0.25f32; k * n], k, n);
     let mut c = vec![0.0f32; m * n];
     let (best, _) = time_reps(reps, || {
         packed::gemm(&mut c, n, &a, k, m, &b, 0..k, 0..n, None, false)
@@ -91,58 +145,60 @@ fn packed_gflops(m: usize, n: usize, k: usize, reps: usize) -> f64 {
     2.0 * (m * n * k) as f64 / best / 1e9
 }
 
-fn gemm_f16_gflops(m: usize, n: usize, k: usize, reps: usize) -> f64 {
-    use gemm::f16;
-    let a = vec![f16::from_f32(0.5); m * k];
-    let b = vec![f16::from_f32(0.25); k * n];
-    let mut c = vec![f16::from_f32(0.0); m * n];
-    let threads = rayon::current_num_threads();
-    let (best, _) = time_reps(reps, || unsafe {
-        // SAFETY: row-major m×k, k×n and m×n buffers of exactly these sizes.
-        gemm::gemm(
-            m,
-            n,
-            k,
-            c.as_mut_ptr(),
-            1,
-            n as isize,
-            false,
-            a.as_ptr(),
-            1,
-            k as isize,
-            b.as_ptr(),
-            1,
-            n as isize,
-            f16::from_f32(1.0),
-            f16::from_f32(1.0),
-            false,
-            false,
-            false,
-            Parallelism::Rayon(threads),
-        )
-    });
-    2.0 * (m * n * k) as f64 / best / 1e9
+/// One way of running the weight products: the `gemm` crate or a packed micro-kernel.
+#[derive(Clone, Copy, PartialEq)]
+enum Setup {
+    Crate,
+    Packed(Kernel),
 }
 
-/// A tensor source that rounds another's values through a 16-bit float format.
-struct Rounded<'a> {
-    inner: &'a dyn TensorSource,
-    bf16: bool,
-}
-
-impl TensorSource for Rounded<'_> {
-    fn tensor(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>, ClipError> {
-        let v = self.inner.tensor(name, shape)?;
-        Ok(if self.bf16 {
-            v.into_iter()
-                .map(|x| half::bf16::from_f32(x).to_f32())
-                .collect()
-        } else {
-            v.into_iter()
-                .map(|x| half::f16::from_f32(x).to_f32())
-                .collect()
-        })
+impl Setup {
+    fn name(self) -> String {
+        match self {
+            Setup::Crate => "gemm crate, f32".into(),
+            Setup::Packed(k) => format!("packed, {}", k.name()),
+        }
     }
+    fn short(self) -> &'static str {
+        match self {
+            Setup::Crate => "crate",
+            Setup::Packed(Kernel::Avx2Fma) => "avx2",
+            Setup::Packed(Kernel::Avx512F) => "avx512f",
+            Setup::Packed(Kernel::Avx512Bf16) => "bf16",
+            Setup::Packed(Kernel::Portable) => "portable",
+            Setup::Packed(Kernel::PortableBf16) => "portable-bf16",
+        }
+    }
+    fn precision(self) -> Precision {
+        match self {
+            Setup::Crate => Precision::F32,
+            Setup::Packed(k) => k.precision(),
+        }
+    }
+    fn build(self, cfg: &ClipConfig) -> Result<Clip, ClipError> {
+        let make = || Clip::from_source(cfg.clone(), &RandomSource::new(7));
+        match self {
+            Setup::Crate => packed::with_engine(Engine::Crate, make),
+            Setup::Packed(k) => packed::with_kernel(k, make),
+        }
+    }
+}
+
+/// Every setup this CPU runs, and a line for each one it skips.
+fn setups() -> (Vec<Setup>, Vec<String>) {
+    let mut run = vec![Setup::Crate];
+    let mut skipped = Vec::new();
+    for k in Kernel::ALL {
+        match (k, k.missing()) {
+            (Kernel::Portable | Kernel::PortableBf16, _) => skipped.push(format!(
+                "{}: scalar reference (tested in tests/clip_kernels.rs, too slow to time here)",
+                k.name()
+            )),
+            (_, Some(what)) => skipped.push(format!("{}: this CPU lacks {what}", k.name())),
+            (_, None) => run.push(Setup::Packed(k)),
+        }
+    }
+    (run, skipped)
 }
 
 fn rel_err(a: &[f32], b: &[f32]) -> f64 {
@@ -175,101 +231,97 @@ const NOUN: [&str; 16] = [
 ];
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let reps: usize = std::env::args()
-        .skip_while(|a| a != "--reps")
-        .nth(1)
-        .map(|s| s.parse())
-        .transpose()?
-        .unwrap_or(5);
+    let arg = |name: &str| std::env::args().skip_while(|a| a != name).nth(1);
+    let reps: usize = arg("--reps").map(|s| s.parse()).transpose()?.unwrap_or(5);
     let threads = rayon::current_num_threads();
     // `--image-only`: just the image forward + backward loop (for profilers), no GEMM table,
-    // text or precision sections.
+    // text or error sections.
     let image_only = std::env::args().any(|a| a == "--image-only");
-    let engine = match std::env::args()
-        .skip_while(|a| a != "--engine")
-        .nth(1)
-        .as_deref()
-    {
-        None => Engine::detect(),
-        Some("packed") => Engine::Packed,
-        Some("crate") => Engine::Crate,
+    let (mut run, skipped) = setups();
+    let only = match arg("--engine").as_deref() {
+        None => arg("--only"),
+        Some("crate") => Some("crate".to_string()),
+        Some("packed") => {
+            Kernel::best(Precision::F32).map(|k| Setup::Packed(k).short().to_string())
+        }
         Some(e) => return Err(format!("--engine {e}: expected packed or crate").into()),
     };
+    if let Some(only) = &only {
+        run.retain(|s| s.short() == only);
+        if run.is_empty() {
+            return Err(format!("--only {only}: not a setup this CPU runs").into());
+        }
+    }
     println!("threads: {threads}, reps: {reps} (best / median of reps after one warm-up)");
+    println!("CPU: {}", packed::cpu_features());
+    println!("default (what t2tf builds): {}", packed::describe());
+    println!(
+        "setups timed: {}",
+        run.iter().map(|s| s.name()).collect::<Vec<_>>().join("; ")
+    );
+    for s in &skipped {
+        println!("skipped: {s}");
+    }
 
     // 1. GEMM microbenchmark.
-    let peak = if image_only {
-        f64::NAN
+    let (peak, peak_cpu) = if image_only {
+        (f64::NAN, f64::NAN)
     } else {
-        [
-            gemm_gflops(2048, 2048, 2048, false, 3),
-            gemm_gflops(1536, 1536, 1536, false, 3),
-        ]
-        .into_iter()
-        .fold(0.0, f64::max)
+        peak_gflops(threads)
     };
-    println!("\nGEMM peak (2048³ / 1536³ best): {peak:.0} GFLOPS f32");
-    println!(
-        "| shape m×k · (n×k)ᵀ | use | GFLOPS f32 gemm | % of peak | GFLOPS f32 packed | % of peak | GFLOPS f16 gemm |"
-    );
-    println!("|---|---|---|---|---|---|---|");
+    if !image_only {
+        println!(
+            "\nGEMM peak (gemm crate, 2048³ / 1536³ best): {peak:.0} GFLOPS f32 by wall time, \
+             {peak_cpu:.0} by CPU time"
+        );
+        let mut head = "| shape m×k · (n×k)ᵀ | use |".to_string();
+        for s in &run {
+            head += &format!(" {} GFLOPS (% of peak) |", s.short());
+        }
+        println!("{head}");
+        println!("|---|---|{}", "---|".repeat(run.len()));
+    }
     // bt: the weight is the right operand as stored in the checkpoint ([out, in], transposed);
-    // otherwise it is untransposed. `Linear` picks the faster layout (see clip/layers.rs).
-    let shapes: [(usize, usize, usize, bool, &str); 11] = [
+    // otherwise it is untransposed. `Linear` picks the faster layout for the crate (see
+    // clip/layers.rs); packed kernels see the same packed copy either way.
+    let shapes: [(usize, usize, usize, bool, &str); 10] = [
         (150, 2304, 768, true, "ViT qkv fwd"),
         (150, 768, 768, true, "ViT out-proj fwd"),
         (150, 3072, 768, true, "ViT fc1 fwd"),
-        (
-            150,
-            768,
-            3072,
-            true,
-            "ViT fc2 fwd, checkpoint layout (not used)",
-        ),
-        (150, 768, 3072, false, "ViT fc2 fwd, Wᵀ stored (used)"),
+        (150, 768, 3072, false, "ViT fc2 fwd (crate: Wᵀ stored)"),
         (150, 768, 2304, false, "ViT qkv bwd (dy·W)"),
-        (150, 3072, 768, true, "ViT fc2 bwd (dy·W, Wᵀ stored)"),
+        (150, 3072, 768, true, "ViT fc2 bwd (dy·W; crate: Wᵀ stored)"),
         (150, 768, 3072, false, "ViT fc1 bwd (dy·W)"),
-        (147, 768, 3072, false, "patch embedding (Wᵀ stored)"),
+        (147, 768, 3072, false, "patch embedding (crate: Wᵀ stored)"),
         (1137, 2048, 512, true, "text fc1 (128 captions)"),
-        (1137, 512, 2048, false, "text fc2 (Wᵀ stored)"),
+        (1137, 512, 2048, false, "text fc2 (crate: Wᵀ stored)"),
     ];
     for (m, n, k, bt, what) in shapes.into_iter().filter(|_| !image_only) {
-        let g = gemm_gflops(m, n, k, bt, reps.max(5));
-        let gp = packed_gflops(m, n, k, reps.max(5));
-        let g16 = gemm_f16_gflops(m, n, k, 3);
-        println!(
-            "| {m}×{k} · {k}×{n} | {what} | {g:.0} | {:.0} % | {gp:.0} | {:.0} % | {g16:.0} |",
-            100.0 * g / peak,
-            100.0 * gp / peak
-        );
+        let mut line = format!("| {m}×{k} · {k}×{n} | {what} |");
+        for s in &run {
+            let g = match s {
+                Setup::Crate => gemm_gflops(m, n, k, bt, reps.max(5)),
+                Setup::Packed(kernel) => packed_gflops(*kernel, m, n, k, reps.max(5)),
+            };
+            line += &format!(" {g:.0} ({:.0} %) |", 100.0 * g / peak);
+        }
+        println!("{line}");
     }
 
-    // 2. Image encoder, forward + backward, 3 views: the engine of this machine
-    // (`packed::Engine::detect()`, or `--engine packed|crate`), and unless `--image-only`
-    // the other engine too, runs interleaved so that both see the same machine load.
+    // 2. Image encoder, forward + backward, 3 views: every setup, interleaved so that all see
+    // the same machine load.
     let cfg = ClipConfig::vit_b32();
     let t = Instant::now();
-    let clip = packed::with_engine(engine, || {
-        Clip::from_source(cfg.clone(), &RandomSource::new(7))
-    })?;
+    let models: Vec<Clip> = run
+        .iter()
+        .map(|s| s.build(&cfg))
+        .collect::<Result<_, _>>()?;
     println!(
-        "\nrandom ViT-B/32 built in {:.1} s; engine {engine:?}",
+        "\n{} random ViT-B/32 models built in {:.1} s",
+        models.len(),
         t.elapsed().as_secs_f64()
     );
-    let other = if engine == Engine::Packed {
-        Engine::Crate
-    } else {
-        Engine::Packed
-    };
-    let clip_other = if image_only {
-        None
-    } else {
-        Some(packed::with_engine(other, || {
-            Clip::from_source(cfg.clone(), &RandomSource::new(7))
-        })?)
-    };
-    let s = clip.image_size();
+    let s = models[0].image_size();
     let views: Vec<Image> = (0..3)
         .map(|v| Image {
             width: s,
@@ -280,10 +332,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         })
         .collect();
     let target = vec![0.01f32; cfg.projection_dim];
-    let mut runs = vec![ImageRuns::default(), ImageRuns::default()];
+    let mut runs: Vec<ImageRuns> = run.iter().map(|_| ImageRuns::default()).collect();
     for rep in 0..=reps {
-        let models = std::iter::once(&clip).chain(clip_other.as_ref());
-        for (model, runs) in models.zip(&mut runs) {
+        for (model, runs) in models.iter().zip(&mut runs) {
             let c0 = cpu_seconds();
             let t0 = Instant::now();
             let (emb, cache) = model.encode_images(&views)?;
@@ -312,48 +363,62 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         + 2.0 * b * gp * 3072.0 * d;
     let att_f = 4.0 * b * n * n * d * (l - 1.0) + 4.0 * b * n * d;
     let flops = 2.0 * lin + att_f + 2.0 * att_f;
-    // The machine is shared: measure the peak again now and compare the image pass with the
-    // higher of the two measurements (the conservative choice; both are printed).
-    let peak_after = if image_only {
-        f64::NAN
+    // The machine may be shared: measure the peak again now and compare the image pass with
+    // the higher of the two measurements (the conservative choice; both are printed).
+    let (peak_after, peak_cpu_after) = if image_only {
+        (f64::NAN, f64::NAN)
     } else {
-        gemm_gflops(2048, 2048, 2048, false, 3).max(gemm_gflops(1536, 1536, 1536, false, 3))
+        peak_gflops(threads)
     };
     let img_peak = peak.max(peak_after);
-    if !image_only {
-        println!(
-            "GEMM peak again after the image runs: {peak_after:.0} GFLOPS; image % below is of \
-             the higher, {img_peak:.0}"
-        );
-    }
-    let names = [
-        format!("{engine:?} engine"),
-        format!("{other:?} engine, for comparison"),
-    ];
-    for (r, name) in runs
-        .into_iter()
-        .zip(names)
-        .filter(|(r, _)| !r.tot.is_empty())
-    {
+    let img_peak_cpu = peak_cpu.max(peak_cpu_after);
+    println!(
+        "ViT-B/32 image, 3 views at 224², forward + input backward, {:.1} GFLOP; GEMM peak \
+         before {peak:.0}, after {peak_after:.0} GFLOPS: % of the higher, {img_peak:.0} (by CPU \
+         time: {peak_cpu:.0} / {peak_cpu_after:.0}, % of {img_peak_cpu:.0})",
+        flops / 1e9
+    );
+    println!(
+        "| setup | precision | forward best (median) | backward best (median) | fwd+bwd best (median) | \
+         GFLOPS | % of peak | CPU s per run (/ threads) | % of peak by CPU time | time vs best f32 | \
+         CPU time vs best f32 |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    let best_f32 = run
+        .iter()
+        .zip(&runs)
+        .filter(|(s, _)| s.precision() == Precision::F32)
+        .map(|(_, r)| r.tot.iter().copied().fold(f64::INFINITY, f64::min))
+        .fold(f64::INFINITY, f64::min);
+    let best_f32_cpu = run
+        .iter()
+        .zip(&runs)
+        .filter(|(s, _)| s.precision() == Precision::F32)
+        .map(|(_, r)| r.cpu / reps as f64)
+        .fold(f64::INFINITY, f64::min);
+    for (setup, r) in run.iter().zip(runs) {
         let img_cpu = r.cpu / reps as f64;
         let (fb, fm) = best_and_median(r.fwd);
         let (bb, bm) = best_and_median(r.bwd);
         let (tb, tm) = best_and_median(r.tot);
         println!(
-            "ViT-B/32 image, 3 views ({name}): forward {fb:.3} s (median {fm:.3}), backward {bb:.3} s \
-             (median {bm:.3}), total {tb:.3} s (median {tm:.3}); {:.1} GFLOP → {:.0} GFLOPS = {:.0} % of peak; \
-             CPU {img_cpu:.3} s per run → idle estimate {:.3} s",
-            flops / 1e9,
+            "| {} | {} | {fb:.3} s ({fm:.3}) | {bb:.3} s ({bm:.3}) | **{tb:.3} s** ({tm:.3}) | {:.0} | \
+             {:.0} % | {img_cpu:.3} ({:.3}) | {:.0} % | {:.2}× | {:.2}× |",
+            setup.name(),
+            setup.precision().name(),
             flops / tb / 1e9,
             100.0 * flops / tb / 1e9 / img_peak,
-            img_cpu / threads as f64
+            img_cpu / threads as f64,
+            100.0 * flops / (img_cpu / threads as f64) / 1e9 / img_peak_cpu,
+            tb / best_f32,
+            img_cpu / best_f32_cpu,
         );
     }
     if image_only {
         return Ok(());
     }
 
-    // 3. Text encoder, 128 short captions.
+    // 3. Text encoder, 128 short captions, with each setup's model.
     let tok_path = Path::new("../shared/data/clip/tokenizer.json");
     let tok = ClipTokenizer::from_file(tok_path, 77)?;
     let captions: Vec<String> = (0..128)
@@ -383,11 +448,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|c| tok.encode(c))
         .collect::<Result<_, _>>()?;
     let tokens: usize = ids.iter().map(Vec::len).sum();
-    let c0 = cpu_seconds();
-    let (tb, tm) = time_reps(reps, || {
-        clip.encode_tokens(&ids).expect("text");
-    });
-    let txt_cpu = (cpu_seconds() - c0) / (reps + 1) as f64;
     let (kb, _) = time_reps(reps, || {
         for c in &captions {
             tok.encode(c).expect("tokenize");
@@ -400,31 +460,42 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         + 2.0 * tokens as f64 * 2.0 * td * td
         + 2.0 * 128.0 * (2.0 * td * td + 2.0 * td * ti);
     println!(
-        "text, 128 captions ({tokens} tokens, {:.1} mean): {tb:.3} s (median {tm:.3}), {:.0} GFLOPS; \
-         tokenizing them {:.1} ms; CPU {txt_cpu:.3} s per run → idle estimate {:.3} s",
+        "\ntext, 128 captions ({tokens} tokens, {:.1} mean; tokenizing them {:.1} ms):",
         tokens as f64 / 128.0,
-        tflops / tb / 1e9,
-        kb * 1e3,
-        txt_cpu / threads as f64
+        kb * 1e3
     );
+    for (setup, model) in run.iter().zip(&models) {
+        let c0 = cpu_seconds();
+        let (tb, tm) = time_reps(reps, || {
+            model.encode_tokens(&ids).expect("text");
+        });
+        let txt_cpu = (cpu_seconds() - c0) / (reps + 1) as f64;
+        println!(
+            "  {}: {tb:.3} s (median {tm:.3}), {:.0} GFLOPS = {:.0} % of peak; CPU {txt_cpu:.3} s per run",
+            setup.name(),
+            tflops / tb / 1e9,
+            100.0 * tflops / tb / 1e9 / img_peak,
+        );
+    }
 
-    // 4. Reduced precision: the same model with weights rounded to bf16 / f16.
-    let (emb32, cache32) = clip.encode_images(&views)?;
+    // 4. What bf16 costs in accuracy: each model against the first f32 packed one (or the
+    // crate), relative L2 error, worst of the 3 views / 8 captions.
+    let reference = run
+        .iter()
+        .position(|s| Some(*s) == Kernel::best(Precision::F32).map(Setup::Packed))
+        .unwrap_or(0);
+    let (emb32, cache32) = models[reference].encode_images(&views)?;
     let d: Vec<Vec<f32>> = emb32.iter().map(|e| cosine_grad(e, &target)).collect();
-    let g32 = clip.image_backward(&cache32, &d)?;
-    let t32 = clip.encode_tokens(&ids[..8])?;
-    for bf16 in [true, false] {
-        let name = if bf16 { "bf16" } else { "f16" };
-        let r = Clip::from_source(
-            cfg.clone(),
-            &Rounded {
-                inner: &RandomSource::new(7),
-                bf16,
-            },
-        )?;
-        let (e, c) = r.encode_images(&views)?;
-        let g = r.image_backward(&c, &d)?;
-        let te = r.encode_tokens(&ids[..8])?;
+    let g32 = models[reference].image_backward(&cache32, &d)?;
+    let t32 = models[reference].encode_tokens(&ids[..8])?;
+    println!(
+        "\nerror against {} (relative L2, worst view / caption):",
+        run[reference].name()
+    );
+    for (setup, model) in run.iter().zip(&models) {
+        let (e, c) = model.encode_images(&views)?;
+        let g = model.image_backward(&c, &d)?;
+        let te = model.encode_tokens(&ids[..8])?;
         let worst = |a: &[Vec<f32>], b: &[Vec<f32>]| {
             a.iter()
                 .zip(b)
@@ -437,7 +508,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .map(|(x, y)| rel_err(&x.data, &y.data))
             .fold(0.0, f64::max);
         println!(
-            "{name} weights: image embedding rel err {:.1e}, input gradient rel err {gw:.1e}, text embedding rel err {:.1e}",
+            "  {}: image embedding {:.1e}, input gradient {gw:.1e}, text embedding {:.1e}",
+            setup.name(),
             worst(&e, &emb32),
             worst(&te, &t32)
         );

@@ -8,7 +8,25 @@
 use rayon::prelude::*;
 
 use super::layers::{fast_exp, Linear};
-use super::matmul::{matmul, Mat, Op};
+
+mod mm;
+
+/// Probability rows are stored with this many columns, zero past the sequence length: the
+/// per-head products then run on whole 16-lane chunks (`mm`).
+fn padded(len: usize) -> usize {
+    len.next_multiple_of(16)
+}
+
+/// Rows `0 .. len` of `x` (stride `ld`, `dh` wide) transposed into `[dh][lp]`, zero past len.
+fn transpose_padded(x: &[f32], ld: usize, len: usize, dh: usize, lp: usize) -> Vec<f32> {
+    let mut t = vec![0.0f32; dh * lp];
+    for j in 0..len {
+        for (c, &v) in x[j * ld..][..dh].iter().enumerate() {
+            t[c * lp + j] = v;
+        }
+    }
+    t
+}
 
 /// Where each packed sequence lives: rows `start .. start + len`.
 #[derive(Clone, Debug)]
@@ -29,7 +47,21 @@ impl Segments {
     pub fn total(&self) -> usize {
         self.spans.last().map_or(0, |&(s, l)| s + l)
     }
+
+    /// For each token row: its sequence and position in it (`None` in a gap between spans).
+    fn owners(&self) -> Vec<Option<(usize, usize)>> {
+        let mut o = vec![None; self.total()];
+        for (sq, &(start, len)) in self.spans.iter().enumerate() {
+            for i in 0..len {
+                o[start + i] = Some((sq, i));
+            }
+        }
+        o
+    }
 }
+
+/// Rows per parallel task in the scatter loops below (each row is D..3D floats).
+const ROWS_PER_TASK: usize = 8;
 
 pub struct Attention {
     /// q, k and v projections stacked: weight `[3D, D]`, bias `[3D]`, rows q then k then v.
@@ -42,7 +74,8 @@ pub struct Attention {
 pub struct AttnSaved {
     /// `[T, 3D]`: scaled q, k, v for every token.
     qkv: Vec<f32>,
-    /// Softmax probabilities, one `[len, len]` block per (sequence, head), sequence-major.
+    /// Softmax probabilities, one `[len, padded(len)]` block per (sequence, head),
+    /// sequence-major, zero past column len.
     probs: Vec<Vec<f32>>,
 }
 
@@ -59,9 +92,9 @@ impl Attention {
         let t = seg.total();
         // qkv: [T, 3D]; q is scaled by dh^-1/2 right after its projection, as in CLIPAttention.
         let mut qkv = self.qkv.forward(x, t);
-        for row in qkv.chunks_exact_mut(3 * d) {
-            row[..d].iter_mut().for_each(|v| *v *= scale);
-        }
+        qkv.par_chunks_mut(3 * d)
+            .with_min_len(ROWS_PER_TASK)
+            .for_each(|row| row[..d].iter_mut().for_each(|v| *v *= scale));
         let h = self.num_heads;
         // One task per (sequence, head): P = softmax(Q Kᵀ + mask), O = P V.
         let results: Vec<(Vec<f32>, Vec<f32>)> = (0..seg.spans.len() * h)
@@ -70,38 +103,34 @@ impl Attention {
                 let (start, len) = seg.spans[task / h];
                 let head = task % h;
                 let base = &qkv[start * 3 * d..(start + len) * 3 * d];
-                let q = Mat::new(&base[head * dh..], 3 * d);
-                let k = Mat::new(&base[d + head * dh..], 3 * d);
-                let v = Mat::new(&base[2 * d + head * dh..], 3 * d);
-                let mut p = vec![0.0f32; len * len];
-                matmul(&mut p, len, q, Op::N, k, Op::T, len, len, dh, false);
-                softmax_rows(&mut p, len, seg.causal);
-                let mut o = vec![0.0f32; len * dh];
-                matmul(
-                    &mut o,
-                    dh,
-                    Mat::new(&p, len),
-                    Op::N,
-                    v,
-                    Op::N,
-                    len,
-                    dh,
-                    len,
-                    false,
+                let (q, k, v) = (
+                    &base[head * dh..],
+                    &base[d + head * dh..],
+                    &base[2 * d + head * dh..],
                 );
+                let lp = padded(len);
+                let kt = transpose_padded(k, 3 * d, len, dh, lp);
+                let mut p = vec![0.0f32; len * lp];
+                mm::mm(&mut p, lp, q, 3 * d, 1, &kt, lp, len, lp, dh);
+                softmax_rows(&mut p, lp, len, seg.causal);
+                let mut o = vec![0.0f32; len * dh];
+                mm::mm(&mut o, dh, &p, lp, 1, v, 3 * d, len, dh, len);
                 (p, o)
             })
             .collect();
-        // ctx: [T, D], heads side by side.
+        // ctx: [T, D], heads side by side, gathered row by row in parallel.
         let mut ctx = vec![0.0f32; t * d];
-        for (task, (_, o)) in results.iter().enumerate() {
-            let (start, len) = seg.spans[task / h];
-            let head = task % h;
-            for i in 0..len {
-                let dst = (start + i) * d + head * dh;
-                ctx[dst..dst + dh].copy_from_slice(&o[i * dh..(i + 1) * dh]);
-            }
-        }
+        let owners = seg.owners();
+        ctx.par_chunks_mut(d)
+            .zip(&owners)
+            .with_min_len(ROWS_PER_TASK)
+            .for_each(|(dst, owner)| {
+                if let Some((sq, i)) = *owner {
+                    for (head, dst) in dst.chunks_exact_mut(dh).enumerate() {
+                        dst.copy_from_slice(&results[sq * h + head].1[i * dh..][..dh]);
+                    }
+                }
+            });
         let y = self.out.forward(&ctx, t);
         let saved = save.then(|| AttnSaved {
             qkv,
@@ -124,65 +153,50 @@ impl Attention {
                 let (start, len) = seg.spans[task / h];
                 let head = task % h;
                 let base = &s.qkv[start * 3 * d..(start + len) * 3 * d];
-                let q = Mat::new(&base[head * dh..], 3 * d);
-                let k = Mat::new(&base[d + head * dh..], 3 * d);
-                let v = Mat::new(&base[2 * d + head * dh..], 3 * d);
-                let dout = Mat::new(&dctx[start * d + head * dh..], d);
+                let (q, k, v) = (
+                    &base[head * dh..],
+                    &base[d + head * dh..],
+                    &base[2 * d + head * dh..],
+                );
+                let dout = &dctx[start * d + head * dh..];
                 let p = &s.probs[task];
-                let mut dp = vec![0.0f32; len * len];
-                matmul(&mut dp, len, dout, Op::N, v, Op::T, len, len, dh, false);
-                for (dr, pr) in dp.chunks_exact_mut(len).zip(p.chunks_exact(len)) {
-                    let dot: f32 = dr.iter().zip(pr).map(|(a, b)| a * b).sum();
+                let lp = padded(len);
+                let vt = transpose_padded(v, 3 * d, len, dh, lp);
+                let mut dp = vec![0.0f32; len * lp];
+                mm::mm(&mut dp, lp, dout, d, 1, &vt, lp, len, lp, dh);
+                // Padding columns: p = 0 there, so dS = 0 too.
+                for (dr, pr) in dp.chunks_exact_mut(lp).zip(p.chunks_exact(lp)) {
+                    let dot: f32 = dr[..len].iter().zip(&pr[..len]).map(|(a, b)| a * b).sum();
                     dr.iter_mut()
                         .zip(pr)
                         .for_each(|(a, &b)| *a = b * (*a - dot));
                 }
-                // dqkv block for this head: [len, 3 dh] = (dQ | dK | dV).
+                // dqkv block for this head: [len, 3 dh] = (dQ | dK | dV); dK and dV read dS
+                // and P transposed through their strides.
                 let mut g = vec![0.0f32; len * 3 * dh];
-                let ds = Mat::new(&dp, len);
-                matmul(&mut g, 3 * dh, ds, Op::N, k, Op::N, len, dh, len, false);
-                matmul(
-                    &mut g[dh..],
-                    3 * dh,
-                    ds,
-                    Op::T,
-                    q,
-                    Op::N,
-                    len,
-                    dh,
-                    len,
-                    false,
-                );
-                matmul(
-                    &mut g[2 * dh..],
-                    3 * dh,
-                    Mat::new(p, len),
-                    Op::T,
-                    dout,
-                    Op::N,
-                    len,
-                    dh,
-                    len,
-                    false,
-                );
+                mm::mm(&mut g, 3 * dh, &dp, lp, 1, k, 3 * d, len, dh, len);
+                mm::mm(&mut g[dh..], 3 * dh, &dp, 1, lp, q, 3 * d, len, dh, len);
+                mm::mm(&mut g[2 * dh..], 3 * dh, p, 1, lp, dout, d, len, dh, len);
                 g
             })
             .collect();
         let mut dqkv = vec![0.0f32; t * 3 * d];
-        for (task, g) in results.iter().enumerate() {
-            let (start, len) = seg.spans[task / h];
-            let head = task % h;
-            for i in 0..len {
-                let row = &mut dqkv[(start + i) * 3 * d..(start + i + 1) * 3 * d];
-                let src = &g[i * 3 * dh..(i + 1) * 3 * dh];
-                // q was scaled after its projection, so its gradient picks up the scale too.
-                for (dst, s) in row[head * dh..(head + 1) * dh].iter_mut().zip(&src[..dh]) {
-                    *dst = s * scale;
+        let owners = seg.owners();
+        dqkv.par_chunks_mut(3 * d)
+            .zip(&owners)
+            .with_min_len(ROWS_PER_TASK)
+            .for_each(|(row, owner)| {
+                let Some((sq, i)) = *owner else { return };
+                for head in 0..h {
+                    let src = &results[sq * h + head][i * 3 * dh..][..3 * dh];
+                    // q was scaled after its projection, so its gradient picks up the scale.
+                    for (dst, s) in row[head * dh..][..dh].iter_mut().zip(&src[..dh]) {
+                        *dst = s * scale;
+                    }
+                    row[d + head * dh..][..dh].copy_from_slice(&src[dh..2 * dh]);
+                    row[2 * d + head * dh..][..dh].copy_from_slice(&src[2 * dh..]);
                 }
-                row[d + head * dh..d + (head + 1) * dh].copy_from_slice(&src[dh..2 * dh]);
-                row[2 * d + head * dh..2 * d + (head + 1) * dh].copy_from_slice(&src[2 * dh..]);
-            }
-        }
+            });
         self.qkv.backward(&dqkv, t)
     }
 }
@@ -233,7 +247,7 @@ impl Attention {
                     let k = &kv[(start + j) * 2 * d + head * dh..][..dh];
                     *pj = qh.iter().zip(k).map(|(a, b)| a * b).sum();
                 }
-                softmax_rows(&mut p[..keep], keep, false);
+                softmax_rows(&mut p[..keep], keep, keep, false);
                 let mut o = vec![0.0f32; dh];
                 for (j, &pj) in p[..keep].iter().enumerate() {
                     let v = &kv[(start + j) * 2 * d + d + head * dh..][..dh];
@@ -301,23 +315,28 @@ impl Attention {
                 (dq, g)
             })
             .collect();
-        let mut dkv = vec![0.0f32; t * 2 * d];
         let mut dq = vec![0.0f32; ns * d];
-        for (task, (dqh, g)) in results.iter().enumerate() {
+        for (task, (dqh, _)) in results.iter().enumerate() {
             let (sq, head) = (task / h, task % h);
-            let (start, len) = seg.spans[sq];
             // q was scaled after its projection.
             dq[sq * d + head * dh..][..dh]
                 .iter_mut()
                 .zip(dqh)
                 .for_each(|(a, b)| *a = b * scale);
-            for j in 0..len {
-                let row = &mut dkv[(start + j) * 2 * d..][..2 * d];
-                let src = &g[j * 2 * dh..][..2 * dh];
-                row[head * dh..][..dh].copy_from_slice(&src[..dh]);
-                row[d + head * dh..][..dh].copy_from_slice(&src[dh..]);
-            }
         }
+        let mut dkv = vec![0.0f32; t * 2 * d];
+        let owners = seg.owners();
+        dkv.par_chunks_mut(2 * d)
+            .zip(&owners)
+            .with_min_len(ROWS_PER_TASK)
+            .for_each(|(row, owner)| {
+                let Some((sq, j)) = *owner else { return };
+                for head in 0..h {
+                    let src = &results[sq * h + head].1[j * 2 * dh..][..2 * dh];
+                    row[head * dh..][..dh].copy_from_slice(&src[..dh]);
+                    row[d + head * dh..][..dh].copy_from_slice(&src[dh..]);
+                }
+            });
         let mut dx = self.qkv.backward_part(&dkv, t, d..3 * d);
         let dxq = self.qkv.backward_part(&dq, ns, 0..d);
         for ((&(start, _), &r), g) in seg.spans.iter().zip(rows).zip(dxq.chunks_exact(d)) {
@@ -330,10 +349,12 @@ impl Attention {
     }
 }
 
-/// Row-wise softmax of a `[len, len]` score block, in place; with `causal`, entries above the
-/// diagonal get probability 0 (as adding -inf to the scores would).
-fn softmax_rows(p: &mut [f32], len: usize, causal: bool) {
-    for (i, row) in p.chunks_exact_mut(len).enumerate() {
+/// Row-wise softmax of a `[len, len]` score block stored with row stride `ld` (columns past
+/// len untouched), in place; with `causal`, entries above the diagonal get probability 0 (as
+/// adding -inf to the scores would).
+fn softmax_rows(p: &mut [f32], ld: usize, len: usize, causal: bool) {
+    for (i, row) in p.chunks_exact_mut(ld).enumerate() {
+        let row = &mut row[..len];
         let keep = if causal { i + 1 } else { len };
         let max = row[..keep].iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
         let mut sum = 0.0f32;
@@ -464,7 +485,7 @@ mod tests {
     #[test]
     fn causal_first_token_sees_only_itself_and_huge_scores_stay_finite() {
         let mut p = vec![1e30f32, 5.0, -1e30, 2.0, 1.0, 0.0, 3.0, 3.0, 3.0];
-        softmax_rows(&mut p, 3, true);
+        softmax_rows(&mut p, 3, 3, true);
         assert_eq!(&p[..3], &[1.0, 0.0, 0.0]);
         assert!(p.iter().all(|v| v.is_finite()));
         assert!(((p[3] + p[4]) - 1.0).abs() < 1e-6 && p[5] == 0.0);

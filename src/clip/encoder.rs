@@ -3,7 +3,7 @@
 
 use super::attention::{Attention, AttnSaved, PooledAttnSaved, Segments};
 use super::config::Activation;
-use super::layers::{activation_backward, activation_forward, LayerNorm, Linear, LnSaved};
+use super::layers::{add_assign, LayerNorm, Linear, LnSaved};
 
 pub struct EncoderLayer {
     pub ln1: LayerNorm,
@@ -29,13 +29,11 @@ impl EncoderLayer {
         let t = seg.total();
         let (n1, s1) = self.ln1.forward(x, save);
         let (a, sa) = self.attn.forward(&n1, seg, save);
-        x.iter_mut().zip(&a).for_each(|(x, a)| *x += a);
+        add_assign(x, &a);
         let (n2, s2) = self.ln2.forward(x, save);
-        let mut m = self.fc1.forward(&n2, t);
-        let pre_act = save.then(|| m.clone());
-        activation_forward(self.act, &mut m);
+        let (m, pre_act) = self.mlp_hidden(&n2, t, save);
         let o = self.fc2.forward(&m, t);
-        x.iter_mut().zip(&o).for_each(|(x, o)| *x += o);
+        add_assign(x, &o);
         Some(LayerSaved {
             ln1: s1?,
             attn: sa?,
@@ -47,14 +45,18 @@ impl EncoderLayer {
     /// `dy: [T, D]`, the gradient at the layer's output, becomes the gradient at its input.
     pub fn backward(&self, dy: &mut [f32], seg: &Segments, s: &LayerSaved) {
         let t = seg.total();
-        let mut dm = self.fc2.backward(dy, t);
-        activation_backward(self.act, &s.pre_act, &mut dm);
+        let dm = self.fc2.backward_act(dy, t, self.act, &s.pre_act);
         let dn2 = self.fc1.backward(&dm, t);
         let dh = self.ln2.backward(&dn2, &s.ln2);
-        dy.iter_mut().zip(&dh).for_each(|(g, d)| *g += d);
+        add_assign(dy, &dh);
         let dn1 = self.attn.backward(dy, seg, &s.attn);
         let dx = self.ln1.backward(&dn1, &s.ln1);
-        dy.iter_mut().zip(&dx).for_each(|(g, d)| *g += d);
+        add_assign(dy, &dx);
+    }
+
+    /// `act(fc1(n2))`, and fc1's output itself when `save` (for the backward pass).
+    fn mlp_hidden(&self, n2: &[f32], rows: usize, save: bool) -> (Vec<f32>, Option<Vec<f32>>) {
+        self.fc1.forward_act(n2, rows, self.act, save)
     }
 
     /// The layer's output at one token per sequence only (`rows[s]` within sequence s):
@@ -78,9 +80,7 @@ impl EncoderLayer {
             .collect();
         h.iter_mut().zip(&a).for_each(|(x, a)| *x += a);
         let (n2, s2) = self.ln2.forward(&h, save);
-        let mut m = self.fc1.forward(&n2, ns);
-        let pre_act = save.then(|| m.clone());
-        activation_forward(self.act, &mut m);
+        let (m, pre_act) = self.mlp_hidden(&n2, ns, save);
         let o = self.fc2.forward(&m, ns);
         h.iter_mut().zip(&o).for_each(|(x, o)| *x += o);
         let saved = (|| {
@@ -104,8 +104,7 @@ impl EncoderLayer {
     ) -> Vec<f32> {
         let d = self.ln1.dim();
         let ns = seg.spans.len();
-        let mut dm = self.fc2.backward(dy, ns);
-        activation_backward(self.act, &s.pre_act, &mut dm);
+        let dm = self.fc2.backward_act(dy, ns, self.act, &s.pre_act);
         let dn2 = self.fc1.backward(&dm, ns);
         let mut dh = self.ln2.backward(&dn2, &s.ln2);
         dh.iter_mut().zip(dy).for_each(|(g, d)| *g += d);

@@ -10,12 +10,13 @@ use rayon::prelude::*;
 
 use super::config::Activation;
 use super::matmul::{matmul, Mat, Op};
-use super::packed::{self, Engine, PackedB};
+use super::packed::{self, Engine, Kernel, PackedB};
 
 /// `torch.nn.Linear`: `y = x Wᵀ + b`, `W` being `[out, in]` in the checkpoint.
 ///
-/// How `W` is stored depends on the GEMM engine (`packed::Engine`, chosen when the layer is
-/// built): packed twice for the hand-written kernel, or plainly for the `gemm` crate.
+/// How `W` is stored depends on the GEMM engine, kernel and precision in force when the layer
+/// is built (`packed::layer_kernel`): packed twice for a hand-written kernel, or plainly for
+/// the `gemm` crate.
 pub struct Linear {
     w: Weight,
     /// `[out]`, absent for the bias-free projections.
@@ -37,18 +38,19 @@ enum Weight {
 }
 
 impl Linear {
-    /// From the checkpoint's `[out, in]` weight, for `Engine::current()`.
+    /// From the checkpoint's `[out, in]` weight, for `packed::layer_kernel()` (the engine,
+    /// precision and kernel settings of this thread).
     pub fn new(w: Vec<f32>, b: Option<Vec<f32>>, in_dim: usize, out_dim: usize) -> Linear {
         assert_eq!(w.len(), in_dim * out_dim, "Linear weight size");
         if let Some(b) = &b {
             assert_eq!(b.len(), out_dim, "Linear bias size");
         }
-        let w = match Engine::current() {
-            Engine::Packed => Weight::Packed {
-                fwd: PackedB::from_cols(&w, in_dim, out_dim),
-                bwd: PackedB::from_rows(&w, out_dim, in_dim),
+        let w = match packed::layer_kernel() {
+            Some(kernel) => Weight::Packed {
+                fwd: PackedB::from_cols_for(kernel, &w, in_dim, out_dim),
+                bwd: PackedB::from_rows_for(kernel, &w, out_dim, in_dim),
             },
-            Engine::Crate => {
+            None => {
                 let transposed = in_dim > out_dim;
                 let w = if transposed {
                     let mut t = vec![0.0; w.len()];
@@ -77,6 +79,14 @@ impl Linear {
         match self.w {
             Weight::Packed { .. } => Engine::Packed,
             Weight::Plain { .. } => Engine::Crate,
+        }
+    }
+
+    /// The micro-kernel of a packed layer (`None` for the `gemm` crate).
+    pub fn kernel(&self) -> Option<Kernel> {
+        match &self.w {
+            Weight::Packed { fwd, .. } => Some(fwd.kernel()),
+            Weight::Plain { .. } => None,
         }
     }
 
@@ -121,6 +131,66 @@ impl Linear {
                 y
             }
         }
+    }
+
+    /// `act(x Wᵀ + b): [rows, out]`, and `x Wᵀ + b` itself when `keep_pre` (what the backward
+    /// pass needs). With packed weights the activation is applied by the product's threads to
+    /// each finished tile while it is in cache (`packed::Post`); the values are the same bits
+    /// as `forward` followed by `activation_forward`.
+    pub fn forward_act(
+        &self,
+        x: &[f32],
+        rows: usize,
+        act: Activation,
+        keep_pre: bool,
+    ) -> (Vec<f32>, Option<Vec<f32>>) {
+        let Weight::Packed { fwd, .. } = &self.w else {
+            let mut y = self.forward(x, rows);
+            if keep_pre {
+                return (activation_forward_copy(act, &y), Some(y));
+            }
+            activation_forward(act, &mut y);
+            return (y, None);
+        };
+        let (n, k) = (self.out_dim, self.in_dim);
+        let bias = self.b.as_deref();
+        if !keep_pre {
+            let post = |_: usize, _: usize, v: &mut [f32]| act_forward_any(act, v);
+            let y = packed::gemm_new_post(x, k, rows, fwd, 0..k, 0..n, bias, Some(&post));
+            return (y, None);
+        }
+        let mut pre: Vec<f32> = Vec::with_capacity(rows * n);
+        let dst = SyncPtr(pre.as_mut_ptr());
+        let post = |row: usize, col: usize, v: &mut [f32]| {
+            // SAFETY: `gemm_new_post` passes every element of the rows × n result exactly once
+            // (`packed::Post`), so these writes stay inside `pre`'s capacity and never overlap
+            // across threads.
+            unsafe {
+                std::ptr::copy_nonoverlapping(v.as_ptr(), dst.get().add(row * n + col), v.len())
+            };
+            act_forward_any(act, v);
+        };
+        let y = packed::gemm_new_post(x, k, rows, fwd, 0..k, 0..n, bias, Some(&post));
+        // SAFETY: every element was written by `post` (see above).
+        unsafe { pre.set_len(rows * n) };
+        (y, Some(pre))
+    }
+
+    /// The input gradient through an activation before this layer: `(dy W) ⊙ act'(pre)`,
+    /// `pre: [rows, in]` being the activation's input (fused into the product as in
+    /// `forward_act`; same bits as `backward` followed by `activation_backward`).
+    pub fn backward_act(&self, dy: &[f32], rows: usize, act: Activation, pre: &[f32]) -> Vec<f32> {
+        assert_eq!(pre.len(), rows * self.in_dim, "backward_act: pre size");
+        let Weight::Packed { bwd, .. } = &self.w else {
+            let mut dx = self.backward(dy, rows);
+            activation_backward(act, pre, &mut dx);
+            return dx;
+        };
+        let (n, k) = (self.in_dim, self.out_dim);
+        let post = |row: usize, col: usize, g: &mut [f32]| {
+            act_backward_any(act, &pre[row * n + col..][..g.len()], g)
+        };
+        packed::gemm_new_post(dy, k, rows, bwd, 0..k, 0..n, None, Some(&post))
     }
 
     /// `dy: [rows, out]` → `dx = dy W: [rows, in]`.
@@ -198,35 +268,48 @@ impl LayerNorm {
     }
 
     /// `x: [rows, dim]` → `y: [rows, dim]`, and the saved state when `save`.
+    ///
+    /// One parallel pass over the rows writes x̂ (when saved) and y = x̂ γ + β: the affine step
+    /// and the copy of x̂ used to be serial loops after the parallel normalisation (with two
+    /// threads, serial work costs twice its share of the image pass).
     pub fn forward(&self, x: &[f32], save: bool) -> (Vec<f32>, Option<LnSaved>) {
         let d = self.dim();
         let rows = x.len() / d;
         let mut y = vec![0.0; x.len()];
         let mut rstd = vec![0.0; rows];
+        let mut xhat = if save { vec![0.0; x.len()] } else { Vec::new() };
         let rows_per_task = (CHUNK / d).max(1);
-        y.par_chunks_mut(d)
-            .zip(x.par_chunks(d))
-            .zip(rstd.par_iter_mut())
-            .with_min_len(rows_per_task)
-            .for_each(|((yr, xr), rs)| {
-                // Two passes in f64: exact enough that a constant row (variance 0) gives y = β.
-                let mean = xr.iter().map(|&v| v as f64).sum::<f64>() / d as f64;
-                let var = xr.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / d as f64;
-                let r = 1.0 / (var + self.eps as f64).sqrt();
-                *rs = r as f32;
-                for (yv, &xv) in yr.iter_mut().zip(xr) {
-                    *yv = ((xv as f64 - mean) * r) as f32;
-                }
-            });
-        let saved = save.then(|| LnSaved {
-            xhat: y.clone(),
-            rstd: rstd.clone(),
-        });
-        for yr in y.chunks_exact_mut(d) {
+        let row = |xr: &[f32], yr: &mut [f32], hr: Option<&mut [f32]>, rs: &mut f32| {
+            // Two passes in f64: exact enough that a constant row (variance 0) gives y = β.
+            let mean = xr.iter().map(|&v| v as f64).sum::<f64>() / d as f64;
+            let var = xr.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / d as f64;
+            let r = 1.0 / (var + self.eps as f64).sqrt();
+            *rs = r as f32;
+            for (yv, &xv) in yr.iter_mut().zip(xr) {
+                *yv = ((xv as f64 - mean) * r) as f32;
+            }
+            if let Some(hr) = hr {
+                hr.copy_from_slice(yr);
+            }
             for ((yv, g), b) in yr.iter_mut().zip(&self.gamma).zip(&self.beta) {
                 *yv = *yv * g + b;
             }
+        };
+        if save {
+            y.par_chunks_mut(d)
+                .zip(xhat.par_chunks_mut(d))
+                .zip(x.par_chunks(d))
+                .zip(rstd.par_iter_mut())
+                .with_min_len(rows_per_task)
+                .for_each(|(((yr, hr), xr), rs)| row(xr, yr, Some(hr), rs));
+        } else {
+            y.par_chunks_mut(d)
+                .zip(x.par_chunks(d))
+                .zip(rstd.par_iter_mut())
+                .with_min_len(rows_per_task)
+                .for_each(|((yr, xr), rs)| row(xr, yr, None, rs));
         }
+        let saved = save.then_some(LnSaved { xhat, rstd });
         (y, saved)
     }
 
@@ -265,30 +348,72 @@ const SQRT_2_OVER_PI: f32 = 0.797_884_6;
 /// next to the GEMMs.
 const CHUNK: usize = 8192;
 
+/// A `*mut f32` shared by the threads of one product, which write disjoint elements.
+#[derive(Clone, Copy)]
+struct SyncPtr(*mut f32);
+// SAFETY: only used in `Linear::forward_act`, where each element is written by one thread.
+unsafe impl Send for SyncPtr {}
+unsafe impl Sync for SyncPtr {}
+
+impl SyncPtr {
+    /// A method, so that closures capture the whole `SyncPtr` (not the bare pointer).
+    fn get(self) -> *mut f32 {
+        self.0
+    }
+}
+
+/// `x += y`, in parallel chunks (the residual connections).
+pub fn add_assign(x: &mut [f32], y: &[f32]) {
+    assert_eq!(x.len(), y.len(), "add_assign: lengths");
+    x.par_chunks_mut(CHUNK)
+        .zip(y.par_chunks(CHUNK))
+        .for_each(|(x, y)| x.iter_mut().zip(y).for_each(|(x, y)| *x += y));
+}
+
+/// The activation of `pre` into a new vector (`pre` itself is kept for the backward pass:
+/// this replaces a serial copy followed by the in-place activation).
+pub fn activation_forward_copy(act: Activation, pre: &[f32]) -> Vec<f32> {
+    let mut out = vec![0.0; pre.len()];
+    out.par_chunks_mut(CHUNK)
+        .zip(pre.par_chunks(CHUNK))
+        .for_each(|(o, p)| {
+            o.copy_from_slice(p);
+            act_forward_any(act, o)
+        });
+    out
+}
+
 /// Apply the activation in place.
 pub fn activation_forward(act: Activation, x: &mut [f32]) {
-    x.par_chunks_mut(CHUNK).for_each(|c| {
-        #[cfg(target_arch = "x86_64")]
-        if avx2_fma() {
-            // SAFETY: the CPU has AVX2 and FMA (checked just above).
-            return unsafe { act_forward_avx2(act, c) };
-        }
-        act_forward_chunk(act, c)
-    });
+    x.par_chunks_mut(CHUNK)
+        .for_each(|c| act_forward_any(act, c));
 }
 
 /// `dy ← dy · act'(pre)` in place, `pre` being the activation's input.
 pub fn activation_backward(act: Activation, pre: &[f32], dy: &mut [f32]) {
     dy.par_chunks_mut(CHUNK)
         .zip(pre.par_chunks(CHUNK))
-        .for_each(|(g, p)| {
-            #[cfg(target_arch = "x86_64")]
-            if avx2_fma() {
-                // SAFETY: the CPU has AVX2 and FMA (checked just above).
-                return unsafe { act_backward_avx2(act, p, g) };
-            }
-            act_backward_chunk(act, p, g)
-        });
+        .for_each(|(g, p)| act_backward_any(act, p, g));
+}
+
+/// The activation of one chunk, in the widest copy this CPU runs (same bits in each).
+fn act_forward_any(act: Activation, c: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if avx2_fma() {
+        // SAFETY: the CPU has AVX2 and FMA (checked just above).
+        return unsafe { act_forward_avx2(act, c) };
+    }
+    act_forward_chunk(act, c)
+}
+
+/// `g ← g · act'(pre)` for one chunk, in the widest copy this CPU runs (same bits in each).
+fn act_backward_any(act: Activation, pre: &[f32], g: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if avx2_fma() {
+        // SAFETY: the CPU has AVX2 and FMA (checked just above).
+        return unsafe { act_backward_avx2(act, pre, g) };
+    }
+    act_backward_chunk(act, pre, g)
 }
 
 // The activation loops are compiled twice: for the baseline target (SSE2, 4 lanes) and with
@@ -369,7 +494,31 @@ fn sigmoid(z: f32) -> f32 {
     1.0 / (1.0 + fast_exp(-z))
 }
 
-pub use crate::math::fast_exp;
+/// `crate::math::fast_exp`, bit for bit, with the power of two taken from the bits of the
+/// rounded float instead of `n as i32`: Rust's saturating float → int cast does not
+/// vectorise (LLVM emitted eight scalar `cvttss2si` with NaN and range fix-ups per 8 lanes in
+/// the AVX2 activation loop), which made the MLP activations ≈ 6 % of the single-thread bf16
+/// image pass. t = x·log2 e + 1.5·2²³ lies in [2²³, 2²⁴), where floats are the integers, so
+/// its bits minus those of 1.5·2²³ are n exactly.
+#[inline(always)]
+pub fn fast_exp(x: f32) -> f32 {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    const ROUND: f32 = 12_582_912.0;
+    let x = x.clamp(-87.0, 88.0);
+    let t = x * LOG2E + ROUND;
+    let n = t - ROUND;
+    let g = (x - n * LN2_HI) - n * LN2_LO;
+    let p = 1.0
+        + g * (1.0
+            + g * (0.5
+                + g * (1.0 / 6.0 + g * (1.0 / 24.0 + g * (1.0 / 120.0 + g * (1.0 / 720.0))))));
+    // n ∈ [−126, 127] after the clamp; a NaN x gives a NaN p and so a NaN result anyway.
+    let n_int = t.to_bits().wrapping_sub(ROUND.to_bits());
+    let scale = f32::from_bits(n_int.wrapping_add(127) << 23);
+    p * scale
+}
 
 #[cfg(test)]
 mod tests {
@@ -389,6 +538,31 @@ mod tests {
 
     fn close(a: f64, b: f64, tol: f64) -> bool {
         (a - b).abs() <= tol * (1.0 + b.abs())
+    }
+
+    /// The vectorisable `fast_exp` here equals `crate::math::fast_exp` bit for bit.
+    #[test]
+    fn fast_exp_equals_the_shared_one() {
+        let mut xs: Vec<f32> = (-200_000..=200_000).map(|i| i as f32 * 5e-4).collect();
+        xs.extend([
+            f32::MAX,
+            f32::MIN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -87.0,
+            88.0,
+            -0.0,
+            1e-30,
+            -1e-30,
+        ]);
+        for x in xs {
+            assert_eq!(
+                fast_exp(x).to_bits(),
+                crate::math::fast_exp(x).to_bits(),
+                "{x}"
+            );
+        }
+        assert!(fast_exp(f32::NAN).is_nan());
     }
 
     #[test]
@@ -497,6 +671,60 @@ mod tests {
             .backward(&[1.0; 6], &s.unwrap())
             .iter()
             .all(|v| v.is_finite()));
+    }
+
+    /// The activation fused into the product (`forward_act`, `backward_act`) gives the same
+    /// bits as the product followed by the separate activation pass, for every kernel this
+    /// CPU runs and the crate, with shapes that leave partial tiles.
+    #[test]
+    fn fused_activation_equals_separate_passes() {
+        let (rows, inp, out) = (157, 70, 301);
+        let val = |i: usize, s: usize| ((((i + s) * 2654435761usize) % 2001) as f32 / 500.0) - 2.0;
+        let w: Vec<f32> = (0..inp * out).map(|i| val(i, 1) * 0.1).collect();
+        let b: Vec<f32> = (0..out).map(|i| val(i, 2)).collect();
+        let x: Vec<f32> = (0..rows * inp).map(|i| val(i, 3)).collect();
+        let dy: Vec<f32> = (0..rows * out).map(|i| val(i, 4)).collect();
+        let mut builds: Vec<Box<dyn Fn() -> Linear>> = vec![Box::new(|| {
+            packed::with_engine(Engine::Crate, || {
+                Linear::new(w.clone(), Some(b.clone()), inp, out)
+            })
+        })];
+        for k in Kernel::ALL.into_iter().filter(|k| k.available()) {
+            let (w, b) = (w.clone(), b.clone());
+            builds.push(Box::new(move || {
+                packed::with_kernel(k, || Linear::new(w.clone(), Some(b.clone()), inp, out))
+            }));
+        }
+        let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+        for build in &builds {
+            // `up`: in → out with the activation after it; `down`: out → in, so that its
+            // backward lands on `up`'s activation input.
+            let up = build();
+            let what = format!("{:?}", up.kernel());
+            for act in [
+                Activation::QuickGelu,
+                Activation::Gelu,
+                Activation::GeluTanh,
+            ] {
+                let pre = up.forward(&x, rows);
+                let mut post = pre.clone();
+                activation_forward(act, &mut post);
+                let (fused, kept) = up.forward_act(&x, rows, act, true);
+                assert!(same(&fused, &post), "{what} {act:?} forward");
+                assert!(same(kept.as_ref().unwrap(), &pre), "{what} {act:?} pre");
+                let (fused, none) = up.forward_act(&x, rows, act, false);
+                assert!(
+                    same(&fused, &post) && none.is_none(),
+                    "{what} {act:?} forward"
+                );
+                // Backward through `up` viewed as the layer after an activation of width out.
+                let g_pre: Vec<f32> = (0..rows * inp).map(|i| val(i, 5)).collect();
+                let mut want = up.backward(&dy, rows);
+                activation_backward(act, &g_pre, &mut want);
+                let got = up.backward_act(&dy, rows, act, &g_pre);
+                assert!(same(&got, &want), "{what} {act:?} backward");
+            }
+        }
     }
 
     #[test]

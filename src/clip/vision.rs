@@ -7,6 +7,8 @@
 //! pre layer norm → transformer → post layer norm of each class token `[B, D]` → projection
 //! `[B, P]`.
 
+use rayon::prelude::*;
+
 use super::attention::Segments;
 use super::config::VisionConfig;
 use super::layers::{LayerNorm, Linear, LnSaved};
@@ -110,29 +112,31 @@ impl VisionModel {
         let (b, d, p, g, n) = self.dims(images.len());
         let s = self.cfg.image_size;
         let k = 3 * p * p;
-        // Patch matrix [B g², 3p²], columns ordered (channel, ky, kx) like the conv weight.
+        // Patch matrix [B g², 3p²], columns ordered (channel, ky, kx) like the conv weight;
+        // one patch per parallel task (these loops were serial, ~1 % of the 2-thread pass).
         let mut patches = vec![0.0f32; b * g * g * k];
-        for (bi, im) in images.iter().enumerate() {
-            for gy in 0..g {
-                for gx in 0..g {
-                    let row = &mut patches[((bi * g + gy) * g + gx) * k..][..k];
-                    for ky in 0..p {
-                        for kx in 0..p {
-                            let px = ((gy * p + ky) * s + gx * p + kx) * 3;
-                            for c in 0..3 {
-                                row[c * p * p + ky * p + kx] = (im.data[px + c] - MEAN[c]) / STD[c];
-                            }
+        patches
+            .par_chunks_mut(k)
+            .enumerate()
+            .for_each(|(row_index, row)| {
+                let (bi, gy, gx) = (row_index / (g * g), row_index / g % g, row_index % g);
+                let im = &images[bi];
+                for ky in 0..p {
+                    for kx in 0..p {
+                        let px = ((gy * p + ky) * s + gx * p + kx) * 3;
+                        for c in 0..3 {
+                            row[c * p * p + ky * p + kx] = (im.data[px + c] - MEAN[c]) / STD[c];
                         }
                     }
                 }
-            }
-        }
+            });
         let pe = self.patch_embedding.forward(&patches, b * g * g);
         // x [B n, D]: class token then patches, plus position embeddings.
         let mut x = vec![0.0f32; b * n * d];
-        for bi in 0..b {
-            for t in 0..n {
-                let row = &mut x[(bi * n + t) * d..][..d];
+        x.par_chunks_mut(d)
+            .enumerate()
+            .for_each(|(row_index, row)| {
+                let (bi, t) = (row_index / n, row_index % n);
                 let src = if t == 0 {
                     &self.class_embedding[..]
                 } else {
@@ -142,8 +146,7 @@ impl VisionModel {
                 for ((r, a), q) in row.iter_mut().zip(src).zip(pos) {
                     *r = a + q;
                 }
-            }
-        }
+            });
         let (x, pre_saved) = self.pre_ln.forward(&x, true);
         let seg = Segments::uniform(b, n, false);
         let (cls, layers) = self.tower.forward_pooled(x, &seg, &vec![0; b], true);
@@ -192,32 +195,36 @@ impl VisionModel {
         let dx = self.pre_ln.backward(&dx, &cache.pre_ln);
         // Patch rows only (the class token has no pixels behind it).
         let mut d_pe = vec![0.0f32; b * g * g * d];
-        for bi in 0..b {
-            for t in 1..n {
-                d_pe[(bi * g * g + t - 1) * d..][..d].copy_from_slice(&dx[(bi * n + t) * d..][..d]);
-            }
-        }
+        d_pe.par_chunks_mut(d)
+            .enumerate()
+            .for_each(|(row_index, row)| {
+                let (bi, t) = (row_index / (g * g), row_index % (g * g) + 1);
+                row.copy_from_slice(&dx[(bi * n + t) * d..][..d]);
+            });
         let d_patches = self.patch_embedding.backward(&d_pe, b * g * g);
         let s = self.cfg.image_size;
         let k = 3 * p * p;
-        let mut out = Vec::with_capacity(b);
-        for bi in 0..b {
-            let mut im = Image::new(s, s);
-            for gy in 0..g {
-                for gx in 0..g {
-                    let row = &d_patches[((bi * g + gy) * g + gx) * k..][..k];
-                    for ky in 0..p {
+        let mut out: Vec<Image> = (0..b).map(|_| Image::new(s, s)).collect();
+        // One pixel row per parallel task; rows and columns past the g·p patch grid (an image
+        // size that is not a multiple of p) keep a zero gradient.
+        out.par_iter_mut().enumerate().for_each(|(bi, im)| {
+            im.data
+                .par_chunks_mut(s * 3)
+                .take(g * p)
+                .enumerate()
+                .for_each(|(y, line)| {
+                    let (gy, ky) = (y / p, y % p);
+                    for gx in 0..g {
+                        let row = &d_patches[((bi * g + gy) * g + gx) * k..][..k];
                         for kx in 0..p {
-                            let px = ((gy * p + ky) * s + gx * p + kx) * 3;
+                            let px = (gx * p + kx) * 3;
                             for c in 0..3 {
-                                im.data[px + c] = row[c * p * p + ky * p + kx] / STD[c];
+                                line[px + c] = row[c * p * p + ky * p + kx] / STD[c];
                             }
                         }
                     }
-                }
-            }
-            out.push(im);
-        }
+                });
+        });
         Ok(out)
     }
 

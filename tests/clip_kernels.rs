@@ -1,0 +1,431 @@
+//! Every micro-kernel of `clip::packed` this CPU can run, against a scalar f64 reference of the
+//! values it multiplies (odd shapes, sub-ranges, accumulate, bias), against each other, through
+//! whole models (the transformers golden fixtures), and across thread counts. Kernels the CPU
+//! lacks are skipped and listed (run with `--nocapture` to see the list).
+
+use std::path::Path;
+
+use serde::Deserialize;
+use t2tf::clip::packed::{self, Kernel, PackedB, Precision};
+use t2tf::clip::{cosine_grad, Clip, ClipConfig, RandomSource};
+use t2tf::image::Image;
+
+/// The kernels to test here, printing the others with the reason.
+fn available(test: &str) -> Vec<Kernel> {
+    let mut run = Vec::new();
+    for k in Kernel::ALL {
+        match k.missing() {
+            None => run.push(k),
+            Some(what) => eprintln!("{test}: skipped {}: this CPU lacks {what}", k.name()),
+        }
+    }
+    eprintln!(
+        "{test}: running {} ({})",
+        run.iter().map(|k| k.name()).collect::<Vec<_>>().join(", "),
+        packed::cpu_features()
+    );
+    run
+}
+
+/// Deterministic values in [-scale, scale].
+fn values(len: usize, seed: usize, scale: f32) -> Vec<f32> {
+    (0..len)
+        .map(|i| ((((i + seed) * 2654435761usize) % 2001) as f32 / 1000.0 - 1.0) * scale)
+        .collect()
+}
+
+/// What `kernel` multiplies: the values themselves, or rounded to bf16.
+fn seen(kernel: Kernel, v: &[f32]) -> Vec<f32> {
+    match kernel.precision() {
+        Precision::F32 => v.to_vec(),
+        Precision::Bf16 => v.iter().map(|&x| packed::round_bf16(x)).collect(),
+    }
+}
+
+/// The scalar reference: `C[i][j] = base + bias[cols.start + j] + Σ_p A[i][p] · B[ks.start + p][cols.start + j]`
+/// in f64, A `[m][lda]`, B row-major `[k_total][n_total]`.
+#[allow(clippy::too_many_arguments)]
+fn reference(
+    base: Option<(&[f32], usize)>,
+    a: &[f32],
+    lda: usize,
+    m: usize,
+    b: &[f32],
+    n_total: usize,
+    ks: std::ops::Range<usize>,
+    cols: std::ops::Range<usize>,
+    bias: Option<&[f32]>,
+) -> Vec<f64> {
+    let mut c = Vec::with_capacity(m * cols.len());
+    for i in 0..m {
+        for (jj, j) in cols.clone().enumerate() {
+            let mut s = base.map_or(0.0, |(c, ldc)| c[i * ldc + jj] as f64);
+            s += bias.map_or(0.0, |b| b[j] as f64);
+            for (p, kk) in ks.clone().enumerate() {
+                s += a[i * lda + p] as f64 * b[kk * n_total + j] as f64;
+            }
+            c.push(s);
+        }
+    }
+    c
+}
+
+/// f32 kernels: each sum of k products of O(1) values carries ≲ √k · 2⁻²⁴ relative rounding
+/// (random-walk growth, with a safety factor of 4), measured against Σ|a||b| ~ k; bf16 kernels
+/// multiply exactly the rounded values and add in f32, so the same bound holds against the
+/// reference of the rounded inputs.
+fn tolerance(k: usize) -> f64 {
+    4.0 * 6e-8 * (k.max(1) as f64).sqrt() * k.max(1) as f64
+}
+
+#[test]
+fn every_kernel_matches_the_scalar_reference_on_odd_shapes() {
+    // m, n, k: not multiples of 6, 16, 64 or the k blocks (256 rows / 128 pairs), and the
+    // exact ViT shapes (150 rows, 768 columns) too.
+    let shapes = [
+        (1, 1, 1),
+        (5, 7, 3),
+        (7, 17, 1),
+        (13, 65, 2),
+        (6, 64, 256),
+        (17, 33, 257),
+        (11, 130, 515),
+        (150, 151, 770),
+        (151, 150, 513),
+        (150, 768, 300),
+        (3, 200, 1030),
+    ];
+    for kernel in available("odd shapes") {
+        for &(m, n, k) in &shapes {
+            let a = values(m * k, 1, 1.0);
+            let b = values(k * n, 2, 1.0);
+            let bias = values(n, 3, 1.0);
+            let packed = PackedB::from_rows_for(kernel, &b, k, n);
+            assert_eq!(packed.kernel(), kernel);
+            let (ar, br) = (seen(kernel, &a), seen(kernel, &b));
+            let tol = tolerance(k);
+            for (accumulate, with_bias) in [(false, false), (false, true), (true, true)] {
+                let base = values(m * n, 4, 2.0);
+                let mut c = if accumulate {
+                    base.clone()
+                } else {
+                    vec![f32::NAN; m * n]
+                };
+                let bias = with_bias.then_some(&bias[..]);
+                packed::gemm(&mut c, n, &a, k, m, &packed, 0..k, 0..n, bias, accumulate);
+                let want = reference(
+                    accumulate.then_some((&base[..], n)),
+                    &ar,
+                    k,
+                    m,
+                    &br,
+                    n,
+                    0..k,
+                    0..n,
+                    bias,
+                );
+                for (idx, (&g, &w)) in c.iter().zip(&want).enumerate() {
+                    assert!(
+                        (g as f64 - w).abs() <= tol,
+                        "{} {m}x{n}x{k} acc={accumulate} bias={with_bias}: element {idx}: {g} vs {w}",
+                        kernel.name()
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Parts of a packed matrix, as `Linear::forward_part` / `backward_part` use them: row ranges
+/// starting and ending at odd rows (bf16: inside a k pair), column ranges not aligned to a
+/// panel, strided A and C (C's padding untouched).
+#[test]
+fn every_kernel_matches_the_reference_on_sub_ranges() {
+    let (m, kt, nt) = (14, 301, 203);
+    let b = values(kt * nt, 5, 1.0);
+    let bias = values(nt, 6, 1.0);
+    for kernel in available("sub-ranges") {
+        let packed = PackedB::from_cols_for(
+            kernel,
+            &{
+                // The same B given transposed (`[n][k]`, the checkpoint layout).
+                let mut bt = vec![0.0; kt * nt];
+                for p in 0..kt {
+                    for j in 0..nt {
+                        bt[j * kt + p] = b[p * nt + j];
+                    }
+                }
+                bt
+            },
+            kt,
+            nt,
+        );
+        let br = seen(kernel, &b);
+        for (ks, cols) in [
+            (0..kt, 0..nt),
+            (3..300, 5..200),
+            (1..2, 64..128),
+            (64..129, 63..65),
+            (299..301, 202..203),
+            (100..101, 0..1),
+        ] {
+            let (kk, nn) = (ks.len(), cols.len());
+            let (lda, ldc) = (kk + 3, nn + 2);
+            let a = values(m * lda, 7, 1.0);
+            let ar = seen(kernel, &a);
+            let mut c = values(m * ldc, 8, 1.0);
+            let before = c.clone();
+            packed::gemm(
+                &mut c,
+                ldc,
+                &a,
+                lda,
+                m,
+                &packed,
+                ks.clone(),
+                cols.clone(),
+                Some(&bias),
+                true,
+            );
+            let want = reference(
+                Some((&before, ldc)),
+                &ar,
+                lda,
+                m,
+                &br,
+                nt,
+                ks.clone(),
+                cols.clone(),
+                Some(&bias),
+            );
+            for i in 0..m {
+                for j in 0..ldc {
+                    let got = c[i * ldc + j];
+                    if j >= nn {
+                        assert_eq!(got.to_bits(), before[i * ldc + j].to_bits(), "padding");
+                        continue;
+                    }
+                    let w = want[i * nn + j];
+                    assert!(
+                        (got as f64 - w).abs() <= tolerance(kk),
+                        "{} {ks:?} {cols:?} ({i}, {j}): {got} vs {w}",
+                        kernel.name()
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// SIMD kernels against the scalar kernel of their layout on the same packed data: f32 kernels
+/// differ from `Portable` only by fused vs separate rounding order inside each k block; the
+/// bf16 kernel and `PortableBf16` multiply the same bf16 values.
+#[test]
+fn simd_kernels_agree_with_the_scalar_kernels() {
+    let (m, n, k) = (23, 140, 700);
+    let a = values(m * k, 11, 1.0);
+    let b = values(k * n, 12, 1.0);
+    let run = |kernel: Kernel| {
+        let packed = PackedB::from_rows_for(kernel, &b, k, n);
+        let mut c = vec![0.0; m * n];
+        packed::gemm(&mut c, n, &a, k, m, &packed, 0..k, 0..n, None, false);
+        c
+    };
+    let kernels = available("simd vs scalar");
+    for kernel in &kernels {
+        let scalar = match kernel.precision() {
+            Precision::F32 => Kernel::Portable,
+            Precision::Bf16 => Kernel::PortableBf16,
+        };
+        let (got, want) = (run(*kernel), run(scalar));
+        let worst = got
+            .iter()
+            .zip(&want)
+            .map(|(g, w)| (g - w).abs() as f64)
+            .fold(0.0, f64::max);
+        eprintln!(
+            "{} vs {}: max |diff| {worst:.1e}",
+            kernel.name(),
+            scalar.name()
+        );
+        assert!(worst <= tolerance(k), "{}: {worst}", kernel.name());
+    }
+    // The AVX2 and AVX-512 f32 kernels run the same fused multiply-adds in the same order:
+    // identical bits, so the engine choice does not change an f32 result.
+    if kernels.contains(&Kernel::Avx2Fma) && kernels.contains(&Kernel::Avx512F) {
+        let (x, y) = (run(Kernel::Avx2Fma), run(Kernel::Avx512F));
+        assert!(x.iter().zip(&y).all(|(p, q)| p.to_bits() == q.to_bits()));
+    }
+}
+
+/// A model's image embeddings and input gradient do not depend on the number of threads, for
+/// every kernel.
+#[test]
+fn image_pass_is_deterministic_across_thread_counts() {
+    let mut cfg = ClipConfig::vit_b32();
+    // Two narrower layers (the scalar kernels are slow): every weight product still has
+    // ≥ 2^20 multiply-adds and so runs threaded, over 4 (64-column) or 16 panels.
+    cfg.vision.tower.num_layers = 2;
+    cfg.vision.tower.hidden_size = 256;
+    cfg.vision.tower.intermediate_size = 1024;
+    cfg.vision.tower.num_heads = 4;
+    cfg.text.tower.num_layers = 1;
+    let s = cfg.vision.image_size;
+    let views: Vec<Image> = (0..3)
+        .map(|v| Image {
+            width: s,
+            height: s,
+            data: (0..s * s * 3)
+                .map(|i| ((i * 7 + v * 13) % 256) as f32 / 255.0)
+                .collect(),
+        })
+        .collect();
+    for kernel in available("determinism") {
+        let clip = packed::with_kernel(kernel, || {
+            Clip::from_source(cfg.clone(), &RandomSource::new(3)).unwrap()
+        });
+        let pass = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let (emb, cache) = clip.encode_images(&views).unwrap();
+                let d: Vec<Vec<f32>> = emb.iter().map(|e| cosine_grad(e, &emb[0])).collect();
+                let g = clip.image_backward(&cache, &d).unwrap();
+                (emb, g)
+            })
+        };
+        let (e1, g1) = pass(1);
+        for threads in [2, 3] {
+            let (e, g) = pass(threads);
+            let same = e
+                .iter()
+                .flatten()
+                .zip(e1.iter().flatten())
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+                && g.iter().zip(&g1).all(|(x, y)| {
+                    x.data
+                        .iter()
+                        .zip(&y.data)
+                        .all(|(a, b)| a.to_bits() == b.to_bits())
+                });
+            assert!(same, "{}: {threads} threads differ from 1", kernel.name());
+        }
+    }
+}
+
+#[derive(Deserialize)]
+struct TextCase {
+    ids: Vec<u32>,
+    embedding: Vec<f32>,
+}
+
+#[derive(Deserialize)]
+struct Golden {
+    texts: Vec<TextCase>,
+    /// [B][H][W][3]
+    images: Vec<Vec<Vec<Vec<f32>>>>,
+    image_embeddings: Vec<Vec<f32>>,
+    grad_pairs: Vec<usize>,
+    grad_images: Vec<Vec<Vec<Vec<f32>>>>,
+}
+
+/// max |got − want| / max |want|, as tests/clip_golden.rs measures parity.
+fn rel_err(got: &[f32], want: &[f32]) -> f64 {
+    let scale = want.iter().fold(0.0f64, |m, &v| m.max(v.abs() as f64));
+    let diff = got
+        .iter()
+        .zip(want)
+        .fold(0.0f64, |m, (&a, &b)| m.max((a as f64 - b as f64).abs()));
+    diff / scale.max(1e-30)
+}
+
+fn to_image(nested: &[Vec<Vec<f32>>]) -> Image {
+    Image {
+        width: nested[0].len(),
+        height: nested.len(),
+        data: nested.iter().flatten().flatten().copied().collect(),
+    }
+}
+
+/// The transformers golden fixtures (tests/clip_golden.rs) through every kernel: the f32 ones
+/// at the golden tests' 1e-4; the bf16 ones at 5e-2, from rounding every weight and
+/// activation to 8 significant bits (2⁻⁹ relative each) through 2 layers: measured worst
+/// 1.1e-2 (text), 6.3e-3 (image) and 1.4e-2 (input gradient) on these fixtures.
+#[test]
+fn golden_fixtures_with_every_kernel() {
+    let kernels = available("golden");
+    for variant in ["quick_gelu", "gelu"] {
+        let dir = format!("tests/fixtures/clip/{variant}");
+        let golden: Golden =
+            serde_json::from_str(&std::fs::read_to_string(format!("{dir}/golden.json")).unwrap())
+                .unwrap();
+        for &kernel in &kernels {
+            let tol = match kernel.precision() {
+                Precision::F32 => 1e-4,
+                Precision::Bf16 => 5e-2,
+            };
+            let name = format!("{variant} ({})", kernel.name());
+            let clip = packed::with_kernel(kernel, || {
+                Clip::load_with_tokenizer(
+                    &dir,
+                    Some(Path::new("../shared/data/clip/tokenizer.json")),
+                )
+                .unwrap()
+            });
+            let ids: Vec<Vec<u32>> = golden.texts.iter().map(|t| t.ids.clone()).collect();
+            let text = clip.encode_tokens(&ids).unwrap();
+            let worst_text = text
+                .iter()
+                .zip(&golden.texts)
+                .map(|(g, t)| rel_err(g, &t.embedding))
+                .fold(0.0, f64::max);
+            let images: Vec<Image> = golden.images.iter().map(|i| to_image(i)).collect();
+            let (emb, cache) = clip.encode_images(&images).unwrap();
+            let worst_img = emb
+                .iter()
+                .zip(&golden.image_embeddings)
+                .map(|(g, w)| rel_err(g, w))
+                .fold(0.0, f64::max);
+            let d: Vec<Vec<f32>> = emb
+                .iter()
+                .zip(&golden.grad_pairs)
+                .map(|(e, &p)| cosine_grad(e, &text[p]))
+                .collect();
+            let grads = clip.image_backward(&cache, &d).unwrap();
+            let worst_grad = grads
+                .iter()
+                .zip(&golden.grad_images)
+                .map(|(g, w)| rel_err(&g.data, &to_image(w).data))
+                .fold(0.0, f64::max);
+            eprintln!(
+                "{name}: text {worst_text:.1e}, image {worst_img:.1e}, input gradient {worst_grad:.1e}"
+            );
+            assert!(worst_text <= tol, "{name}: text {worst_text:.2e}");
+            assert!(worst_img <= tol, "{name}: image {worst_img:.2e}");
+            assert!(worst_grad <= tol, "{name}: gradient {worst_grad:.2e}");
+        }
+    }
+}
+
+/// A kernel the CPU lacks is refused before anything runs.
+#[test]
+fn missing_kernels_are_refused() {
+    for kernel in Kernel::ALL {
+        let refused = std::panic::catch_unwind(|| {
+            packed::with_kernel(kernel, || ());
+        })
+        .is_err();
+        assert_eq!(refused, !kernel.available(), "{}", kernel.name());
+        let refused =
+            std::panic::catch_unwind(|| PackedB::from_rows_for(kernel, &[1.0], 1, 1)).is_err();
+        assert_eq!(refused, !kernel.available(), "{}", kernel.name());
+    }
+    // bf16 is native exactly where its kernel is, and `auto` never picks an emulated one.
+    assert_eq!(Precision::Bf16.native(), Kernel::Avx512Bf16.available());
+    assert_eq!(
+        Precision::auto() == Precision::Bf16,
+        Kernel::Avx512Bf16.available()
+    );
+}
