@@ -95,4 +95,9 @@ fn json_progress_is_one_object_per_line() {
     for f in files {
         assert!(out.join(f).is_file(), "{f} listed but not written");
     }
+    // report.json says which matrix kernel CLIP ran on.
+    let report: Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let engine = report["render"]["clip_engine"].as_str().unwrap_or_default();
+    assert!(engine.contains("engine"), "{report}");
 }

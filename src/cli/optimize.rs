@@ -504,6 +504,8 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             "render_size": renderer.render_size,
             "lut_size": LUT_SIZE,
             "threads": rayon::current_num_threads(),
+            // Which matrix kernel CLIP runs on this CPU (chosen at run time).
+            "clip_engine": crate::clip::packed::describe(),
         }),
         preview_views: 4,
         tf_curve: Curve::Opacity {
