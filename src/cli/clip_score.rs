@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 
 use super::ModelArgs;
-use crate::clip::{cosine, softmax_scaled, Clip};
+use crate::clip::{cosine, softmax_scaled};
 use crate::image::Image;
 
 /// Print each caption's cosine similarity to the image and CLIP's softmax probability over the
@@ -30,7 +30,13 @@ pub struct ClipScoreArgs {
 
 pub fn run(args: ClipScoreArgs) -> Result<()> {
     let image = Image::load_png(&args.image)?;
-    let clip = Clip::load_request(&args.model.request()).context("cannot load the CLIP model")?;
+    args.model.precision()?;
+    let files =
+        crate::clip::load::resolve(&args.model.request()).context("cannot load the CLIP model")?;
+    let clip = args
+        .model
+        .load(&files)
+        .context("cannot load the CLIP model")?;
     let input = clip.preprocess(&image);
     let (img, _) = clip.encode_images(&[input])?;
     let captions: Vec<&str> = args.captions.iter().map(String::as_str).collect();

@@ -2,7 +2,8 @@
 
 use std::path::PathBuf;
 
-use crate::clip::{ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
+use crate::clip::packed::{with_precision, Precision};
+use crate::clip::{Clip, ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
 
 /// `--model`, `--revision`, `--tokenizer`.
 #[derive(clap::Args, Debug, Clone)]
@@ -20,9 +21,26 @@ pub struct ModelArgs {
     /// tokenizer.json to use instead of the model's own (e.g. `../shared/data/clip/tokenizer.json`).
     #[arg(long, value_name = "PATH")]
     pub tokenizer: Option<PathBuf>,
+
+    /// Number format of CLIP's weight products: f32, bf16 (weights and activations rounded to
+    /// bf16, f32 accumulation; needs AVX512_BF16) or auto (bf16 where the CPU has it). f32 is
+    /// the default: bf16's end-to-end effect on a run is not measured yet (BENCHMARKS.md).
+    #[arg(long, value_name = "f32|bf16|auto", default_value = "f32")]
+    pub precision: String,
 }
 
 impl ModelArgs {
+    /// `--precision` for this CPU, or why it cannot be had.
+    pub fn precision(&self) -> anyhow::Result<Precision> {
+        Precision::resolve(&self.precision).map_err(|e| anyhow::anyhow!("--precision: {e}"))
+    }
+
+    /// Load the model at the requested precision.
+    pub fn load(&self, files: &ModelFiles) -> anyhow::Result<Clip> {
+        let p = self.precision()?;
+        Ok(with_precision(p, || Clip::load_files(files))?)
+    }
+
     /// What to load.
     pub fn request(&self) -> ModelRequest {
         ModelRequest {

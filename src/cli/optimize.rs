@@ -445,7 +445,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     let volume = args.volume_args.load(&args.volume)?;
     let files = crate::clip::load::resolve(&args.model.request())?;
     check_model_size(&files)?;
-    let clip = crate::clip::Clip::load_files(&files)?;
+    let clip = args.model.load(&files)?;
     if let Some(prompt) = args.prompt.as_deref() {
         // CLIP reads at most its context length; a prompt that fills it was cut (the tokenizer
         // truncates as transformers does). Say so rather than optimize for half a sentence.
@@ -505,7 +505,10 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             "lut_size": LUT_SIZE,
             "threads": rayon::current_num_threads(),
             // Which matrix kernel CLIP runs on this CPU (chosen at run time).
-            "clip_engine": crate::clip::packed::describe(),
+            "clip_engine": crate::clip::packed::with_precision(
+                args.model.precision()?,
+                crate::clip::packed::describe,
+            ),
         }),
         preview_views: 4,
         tf_curve: Curve::Opacity {
