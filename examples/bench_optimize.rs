@@ -446,7 +446,7 @@ fn main() -> anyhow::Result<()> {
         );
         let stop = AtomicBool::new(false);
         let mut progress = |log: &t2tf::optimize::StepLog, total: usize| {
-            if (log.step + 1) % 25 == 0 || log.step + 1 == total {
+            if (log.step + 1).is_multiple_of(25) || log.step + 1 == total {
                 eprintln!(
                     "  step {}/{total}: loss {:.4}, mean T_N {:.3}, {:.0} s",
                     log.step + 1,

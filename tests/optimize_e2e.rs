@@ -106,7 +106,7 @@ fn check_paraview_json(path: &Path) {
             .map(|x| finite(x, key))
             .collect();
         assert!(
-            a.len() >= 8 && a.len() % 4 == 0,
+            a.len() >= 8 && a.len().is_multiple_of(4),
             "{key}: {} values",
             a.len()
         );

@@ -503,7 +503,7 @@ impl<'a> Section<'a> {
         self.positive("hidden_size", tc.hidden_size)?;
         self.positive("intermediate_size", tc.intermediate_size)?;
         self.positive("num_attention_heads", tc.num_heads)?;
-        if tc.hidden_size % tc.num_heads != 0 {
+        if !tc.hidden_size.is_multiple_of(tc.num_heads) {
             return Err(format!(
                 "{} {} is not a multiple of num_attention_heads {}",
                 self.path("hidden_size"),

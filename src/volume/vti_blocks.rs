@@ -36,7 +36,7 @@ pub(super) fn base64_streams(text: &[u8]) -> Result<Vec<u8>, String> {
         .copied()
         .filter(|b| !b.is_ascii_whitespace())
         .collect();
-    if clean.len() % 4 != 0 {
+    if !clean.len().is_multiple_of(4) {
         return Err(format!(
             "base64 data has {} characters, not a multiple of 4 (truncated?)",
             clean.len()

@@ -904,7 +904,7 @@ impl<'a> Machine<'a> {
 
 /// `[k0, v0, k1, v1, ..]` → pairs.
 fn pairs(items: &[usize]) -> Result<Vec<(usize, usize)>> {
-    if items.len() % 2 != 0 {
+    if !items.len().is_multiple_of(2) {
         return bad("odd number of dict items");
     }
     Ok(items.chunks_exact(2).map(|kv| (kv[0], kv[1])).collect())
