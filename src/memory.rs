@@ -8,6 +8,8 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use crate::units::human_bytes as human;
+
 /// `--max-memory` in bytes (0: derive from the system).
 static LIMIT: AtomicU64 = AtomicU64::new(0);
 
@@ -15,7 +17,7 @@ static LIMIT: AtomicU64 = AtomicU64::new(0);
 #[derive(Debug, thiserror::Error)]
 #[error(
     "{what} needs {} but only {} is available for it; {hint} (or set the budget with --max-memory, e.g. --max-memory 16G)",
-    human(*.asked), human(*.available)
+    human(*.asked as u128), human(*.available as u128)
 )]
 pub struct MemoryError {
     pub what: String,
@@ -88,22 +90,6 @@ pub fn parse_size(s: &str) -> Result<u64, String> {
         return Err(format!("\"{s}\" is not a positive size like 512M or 16G"));
     }
     Ok(bytes as u64)
-}
-
-/// A size for messages: "1.5 GiB".
-pub fn human(bytes: u64) -> String {
-    let units = ["bytes", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
-    let mut v = bytes as f64;
-    let mut u = 0;
-    while v >= 1024.0 && u + 1 < units.len() {
-        v /= 1024.0;
-        u += 1;
-    }
-    if u == 0 {
-        format!("{bytes} bytes")
-    } else {
-        format!("{v:.1} {}", units[u])
-    }
 }
 
 /// MemAvailable, capped by the room under RLIMIT_AS; `u64::MAX` where neither is known.
@@ -193,7 +179,7 @@ mod tests {
 
     #[test]
     fn humans_read_sizes() {
-        assert_eq!(human(512), "512 bytes");
+        assert_eq!(human(512), "512 B");
         assert_eq!(human(3 << 29), "1.5 GiB");
     }
 }

@@ -494,31 +494,7 @@ fn sigmoid(z: f32) -> f32 {
     1.0 / (1.0 + fast_exp(-z))
 }
 
-/// `crate::math::fast_exp`, bit for bit, with the power of two taken from the bits of the
-/// rounded float instead of `n as i32`: Rust's saturating float → int cast does not
-/// vectorise (LLVM emitted eight scalar `cvttss2si` with NaN and range fix-ups per 8 lanes in
-/// the AVX2 activation loop), which made the MLP activations ≈ 6 % of the single-thread bf16
-/// image pass. t = x·log2 e + 1.5·2²³ lies in [2²³, 2²⁴), where floats are the integers, so
-/// its bits minus those of 1.5·2²³ are n exactly.
-#[inline(always)]
-pub fn fast_exp(x: f32) -> f32 {
-    const LOG2E: f32 = std::f32::consts::LOG2_E;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
-    const ROUND: f32 = 12_582_912.0;
-    let x = x.clamp(-87.0, 88.0);
-    let t = x * LOG2E + ROUND;
-    let n = t - ROUND;
-    let g = (x - n * LN2_HI) - n * LN2_LO;
-    let p = 1.0
-        + g * (1.0
-            + g * (0.5
-                + g * (1.0 / 6.0 + g * (1.0 / 24.0 + g * (1.0 / 120.0 + g * (1.0 / 720.0))))));
-    // n ∈ [−126, 127] after the clamp; a NaN x gives a NaN p and so a NaN result anyway.
-    let n_int = t.to_bits().wrapping_sub(ROUND.to_bits());
-    let scale = f32::from_bits(n_int.wrapping_add(127) << 23);
-    p * scale
-}
+pub use crate::math::fast_exp;
 
 #[cfg(test)]
 mod tests {
@@ -538,31 +514,6 @@ mod tests {
 
     fn close(a: f64, b: f64, tol: f64) -> bool {
         (a - b).abs() <= tol * (1.0 + b.abs())
-    }
-
-    /// The vectorisable `fast_exp` here equals `crate::math::fast_exp` bit for bit.
-    #[test]
-    fn fast_exp_equals_the_shared_one() {
-        let mut xs: Vec<f32> = (-200_000..=200_000).map(|i| i as f32 * 5e-4).collect();
-        xs.extend([
-            f32::MAX,
-            f32::MIN,
-            f32::INFINITY,
-            f32::NEG_INFINITY,
-            -87.0,
-            88.0,
-            -0.0,
-            1e-30,
-            -1e-30,
-        ]);
-        for x in xs {
-            assert_eq!(
-                fast_exp(x).to_bits(),
-                crate::math::fast_exp(x).to_bits(),
-                "{x}"
-            );
-        }
-        assert!(fast_exp(f32::NAN).is_nan());
     }
 
     #[test]
