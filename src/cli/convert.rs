@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::formats::{list_paraview_json, read_preset, read_text, write_preset, TfFormat};
+use crate::formats::{extension_list, format_of, list_presets, read_preset, write_preset};
 
 /// Convert a transfer function between ParaView JSON (.json), ParaView XML (.xml) and VisIt
 /// colour tables (.ct); the formats follow the file extensions.
@@ -15,9 +15,13 @@ use crate::formats::{list_paraview_json, read_preset, read_text, write_preset, T
     alpha. ParaView's XML import reads only the colours; use the .json for opacity.")]
 pub struct ConvertArgs {
     /// Input transfer function (.json, .xml or .ct).
+    #[arg(help = format!("Input transfer function ({})", extension_list()))]
     pub input: PathBuf,
     /// Output file; its extension picks the format (.json, .xml or .ct).
-    #[arg(required_unless_present = "list")]
+    #[arg(
+        required_unless_present = "list",
+        help = format!("Output file; its extension picks the format ({})", extension_list())
+    )]
     pub output: Option<PathBuf>,
     /// The preset to convert from a file holding several (see --list).
     #[arg(long, value_name = "NAME")]
@@ -33,7 +37,9 @@ pub struct ConvertArgs {
 /// A data range given on the command line.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Range {
+    /// Lower end (data units).
     pub min: f64,
+    /// Upper end, above `min`.
     pub max: f64,
 }
 
@@ -55,32 +61,32 @@ fn parse_range(s: &str) -> Result<Range, String> {
     Ok(Range { min, max })
 }
 
-/// `--list`: one line per preset of a JSON file (XML and .ct files hold one map).
+/// `--list`: one line per preset (name, colour space and, where the format counts them,
+/// colour and opacity points).
 fn list(input: &std::path::Path) -> anyhow::Result<()> {
-    if TfFormat::from_path(input)? != TfFormat::ParaViewJson {
-        let p = read_preset(input, None)?;
-        println!("{}\t{}", p.tf.name, p.space.paraview_name());
-        return Ok(());
-    }
-    for s in list_paraview_json(&read_text(input)?, input)? {
+    for s in list_presets(input)? {
         let kind = s
             .space
             .unwrap_or_else(|| "categorical (not convertible)".into());
-        println!(
-            "{}\t{kind}\t{} colour points\t{} opacity points",
-            s.name, s.colour_points, s.opacity_points
-        );
+        match s.counts {
+            Some(c) => println!(
+                "{}\t{kind}\t{} colour points\t{} opacity points",
+                s.name, c.colour, c.opacity
+            ),
+            None => println!("{}\t{kind}", s.name),
+        }
     }
     Ok(())
 }
 
+/// Run `t2tf convert`: list, or read, optionally rescale, and write.
 pub fn run(args: ConvertArgs) -> anyhow::Result<()> {
     if args.list {
         return list(&args.input);
     }
     let output = args.output.expect("clap requires OUTPUT without --list");
     // Check the output's format before reading, so a typo fails fast.
-    TfFormat::from_path(&output)?;
+    format_of(&output)?;
     crate::fs::check_writable(&output)?;
     let mut preset = read_preset(&args.input, args.preset.as_deref())?;
     if let Some(r) = args.rescale {

@@ -1,11 +1,19 @@
-//! Errors of the TF readers and converters: one line naming the file and what is wrong.
+//! Errors of the TF readers, writers and converters: one line naming the file and what is
+//! wrong.
 
 use std::path::{Path, PathBuf};
 
+/// Why a TF file could not be read, written or converted.
 #[derive(Debug, thiserror::Error)]
 pub enum FormatError {
+    /// A problem with one file's content or name.
     #[error("{path}: {message}")]
-    File { path: PathBuf, message: String },
+    File {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
     /// A problem not tied to one file (e.g. a volume without a source for a script).
     #[error("{0}")]
     Message(String),
@@ -13,21 +21,27 @@ pub enum FormatError {
     /// chain (`{:#}`), which would say it twice.
     #[error("{path}: {error}")]
     Io {
+        /// The file read.
         path: PathBuf,
+        /// What the system said.
         error: std::io::Error,
     },
+    /// Writing an output failed: `crate::fs`'s message, which names the file, with its
+    /// causes joined as the CLI prints them.
+    #[error("{0}")]
+    Output(String),
 }
 
 impl FormatError {
-    pub fn file(path: &Path, message: impl Into<String>) -> Self {
+    pub(crate) fn file(path: &Path, message: impl Into<String>) -> Self {
         FormatError::File {
             path: path.to_path_buf(),
             message: message.into(),
         }
     }
 
-    /// A failed read or write of `path`; a missing file says so in words, as volumes do.
-    pub fn io(path: &Path, error: std::io::Error) -> Self {
+    /// A failed read of `path`; a missing file says so in words, as volumes do.
+    pub(crate) fn io(path: &Path, error: std::io::Error) -> Self {
         if error.kind() == std::io::ErrorKind::NotFound {
             return FormatError::file(path, "no such file");
         }
@@ -36,10 +50,16 @@ impl FormatError {
             error,
         }
     }
+
+    /// A failed write through `crate::fs` (whose errors are `anyhow` chains): the chain is
+    /// flattened into the message, so `{:#}` prints what it printed before.
+    pub(crate) fn output(error: anyhow::Error) -> Self {
+        FormatError::Output(format!("{error:#}"))
+    }
 }
 
 /// Read a text file with a clear error for a missing file, a directory or non-UTF-8 bytes.
-pub fn read_text(path: &Path) -> Result<String, FormatError> {
+pub(crate) fn read_text(path: &Path) -> Result<String, FormatError> {
     if path.is_dir() {
         return Err(FormatError::file(path, "is a directory, not a file"));
     }

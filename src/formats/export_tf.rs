@@ -30,7 +30,7 @@ const HASH_LEN: usize = 8;
 
 impl ExportTf {
     /// Export `cp` for `volume`: opacity o = 1 − exp(−σ u / L) sampled densely and simplified
-    /// to within [`EXPORT_TOLERANCE`] (DESIGN.md), points at least [`MIN_GAP`] of the range
+    /// to within [`EXPORT_TOLERANCE`] (docs/DESIGN.md "Conventions"), points at least [`MIN_GAP`] of the range
     /// apart (so ParaView's lookup tables resolve them), positions denormalized to data values.
     /// `unit_distance` defaults to [`default_unit_distance`]. The name gets a content hash.
     pub fn from_control_points(
@@ -292,14 +292,13 @@ fn base_name(name: &str) -> &str {
     name
 }
 
-/// Read a TF file (`.json`, `.xml` or `.ct`, by extension) and turn it into control points
-/// for `volume`: opacity → σ = −ln(1 − o)·L/u, data x → normalized. `unit_distance`
-/// overrides the file's (and the default, the mean voxel spacing).
+/// Read a TF file (any of [`FORMATS`](super::FORMATS), by extension) and turn it into
+/// control points for `volume`: opacity → σ = −ln(1 − o)·L/u, data x → normalized.
+/// `unit_distance` overrides the file's (and the default, the mean voxel spacing).
 pub fn load_tf(
     path: &Path,
     volume: &Volume,
     unit_distance: Option<f64>,
-) -> anyhow::Result<ControlPoints> {
-    let tf = super::read_tf(path)?;
-    Ok(tf.to_control_points(path, volume, unit_distance)?)
+) -> Result<ControlPoints, FormatError> {
+    super::read_tf(path)?.to_control_points(path, volume, unit_distance)
 }

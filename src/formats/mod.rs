@@ -1,8 +1,9 @@
 //! Writing and reading transfer functions in the formats ParaView and VisIt open, and the
 //! scripts that open a volume with them. Every file is written atomically.
 //!
-//! The common form is [`ExportTf`] (data units). Files: ParaView JSON preset (`.json`),
-//! ParaView XML colour map (`.xml`), VisIt colour table (`.ct`), and the scripts
+//! The common form is [`ExportTf`] (data units). Each TF file format is one file here that
+//! implements [`TfFormat`], listed once in [`FORMATS`]: ParaView JSON preset (`.json`),
+//! ParaView XML colour map (`.xml`), VisIt colour table (`.ct`). The scripts are
 //! `NAME_paraview.py` (pvpython) and `NAME_visit.py` (VisIt CLI).
 
 mod error;
@@ -15,20 +16,18 @@ mod preset;
 mod visit_ct;
 mod visit_script;
 
-pub use crate::fs::{atomic_write, atomic_write_bytes};
-pub use error::{read_text, FormatError};
+// Kept for image.rs, optimize/report.rs and optimize/captions.rs, which still import the
+// writers from here; they belong to `crate::fs`.
+pub(crate) use crate::fs::{atomic_write, atomic_write_bytes};
+use error::read_text;
+pub use error::FormatError;
 pub use export_tf::{load_tf, ExportTf};
-pub use paraview_json::{
-    from_paraview_json, list_paraview_json, preset_from_paraview_json, preset_to_paraview_json,
-    to_paraview_json, PresetSummary,
-};
+pub use paraview_json::{from_paraview_json, to_paraview_json};
 pub use paraview_script::paraview_script;
-pub use paraview_xml::{
-    from_paraview_xml, preset_from_paraview_xml, preset_to_paraview_xml, to_paraview_xml,
-};
+pub use paraview_xml::to_paraview_xml;
 pub use preset::Preset;
-pub use visit_ct::{from_visit_ct, to_visit_ct};
-pub use visit_script::{freeform_opacity, visit_script, FREEFORM_SAMPLES};
+pub use visit_ct::to_visit_ct;
+pub use visit_script::{freeform_opacity, visit_script};
 
 use std::path::{Path, PathBuf};
 
@@ -36,7 +35,7 @@ use crate::tf::ControlPoints;
 use crate::volume::Volume;
 
 /// A camera for the generated scripts, in world units (the renderer's camera converts into
-/// it). `view_angle_deg` is the vertical field of view (DESIGN.md: 45°).
+/// it). `view_angle_deg` is the vertical field of view (docs/DESIGN.md "Conventions": 45°).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ScriptView {
     pub position: [f64; 3],
@@ -59,53 +58,111 @@ impl ScriptView {
     }
 }
 
-/// The TF file formats, chosen by extension.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum TfFormat {
-    ParaViewJson,
-    ParaViewXml,
-    VisItCt,
+/// A transfer-function file format: one file of this module with a unit struct implementing
+/// this trait, and one entry in [`FORMATS`]. Everything that reads or writes TF files — the
+/// path-based functions below, [`write_all`], `t2tf convert` — goes through the table, so
+/// nothing else names a format.
+pub trait TfFormat: Sync {
+    /// What the format is called in messages ("ParaView JSON preset").
+    fn name(&self) -> &'static str;
+    /// File extensions, lower case without the dot; [`write_all`] uses the first.
+    fn extensions(&self) -> &'static [&'static str];
+    /// The file's text as the RGB-linear TF the renderer and VisIt see.
+    fn read_tf(&self, text: &str, path: &Path) -> Result<ExportTf, FormatError>;
+    /// The preset `name` (or the file's only one) in its own colour space.
+    fn read_preset(
+        &self,
+        text: &str,
+        path: &Path,
+        name: Option<&str>,
+    ) -> Result<Preset, FormatError>;
+    /// What `t2tf convert --list` shows of the file. The default, for formats that hold one
+    /// map, is that map's name and colour space.
+    fn list(&self, text: &str, path: &Path) -> Result<Vec<PresetSummary>, FormatError> {
+        let p = self.read_preset(text, path, None)?;
+        Ok(vec![PresetSummary {
+            name: p.tf.name,
+            space: Some(p.space.paraview_name().to_string()),
+            counts: None,
+        }])
+    }
+    /// The file's text for an RGB TF.
+    fn write_tf(&self, tf: &ExportTf) -> String;
+    /// The file's text for a preset, in its colour space where the format has one.
+    fn write_preset(&self, preset: &Preset) -> String;
 }
 
-impl TfFormat {
-    pub fn from_path(path: &Path) -> Result<TfFormat, FormatError> {
-        let ext = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase);
-        match ext.as_deref() {
-            Some("json") => Ok(TfFormat::ParaViewJson),
-            Some("xml") => Ok(TfFormat::ParaViewXml),
-            Some("ct") => Ok(TfFormat::VisItCt),
-            _ => Err(FormatError::file(
-                path,
-                "unknown transfer-function format (expected .json, .xml or .ct)",
-            )),
-        }
+/// What `t2tf convert --list` shows of one preset.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PresetSummary {
+    /// The preset's name.
+    pub name: String,
+    /// ParaView's name of its colour space; `None` for a categorical preset
+    /// (IndexedColors/Annotations without RGBPoints).
+    pub space: Option<String>,
+    /// Colour and opacity points as the file stores them; `None` for a file of one map,
+    /// whose listing shows only the name and colour space.
+    pub counts: Option<PointCounts>,
+}
+
+/// How many colour and opacity points a preset stores.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PointCounts {
+    /// `RGBPoints` quadruples.
+    pub colour: usize,
+    /// Opacity `Points` quadruples.
+    pub opacity: usize,
+}
+
+/// Every TF format, in the order [`write_all`] writes them and messages list them.
+pub static FORMATS: [&dyn TfFormat; 3] = [
+    &paraview_json::ParaViewJson,
+    &paraview_xml::ParaViewXml,
+    &visit_ct::VisItCt,
+];
+
+/// The supported extensions for messages and help: ".json, .xml or .ct".
+pub fn extension_list() -> String {
+    let exts: Vec<String> = FORMATS
+        .iter()
+        .flat_map(|f| f.extensions())
+        .map(|e| format!(".{e}"))
+        .collect();
+    match exts.split_last() {
+        Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+        _ => exts.concat(),
     }
 }
 
-/// Read a TF file of any supported format.
-pub fn read_tf(path: &Path) -> Result<ExportTf, FormatError> {
-    let format = TfFormat::from_path(path)?;
-    let text = read_text(path)?;
-    match format {
-        TfFormat::ParaViewJson => from_paraview_json(&text, path),
-        TfFormat::ParaViewXml => from_paraview_xml(&text, path),
-        TfFormat::VisItCt => from_visit_ct(&text, path),
-    }
+/// The format `path`'s extension names (case-insensitive).
+pub fn format_of(path: &Path) -> Result<&'static dyn TfFormat, FormatError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    ext.and_then(|ext| {
+        FORMATS
+            .iter()
+            .copied()
+            .find(|f| f.extensions().contains(&ext.as_str()))
+    })
+    .ok_or_else(|| {
+        FormatError::file(
+            path,
+            format!(
+                "unknown transfer-function format (expected {})",
+                extension_list()
+            ),
+        )
+    })
 }
 
-/// Read the preset `name` (or the file's only one) in its own colour space. XML and .ct
-/// files hold one map; `name` must then be absent or equal to it.
-pub fn read_preset(path: &Path, name: Option<&str>) -> Result<Preset, FormatError> {
-    let format = TfFormat::from_path(path)?;
-    let text = read_text(path)?;
-    let preset = match format {
-        TfFormat::ParaViewJson => return preset_from_paraview_json(&text, path, name),
-        TfFormat::ParaViewXml => preset_from_paraview_xml(&text, path)?,
-        TfFormat::VisItCt => Preset::rgb(from_visit_ct(&text, path)?),
-    };
+/// A preset read from a file that holds one map: `name`, when given, must be that map's.
+pub(crate) fn only_preset(
+    preset: Preset,
+    path: &Path,
+    name: Option<&str>,
+) -> Result<Preset, FormatError> {
     match name {
         Some(n) if n != preset.tf.name => Err(FormatError::file(
             path,
@@ -115,33 +172,55 @@ pub fn read_preset(path: &Path, name: Option<&str>) -> Result<Preset, FormatErro
     }
 }
 
+/// Read a TF file of any supported format.
+pub fn read_tf(path: &Path) -> Result<ExportTf, FormatError> {
+    let format = format_of(path)?;
+    format.read_tf(&read_text(path)?, path)
+}
+
+/// Read the preset `name` (or the file's only one) in its own colour space. XML and .ct
+/// files hold one map; `name` must then be absent or equal to it.
+pub fn read_preset(path: &Path, name: Option<&str>) -> Result<Preset, FormatError> {
+    let format = format_of(path)?;
+    format.read_preset(&read_text(path)?, path, name)
+}
+
+/// The presets of a TF file, for `t2tf convert --list`.
+pub fn list_presets(path: &Path) -> Result<Vec<PresetSummary>, FormatError> {
+    let format = format_of(path)?;
+    format.list(&read_text(path)?, path)
+}
+
 /// Write a preset in the format its extension names: JSON and XML keep its colour space,
 /// a VisIt table (RGB only) gets the densified colours.
-pub fn write_preset(path: &Path, preset: &Preset) -> anyhow::Result<()> {
-    let text = match TfFormat::from_path(path)? {
-        TfFormat::ParaViewJson => preset_to_paraview_json(preset),
-        TfFormat::ParaViewXml => preset_to_paraview_xml(preset),
-        TfFormat::VisItCt => to_visit_ct(&preset.rgb_linear()),
-    };
-    atomic_write_bytes(path, text.as_bytes())
+pub fn write_preset(path: &Path, preset: &Preset) -> Result<(), FormatError> {
+    let text = format_of(path)?.write_preset(preset);
+    write_text(path, &text)
 }
 
 /// Write a TF file in the format its extension names (atomically).
-pub fn write_tf(path: &Path, tf: &ExportTf) -> anyhow::Result<()> {
-    let text = match TfFormat::from_path(path)? {
-        TfFormat::ParaViewJson => to_paraview_json(tf),
-        TfFormat::ParaViewXml => to_paraview_xml(tf),
-        TfFormat::VisItCt => to_visit_ct(tf),
-    };
-    atomic_write_bytes(path, text.as_bytes())
+pub fn write_tf(path: &Path, tf: &ExportTf) -> Result<(), FormatError> {
+    let text = format_of(path)?.write_tf(tf);
+    write_text(path, &text)
+}
+
+/// Write `text` atomically through `crate::fs`, its message (which names the file) kept.
+fn write_text(path: &Path, text: &str) -> Result<(), FormatError> {
+    atomic_write_bytes(path, text.as_bytes()).map_err(FormatError::output)
 }
 
 /// The files [`write_all`] wrote.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WrittenFiles {
+    /// `NAME.json` (ParaView JSON preset).
     pub json: PathBuf,
+    /// `NAME.xml` (ParaView XML colour map).
     pub xml: PathBuf,
+    /// `NAME.ct` (VisIt colour table).
     pub ct: PathBuf,
+    /// Every TF file, one per entry of [`FORMATS`] and in its order (`json`, `xml` and `ct`
+    /// among them).
+    pub tf_files: Vec<PathBuf>,
     /// `None` when the volume has no source file to reopen.
     pub paraview_script: Option<PathBuf>,
     /// `None` without a source file, or for a raw type VisIt's BOV reader lacks.
@@ -150,8 +229,21 @@ pub struct WrittenFiles {
     pub tf: ExportTf,
 }
 
-/// Write every TF output for one result into `dir`: `NAME.json`, `NAME.xml`, `NAME.ct`,
-/// `NAME_paraview.py`, `NAME_visit.py`. `unit_distance` defaults to the mean voxel spacing.
+impl WrittenFiles {
+    /// Every file written: the TF files, then the scripts.
+    pub fn all(&self) -> Vec<&Path> {
+        self.tf_files
+            .iter()
+            .chain(&self.paraview_script)
+            .chain(&self.visit_script)
+            .map(PathBuf::as_path)
+            .collect()
+    }
+}
+
+/// Write every TF output for one result into `dir`: `NAME.EXT` for each of [`FORMATS`]
+/// (`.json`, `.xml`, `.ct`), `NAME_paraview.py`, `NAME_visit.py`. `unit_distance` defaults
+/// to the mean voxel spacing.
 pub fn write_all(
     dir: &Path,
     name: &str,
@@ -160,22 +252,28 @@ pub fn write_all(
     view: &ScriptView,
     background: [f64; 3],
     unit_distance: Option<f64>,
-) -> anyhow::Result<WrittenFiles> {
+) -> Result<WrittenFiles, FormatError> {
     if name.is_empty() || name.contains(['/', '\\']) || name.starts_with('.') {
-        anyhow::bail!("output name \"{name}\" must be a plain file name");
+        return Err(FormatError::Message(format!(
+            "output name \"{name}\" must be a plain file name"
+        )));
     }
-    cp.validate()
-        .map_err(|e| anyhow::anyhow!("cannot export transfer function {name}: {e}"))?;
+    cp.validate().map_err(|e| {
+        FormatError::Message(format!("cannot export transfer function {name}: {e}"))
+    })?;
     let tf = ExportTf::from_control_points(name, cp, volume, unit_distance);
     let path = |suffix: &str| dir.join(format!("{name}{suffix}"));
-    let (json, xml, ct) = (path(".json"), path(".xml"), path(".ct"));
-    atomic_write_bytes(&json, to_paraview_json(&tf).as_bytes())?;
-    atomic_write_bytes(&xml, to_paraview_xml(&tf).as_bytes())?;
-    atomic_write_bytes(&ct, to_visit_ct(&tf).as_bytes())?;
+    let mut tf_files = Vec::with_capacity(FORMATS.len());
+    for format in FORMATS {
+        let p = path(&format!(".{}", format.extensions()[0]));
+        write_text(&p, &format.write_tf(&tf))?;
+        tf_files.push(p);
+    }
     let mut written = WrittenFiles {
-        json,
-        xml,
-        ct,
+        json: path(".json"),
+        xml: path(".xml"),
+        ct: path(".ct"),
+        tf_files,
         paraview_script: None,
         visit_script: None,
         tf: tf.clone(),
@@ -183,13 +281,16 @@ pub fn write_all(
     if volume.source.is_some() {
         let script = format!("{name}_paraview.py");
         let p = dir.join(&script);
-        let text = paraview_script(&tf, volume, view, background, &script)?;
-        atomic_write_bytes(&p, text.as_bytes())?;
+        write_text(
+            &p,
+            &paraview_script(&tf, volume, view, background, &script)?,
+        )?;
         written.paraview_script = Some(p);
         let script = format!("{name}_visit.py");
+        // A volume VisIt cannot open (e.g. a 64-bit integer raw file) gets no VisIt script.
         if let Ok(text) = visit_script(&tf, volume, view, background, &script) {
             let p = dir.join(&script);
-            atomic_write_bytes(&p, text.as_bytes())?;
+            write_text(&p, &text)?;
             written.visit_script = Some(p);
         }
     }

@@ -6,8 +6,46 @@ use std::path::Path;
 
 use serde_json::{json, Value};
 
-use super::{ExportTf, FormatError, Preset};
+use super::{ExportTf, FormatError, PointCounts, Preset, PresetSummary, TfFormat};
 use crate::tf::ColorSpace;
+
+/// ParaView JSON presets (`.json`): one file can hold many, in any colour space.
+pub(crate) struct ParaViewJson;
+
+impl TfFormat for ParaViewJson {
+    fn name(&self) -> &'static str {
+        "ParaView JSON preset"
+    }
+
+    fn extensions(&self) -> &'static [&'static str] {
+        &["json"]
+    }
+
+    fn read_tf(&self, text: &str, path: &Path) -> Result<ExportTf, FormatError> {
+        from_paraview_json(text, path)
+    }
+
+    fn read_preset(
+        &self,
+        text: &str,
+        path: &Path,
+        name: Option<&str>,
+    ) -> Result<Preset, FormatError> {
+        preset_from_paraview_json(text, path, name)
+    }
+
+    fn list(&self, text: &str, path: &Path) -> Result<Vec<PresetSummary>, FormatError> {
+        list_paraview_json(text, path)
+    }
+
+    fn write_tf(&self, tf: &ExportTf) -> String {
+        to_paraview_json(tf)
+    }
+
+    fn write_preset(&self, preset: &Preset) -> String {
+        preset_to_paraview_json(preset)
+    }
+}
 
 /// Key carrying the unit distance; ParaView ignores keys it does not know (tested).
 const UNIT_DISTANCE_KEY: &str = "t2tfScalarOpacityUnitDistance";
@@ -32,7 +70,7 @@ pub fn to_paraview_json(tf: &ExportTf) -> String {
 }
 
 /// The preset as strict JSON, with its colour space and the keys it kept.
-pub fn preset_to_paraview_json(p: &Preset) -> String {
+pub(crate) fn preset_to_paraview_json(p: &Preset) -> String {
     let tf = &p.tf;
     let rgb: Vec<f64> = tf
         .rgb_points
@@ -67,16 +105,6 @@ pub fn preset_to_paraview_json(p: &Preset) -> String {
     s
 }
 
-/// What `t2tf convert --list` shows of one preset.
-#[derive(Clone, Debug, PartialEq)]
-pub struct PresetSummary {
-    pub name: String,
-    /// `None` for a categorical preset (IndexedColors/Annotations without RGBPoints).
-    pub space: Option<String>,
-    pub colour_points: usize,
-    pub opacity_points: usize,
-}
-
 /// Every preset of a JSON file (a top-level array, or one object).
 fn preset_values<'a>(root: &'a Value, path: &Path) -> Result<Vec<&'a Value>, FormatError> {
     match root {
@@ -104,7 +132,7 @@ fn name_of(p: &Value) -> String {
 }
 
 /// The presets of a file, in file order, for `t2tf convert --list`.
-pub fn list_paraview_json(text: &str, path: &Path) -> Result<Vec<PresetSummary>, FormatError> {
+fn list_paraview_json(text: &str, path: &Path) -> Result<Vec<PresetSummary>, FormatError> {
     let root = parse(text, path)?;
     let count = |p: &Value, k: &str| {
         p.get(k)
@@ -121,15 +149,17 @@ pub fn list_paraview_json(text: &str, path: &Path) -> Result<Vec<PresetSummary>,
                     .unwrap_or("RGB")
                     .to_string()
             }),
-            colour_points: count(p, "RGBPoints"),
-            opacity_points: count(p, "Points"),
+            counts: Some(PointCounts {
+                colour: count(p, "RGBPoints"),
+                opacity: count(p, "Points"),
+            }),
         })
         .collect())
 }
 
 /// Parse a preset file's text as the RGB-linear TF the renderer and VisIt see (colours in
 /// another space are densified, see [`Preset::rgb_linear`]). A file with several presets
-/// is refused with their names: pick one with [`preset_from_paraview_json`].
+/// is refused with their names: pick one with [`read_preset`](super::read_preset).
 pub fn from_paraview_json(text: &str, path: &Path) -> Result<ExportTf, FormatError> {
     Ok(preset_from_paraview_json(text, path, None)?.rgb_linear())
 }
@@ -137,7 +167,7 @@ pub fn from_paraview_json(text: &str, path: &Path) -> Result<ExportTf, FormatErr
 /// The preset called `name` (or the only one) of a preset file, in its own colour space.
 /// Opacity `Points` with sharpness 0 and any midpoint are exact (the midpoint becomes an
 /// extra point at half the opacity step); sharpness ≠ 0 is rejected.
-pub fn preset_from_paraview_json(
+pub(crate) fn preset_from_paraview_json(
     text: &str,
     path: &Path,
     name: Option<&str>,

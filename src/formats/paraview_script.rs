@@ -1,5 +1,5 @@
 //! `NAME_paraview.py`: a pvpython script that opens the volume and shows it with the TF,
-//! the unit distance and the camera of our renders (DESIGN.md "ParaView facts").
+//! the unit distance and the camera of our renders (docs/DESIGN.md "ParaView facts").
 
 use std::fmt::Write as _;
 

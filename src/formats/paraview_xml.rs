@@ -1,5 +1,5 @@
 //! ParaView XML colour maps: `<ColorMaps><ColorMap name= space="RGB"><Point x= o= r= g= b=/>`.
-//! ParaView's import keeps only the colours (DESIGN.md); `o` is still written for the tools
+//! ParaView's import keeps only the colours (docs/DESIGN.md "ParaView facts"); `o` is still written for the tools
 //! that read it, and for our own reader.
 
 use std::path::Path;
@@ -9,12 +9,47 @@ use quick_xml::events::{BytesStart, Event};
 use quick_xml::{Reader, XmlVersion};
 
 use super::points::{merge, split, MergedPoint};
-use super::{ExportTf, FormatError, Preset};
+use super::{only_preset, ExportTf, FormatError, Preset, TfFormat};
 use crate::tf::{ColorMap, ColorSpace};
 
 /// Attribute carrying the unit distance (ParaView ignores unknown attributes; tested).
 const UNIT_DISTANCE_ATTR: &str = "t2tfScalarOpacityUnitDistance";
 
+/// ParaView XML colour maps (`.xml`): one map per file, in any colour space.
+pub(crate) struct ParaViewXml;
+
+impl TfFormat for ParaViewXml {
+    fn name(&self) -> &'static str {
+        "ParaView XML colour map"
+    }
+
+    fn extensions(&self) -> &'static [&'static str] {
+        &["xml"]
+    }
+
+    fn read_tf(&self, text: &str, path: &Path) -> Result<ExportTf, FormatError> {
+        from_paraview_xml(text, path)
+    }
+
+    fn read_preset(
+        &self,
+        text: &str,
+        path: &Path,
+        name: Option<&str>,
+    ) -> Result<Preset, FormatError> {
+        only_preset(preset_from_paraview_xml(text, path)?, path, name)
+    }
+
+    fn write_tf(&self, tf: &ExportTf) -> String {
+        to_paraview_xml(tf)
+    }
+
+    fn write_preset(&self, preset: &Preset) -> String {
+        preset_to_paraview_xml(preset)
+    }
+}
+
+/// An RGB TF as a colour map with opacity in `o`.
 pub fn to_paraview_xml(tf: &ExportTf) -> String {
     preset_to_paraview_xml(&Preset::rgb(tf.clone()))
 }
@@ -23,7 +58,7 @@ pub fn to_paraview_xml(tf: &ExportTf) -> String {
 /// share positions in this format: where opacity has points of its own, colours are added
 /// there, which keeps the curve in RGB, HSV, Lab and Step (linear in their coordinates, or
 /// constant); Diverging and Lab/CIEDE2000 are not, so such a map is written RGB-linear.
-pub fn preset_to_paraview_xml(p: &Preset) -> String {
+pub(crate) fn preset_to_paraview_xml(p: &Preset) -> String {
     let same_x = p.tf.opacity_points.is_empty()
         || p.tf
             .opacity_points
@@ -78,12 +113,12 @@ pub fn preset_to_paraview_xml(p: &Preset) -> String {
 }
 
 /// Read the first `<ColorMap>` of a file as the RGB-linear TF the renderer and VisIt see.
-pub fn from_paraview_xml(text: &str, path: &Path) -> Result<ExportTf, FormatError> {
+pub(crate) fn from_paraview_xml(text: &str, path: &Path) -> Result<ExportTf, FormatError> {
     Ok(preset_from_paraview_xml(text, path)?.rgb_linear())
 }
 
 /// Read the first `<ColorMap>` of a file in its own colour space.
-pub fn preset_from_paraview_xml(text: &str, path: &Path) -> Result<Preset, FormatError> {
+pub(crate) fn preset_from_paraview_xml(text: &str, path: &Path) -> Result<Preset, FormatError> {
     let err = |m: String| FormatError::file(path, m);
     let mut reader = Reader::from_str(text);
     let mut name: Option<String> = None;

@@ -12,10 +12,45 @@ use quick_xml::Reader;
 
 use super::paraview_xml::{attr, number};
 use super::points::{merge, rgb_map, split, MergedPoint};
-use super::{ExportTf, FormatError};
+use super::{only_preset, ExportTf, FormatError, Preset, TfFormat};
 
 const RANGE_FIELD: &str = "t2tfDataRange";
 const UNIT_DISTANCE_FIELD: &str = "t2tfScalarOpacityUnitDistance";
+
+/// VisIt colour tables (`.ct`): one RGB table per file, 8-bit colours and alpha.
+pub(crate) struct VisItCt;
+
+impl TfFormat for VisItCt {
+    fn name(&self) -> &'static str {
+        "VisIt colour table"
+    }
+
+    fn extensions(&self) -> &'static [&'static str] {
+        &["ct"]
+    }
+
+    fn read_tf(&self, text: &str, path: &Path) -> Result<ExportTf, FormatError> {
+        from_visit_ct(text, path)
+    }
+
+    fn read_preset(
+        &self,
+        text: &str,
+        path: &Path,
+        name: Option<&str>,
+    ) -> Result<Preset, FormatError> {
+        only_preset(Preset::rgb(from_visit_ct(text, path)?), path, name)
+    }
+
+    fn write_tf(&self, tf: &ExportTf) -> String {
+        to_visit_ct(tf)
+    }
+
+    /// The table interpolates in RGB only: other colour spaces are densified first.
+    fn write_preset(&self, preset: &Preset) -> String {
+        to_visit_ct(&preset.rgb_linear())
+    }
+}
 
 fn byte(v: f64) -> u8 {
     (v.clamp(0.0, 1.0) * 255.0).round() as u8
@@ -55,7 +90,7 @@ pub fn to_visit_ct(tf: &ExportTf) -> String {
 }
 
 /// Read a `.ct`; positions map onto the stored data range, else onto [0, 1].
-pub fn from_visit_ct(text: &str, path: &Path) -> Result<ExportTf, FormatError> {
+pub(crate) fn from_visit_ct(text: &str, path: &Path) -> Result<ExportTf, FormatError> {
     let err = |m: String| FormatError::file(path, m);
     let mut reader = Reader::from_str(text);
     let mut objects: Vec<String> = Vec::new();

@@ -40,7 +40,7 @@ pub enum TfError {
 
 /// A piecewise-linear TF: density σ and RGB colour at ascending positions.
 ///
-/// σ is an extinction coefficient per unit of normalized length (DESIGN.md "Conventions").
+/// σ is an extinction coefficient per unit of normalized length (docs/DESIGN.md "Conventions").
 #[derive(Clone, Debug, PartialEq)]
 pub struct ControlPoints {
     /// Ascending positions in [0, 1]; the first is 0 and the last 1.

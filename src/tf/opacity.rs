@@ -1,4 +1,4 @@
-//! σ ↔ ParaView/VTK opacity with a unit distance (DESIGN.md "Conventions"):
+//! σ ↔ ParaView/VTK opacity with a unit distance (docs/DESIGN.md "Conventions"):
 //! o = 1 − exp(−σ u / L), u = ScalarOpacityUnitDistance (world units), L = longest box side.
 //! VTK corrects o for its sample distance Δ as 1 − (1 − o)^(Δ/u) = 1 − exp(−σ Δ / L): exactly
 //! our renderer's α for a step Δ, whatever u is. u only decides how well o resolves σ.

@@ -1,4 +1,4 @@
-//! Export-time simplification (DESIGN.md "Conventions"): ParaView interpolates *opacity*
+//! Export-time simplification (docs/DESIGN.md "Conventions"): ParaView interpolates *opacity*
 //! linearly between points while our TF is linear in σ, so the opacity curve o(x) =
 //! 1 − exp(−σ(x) u/L) is sampled densely, then points are removed while the piecewise-linear
 //! curves stay within a tolerance of the dense ones (Douglas–Peucker on max-abs error).
