@@ -38,9 +38,13 @@ use crate::volume::Volume;
 /// it). `view_angle_deg` is the vertical field of view (docs/DESIGN.md "Conventions": 45°).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ScriptView {
+    /// Where the camera is.
     pub position: [f64; 3],
+    /// The point it looks at.
     pub focal_point: [f64; 3],
+    /// The direction that is up in the picture.
     pub view_up: [f64; 3],
+    /// Vertical field of view, degrees.
     pub view_angle_deg: f64,
 }
 
@@ -61,14 +65,13 @@ impl ScriptView {
 /// A transfer-function file format: one file of this module with a unit struct implementing
 /// this trait, and one entry in [`FORMATS`]. Everything that reads or writes TF files — the
 /// path-based functions below, [`write_all`], `t2tf convert` — goes through the table, so
-/// nothing else names a format.
+/// nothing else names a format. The impls look alike (a name, extensions, and methods that
+/// hand over to the file's reader and writer): that is the trait's shape, not repeated logic.
 pub trait TfFormat: Sync {
     /// What the format is called in messages ("ParaView JSON preset").
     fn name(&self) -> &'static str;
     /// File extensions, lower case without the dot; [`write_all`] uses the first.
     fn extensions(&self) -> &'static [&'static str];
-    /// The file's text as the RGB-linear TF the renderer and VisIt see.
-    fn read_tf(&self, text: &str, path: &Path) -> Result<ExportTf, FormatError>;
     /// The preset `name` (or the file's only one) in its own colour space.
     fn read_preset(
         &self,
@@ -76,6 +79,17 @@ pub trait TfFormat: Sync {
         path: &Path,
         name: Option<&str>,
     ) -> Result<Preset, FormatError>;
+    /// The file's text for a preset, in its colour space where the format has one.
+    fn write_preset(&self, preset: &Preset) -> String;
+    /// The file's text as the RGB-linear TF the renderer and VisIt see: by default the
+    /// file's only preset, densified (see [`Preset::rgb_linear`]).
+    fn read_tf(&self, text: &str, path: &Path) -> Result<ExportTf, FormatError> {
+        Ok(self.read_preset(text, path, None)?.rgb_linear())
+    }
+    /// The file's text for an RGB TF: by default the TF as an RGB preset.
+    fn write_tf(&self, tf: &ExportTf) -> String {
+        self.write_preset(&Preset::rgb(tf.clone()))
+    }
     /// What `t2tf convert --list` shows of the file. The default, for formats that hold one
     /// map, is that map's name and colour space.
     fn list(&self, text: &str, path: &Path) -> Result<Vec<PresetSummary>, FormatError> {
@@ -86,10 +100,6 @@ pub trait TfFormat: Sync {
             counts: None,
         }])
     }
-    /// The file's text for an RGB TF.
-    fn write_tf(&self, tf: &ExportTf) -> String;
-    /// The file's text for a preset, in its colour space where the format has one.
-    fn write_preset(&self, preset: &Preset) -> String;
 }
 
 /// What `t2tf convert --list` shows of one preset.
@@ -295,4 +305,46 @@ pub fn write_all(
         }
     }
     Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_table_names_each_extension_once() {
+        let exts: Vec<&str> = FORMATS
+            .iter()
+            .flat_map(|f| f.extensions())
+            .copied()
+            .collect();
+        let mut unique = exts.clone();
+        unique.sort_unstable();
+        unique.dedup();
+        assert_eq!(unique.len(), exts.len(), "{exts:?}");
+        assert!(FORMATS.iter().all(|f| !f.extensions().is_empty()));
+        assert_eq!(extension_list(), ".json, .xml or .ct");
+    }
+
+    #[test]
+    fn format_of_reads_the_extension_in_any_case() {
+        assert_eq!(
+            format_of(Path::new("a/B.JSON")).unwrap().name(),
+            "ParaView JSON preset"
+        );
+        assert_eq!(
+            format_of(Path::new("x.Xml")).unwrap().name(),
+            "ParaView XML colour map"
+        );
+        assert_eq!(
+            format_of(Path::new("t.ct")).unwrap().name(),
+            "VisIt colour table"
+        );
+        let e = format_of(Path::new("t.png")).err().map(|e| e.to_string());
+        assert_eq!(
+            e.as_deref(),
+            Some("t.png: unknown transfer-function format (expected .json, .xml or .ct)")
+        );
+        assert!(format_of(Path::new("json")).is_err());
+    }
 }

@@ -21,10 +21,6 @@ impl TfFormat for ParaViewJson {
         &["json"]
     }
 
-    fn read_tf(&self, text: &str, path: &Path) -> Result<ExportTf, FormatError> {
-        from_paraview_json(text, path)
-    }
-
     fn read_preset(
         &self,
         text: &str,
@@ -36,10 +32,6 @@ impl TfFormat for ParaViewJson {
 
     fn list(&self, text: &str, path: &Path) -> Result<Vec<PresetSummary>, FormatError> {
         list_paraview_json(text, path)
-    }
-
-    fn write_tf(&self, tf: &ExportTf) -> String {
-        to_paraview_json(tf)
     }
 
     fn write_preset(&self, preset: &Preset) -> String {

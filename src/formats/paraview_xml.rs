@@ -27,10 +27,6 @@ impl TfFormat for ParaViewXml {
         &["xml"]
     }
 
-    fn read_tf(&self, text: &str, path: &Path) -> Result<ExportTf, FormatError> {
-        from_paraview_xml(text, path)
-    }
-
     fn read_preset(
         &self,
         text: &str,
@@ -38,10 +34,6 @@ impl TfFormat for ParaViewXml {
         name: Option<&str>,
     ) -> Result<Preset, FormatError> {
         only_preset(preset_from_paraview_xml(text, path)?, path, name)
-    }
-
-    fn write_tf(&self, tf: &ExportTf) -> String {
-        to_paraview_xml(tf)
     }
 
     fn write_preset(&self, preset: &Preset) -> String {
@@ -110,11 +102,6 @@ pub(crate) fn preset_to_paraview_xml(p: &Preset) -> String {
     }
     s.push_str("  </ColorMap>\n</ColorMaps>\n");
     s
-}
-
-/// Read the first `<ColorMap>` of a file as the RGB-linear TF the renderer and VisIt see.
-pub(crate) fn from_paraview_xml(text: &str, path: &Path) -> Result<ExportTf, FormatError> {
-    Ok(preset_from_paraview_xml(text, path)?.rgb_linear())
 }
 
 /// Read the first `<ColorMap>` of a file in its own colour space.

@@ -13,6 +13,7 @@ use crate::tf::{ColorMap, ColorSpace, EXPORT_TOLERANCE};
 pub struct Preset {
     /// Points in data units; `tf.rgb_points` are interpolated in `space`, not in RGB.
     pub tf: ExportTf,
+    /// The colour space `tf.rgb_points` are interpolated in.
     pub space: ColorSpace,
     /// HSV only: ParaView's `HSVWrap`.
     pub hsv_wrap: bool,
@@ -24,7 +25,7 @@ pub struct Preset {
 
 impl Preset {
     /// An RGB preset with nothing else.
-    pub fn rgb(tf: ExportTf) -> Preset {
+    pub(crate) fn rgb(tf: ExportTf) -> Preset {
         Preset {
             tf,
             space: ColorSpace::Rgb,
@@ -33,6 +34,7 @@ impl Preset {
         }
     }
 
+    /// The colour points with their colour space and HSV wrap.
     pub fn color_map(&self) -> ColorMap {
         ColorMap {
             points: self.tf.rgb_points.clone(),
@@ -51,7 +53,7 @@ impl Preset {
     }
 
     /// A colour kept in `extra` under `key` (three numbers), if present and well formed.
-    pub fn extra_color(&self, key: &str) -> Option<[f64; 3]> {
+    pub(crate) fn extra_color(&self, key: &str) -> Option<[f64; 3]> {
         let a = self.extra.get(key)?.as_array()?;
         let v: Vec<f64> = a.iter().filter_map(Value::as_f64).collect();
         (v.len() >= 3).then(|| [v[0], v[1], v[2]])

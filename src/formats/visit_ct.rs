@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use quick_xml::events::Event;
+use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
 use super::paraview_xml::{attr, number};
@@ -29,10 +29,6 @@ impl TfFormat for VisItCt {
         &["ct"]
     }
 
-    fn read_tf(&self, text: &str, path: &Path) -> Result<ExportTf, FormatError> {
-        from_visit_ct(text, path)
-    }
-
     fn read_preset(
         &self,
         text: &str,
@@ -42,13 +38,19 @@ impl TfFormat for VisItCt {
         only_preset(Preset::rgb(from_visit_ct(text, path)?), path, name)
     }
 
-    fn write_tf(&self, tf: &ExportTf) -> String {
-        to_visit_ct(tf)
-    }
-
     /// The table interpolates in RGB only: other colour spaces are densified first.
     fn write_preset(&self, preset: &Preset) -> String {
         to_visit_ct(&preset.rgb_linear())
+    }
+
+    /// The table's points as they are: densifying would blur its jumps (repeated positions).
+    fn read_tf(&self, text: &str, path: &Path) -> Result<ExportTf, FormatError> {
+        from_visit_ct(text, path)
+    }
+
+    /// The TF's points as they are (see `read_tf`).
+    fn write_tf(&self, tf: &ExportTf) -> String {
+        to_visit_ct(tf)
     }
 }
 
@@ -91,122 +93,156 @@ pub fn to_visit_ct(tf: &ExportTf) -> String {
 
 /// Read a `.ct`; positions map onto the stored data range, else onto [0, 1].
 pub(crate) fn from_visit_ct(text: &str, path: &Path) -> Result<ExportTf, FormatError> {
-    let err = |m: String| FormatError::file(path, m);
+    let mut ct = CtReader::default();
     let mut reader = Reader::from_str(text);
-    let mut objects: Vec<String> = Vec::new();
-    let mut field: Option<String> = None;
-    let mut field_text = String::new();
-    let mut colors: Option<[f64; 4]> = None;
-    let mut position: Option<f64> = None;
-    let mut raw: Vec<([f64; 4], f64)> = Vec::new();
-    let mut range: Option<[f64; 2]> = None;
-    let mut unit_distance = None;
-    let mut saw_table = false;
     loop {
         let event = reader
             .read_event()
-            .map_err(|e| err(format!("is not valid XML: {e}")))?;
+            .map_err(|e| FormatError::file(path, format!("is not valid XML: {e}")))?;
         match event {
-            Event::Start(e) => match e.name().as_ref() {
-                "Object" => {
-                    let n = attr(&e, "name", path)?.unwrap_or_default();
-                    saw_table |= n == "ColorTable";
-                    objects.push(n);
-                }
-                "Field" => {
-                    field = attr(&e, "name", path)?;
-                    field_text.clear();
-                }
-                _ => {}
-            },
-            Event::Text(t) if field.is_some() => field_text.push_str(&t),
+            Event::Start(e) => ct.start(&e, path)?,
+            Event::Text(t) if ct.field.is_some() => ct.field_text.push_str(&t),
             Event::End(e) => match e.name().as_ref() {
-                "Field" => {
-                    let name = field.take().unwrap_or_default();
-                    let nums = || -> Result<Vec<f64>, FormatError> {
-                        field_text
-                            .split_whitespace()
-                            .map(|v| number(v, &format!("field \"{name}\""), path))
-                            .collect()
-                    };
-                    match (objects.last().map(String::as_str), name.as_str()) {
-                        (Some("ColorControlPoint"), "colors") => {
-                            let v = nums()?;
-                            if !(v.len() == 3 || v.len() == 4)
-                                || v.iter().any(|c| !(0.0..=255.0).contains(c))
-                            {
-                                return Err(err(format!(
-                                    "control point {}: colors \"{}\" are not 3 or 4 values in 0..255",
-                                    raw.len(),
-                                    field_text.trim()
-                                )));
-                            }
-                            colors = Some([v[0], v[1], v[2], *v.get(3).unwrap_or(&255.0)]);
-                        }
-                        (Some("ColorControlPoint"), "position") => {
-                            let v = nums()?;
-                            position = v.first().copied();
-                        }
-                        (Some("ColorTable"), RANGE_FIELD) => {
-                            let v = nums()?;
-                            if v.len() != 2 || v[1] < v[0] {
-                                return Err(err(format!("\"{RANGE_FIELD}\" is not \"min max\"")));
-                            }
-                            range = Some([v[0], v[1]]);
-                        }
-                        (Some("ColorTable"), UNIT_DISTANCE_FIELD) => {
-                            unit_distance = nums()?.first().copied();
-                        }
-                        _ => {}
-                    }
-                }
-                // The guard pops every closing Object; only a control point is kept.
-                "Object" if objects.pop().as_deref() == Some("ColorControlPoint") => {
-                    let i = raw.len();
-                    let c = colors
-                        .take()
-                        .ok_or_else(|| err(format!("control point {i} has no colors")))?;
-                    let p = position
-                        .take()
-                        .ok_or_else(|| err(format!("control point {i} has no position")))?;
-                    raw.push((c, p));
-                }
+                "Field" => ct.end_field(path)?,
+                "Object" => ct.end_object(path)?,
                 _ => {}
             },
             Event::Eof => break,
             _ => {}
         }
     }
-    if !saw_table {
-        return Err(err(
-            "is not a VisIt colour table (no <Object name=\"ColorTable\">)".into(),
-        ));
+    ct.finish(path)
+}
+
+/// What the reader has gathered while walking the XML: a table is nested `<Object>`s whose
+/// values are `<Field name=…>` texts.
+#[derive(Default)]
+struct CtReader {
+    /// Names of the open `<Object>`s, innermost last.
+    objects: Vec<String>,
+    /// The `<Field>` being read, and its text so far.
+    field: Option<String>,
+    field_text: String,
+    /// The open control point's fields.
+    colors: Option<[f64; 4]>,
+    position: Option<f64>,
+    /// Finished control points: RGBA in 0..255, position.
+    raw: Vec<([f64; 4], f64)>,
+    /// t2tf's own fields of the table.
+    range: Option<[f64; 2]>,
+    unit_distance: Option<f64>,
+    saw_table: bool,
+}
+
+impl CtReader {
+    fn start(&mut self, e: &BytesStart, path: &Path) -> Result<(), FormatError> {
+        match e.name().as_ref() {
+            "Object" => {
+                let n = attr(e, "name", path)?.unwrap_or_default();
+                self.saw_table |= n == "ColorTable";
+                self.objects.push(n);
+            }
+            "Field" => {
+                self.field = attr(e, "name", path)?;
+                self.field_text.clear();
+            }
+            _ => {}
+        }
+        Ok(())
     }
-    if raw.is_empty() {
-        return Err(err("has no ColorControlPoint".into()));
+
+    /// A finished `<Field>`: kept when it is one the table or a control point defines.
+    fn end_field(&mut self, path: &Path) -> Result<(), FormatError> {
+        let name = self.field.take().unwrap_or_default();
+        let nums = || -> Result<Vec<f64>, FormatError> {
+            self.field_text
+                .split_whitespace()
+                .map(|v| number(v, &format!("field \"{name}\""), path))
+                .collect()
+        };
+        match (self.objects.last().map(String::as_str), name.as_str()) {
+            (Some("ColorControlPoint"), "colors") => {
+                let v = nums()?;
+                if !(v.len() == 3 || v.len() == 4) || v.iter().any(|c| !(0.0..=255.0).contains(c)) {
+                    return Err(FormatError::file(
+                        path,
+                        format!(
+                            "control point {}: colors \"{}\" are not 3 or 4 values in 0..255",
+                            self.raw.len(),
+                            self.field_text.trim()
+                        ),
+                    ));
+                }
+                self.colors = Some([v[0], v[1], v[2], *v.get(3).unwrap_or(&255.0)]);
+            }
+            (Some("ColorControlPoint"), "position") => self.position = nums()?.first().copied(),
+            (Some("ColorTable"), RANGE_FIELD) => {
+                let v = nums()?;
+                if v.len() != 2 || v[1] < v[0] {
+                    return Err(FormatError::file(
+                        path,
+                        format!("\"{RANGE_FIELD}\" is not \"min max\""),
+                    ));
+                }
+                self.range = Some([v[0], v[1]]);
+            }
+            (Some("ColorTable"), UNIT_DISTANCE_FIELD) => {
+                self.unit_distance = nums()?.first().copied();
+            }
+            _ => {}
+        }
+        Ok(())
     }
-    // VisIt sorts control points by position itself; do the same (stable for equal ones).
-    raw.sort_by(|a, b| a.1.total_cmp(&b.1));
-    let [lo, hi] = range.unwrap_or([0.0, 1.0]);
-    let points: Vec<MergedPoint> = raw
-        .iter()
-        .map(|(c, p)| MergedPoint {
-            x: lo + p * (hi - lo),
-            rgb: [c[0] / 255.0, c[1] / 255.0, c[2] / 255.0],
-            opacity: Some(c[3] / 255.0),
-        })
-        .collect();
-    let (rgb_points, opacity_points) = split(&points);
-    let name = path
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "t2tf".into());
-    let tf = ExportTf {
-        name,
-        rgb_points,
-        opacity_points,
-        unit_distance,
-    };
-    tf.validate(path)?;
-    Ok(tf)
+
+    /// A closing `</Object>`: a control point needs both its fields.
+    fn end_object(&mut self, path: &Path) -> Result<(), FormatError> {
+        if self.objects.pop().as_deref() != Some("ColorControlPoint") {
+            return Ok(());
+        }
+        let i = self.raw.len();
+        let missing =
+            |what: &str| FormatError::file(path, format!("control point {i} has no {what}"));
+        let c = self.colors.take().ok_or_else(|| missing("colors"))?;
+        let p = self.position.take().ok_or_else(|| missing("position"))?;
+        self.raw.push((c, p));
+        Ok(())
+    }
+
+    /// The TF the table describes, its points sorted and mapped onto the data range.
+    fn finish(mut self, path: &Path) -> Result<ExportTf, FormatError> {
+        if !self.saw_table {
+            return Err(FormatError::file(
+                path,
+                "is not a VisIt colour table (no <Object name=\"ColorTable\">)",
+            ));
+        }
+        if self.raw.is_empty() {
+            return Err(FormatError::file(path, "has no ColorControlPoint"));
+        }
+        // VisIt sorts control points by position itself; do the same (stable for equal ones).
+        self.raw.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let [lo, hi] = self.range.unwrap_or([0.0, 1.0]);
+        let points: Vec<MergedPoint> = self
+            .raw
+            .iter()
+            .map(|(c, p)| MergedPoint {
+                x: lo + p * (hi - lo),
+                rgb: [c[0] / 255.0, c[1] / 255.0, c[2] / 255.0],
+                opacity: Some(c[3] / 255.0),
+            })
+            .collect();
+        let (rgb_points, opacity_points) = split(&points);
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "t2tf".into());
+        let tf = ExportTf {
+            name,
+            rgb_points,
+            opacity_points,
+            unit_distance: self.unit_distance,
+        };
+        tf.validate(path)?;
+        Ok(tf)
+    }
 }

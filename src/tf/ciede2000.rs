@@ -21,7 +21,7 @@ fn grid_rgb(p: Pos) -> [f64; 3] {
 }
 
 /// The grid colour VTK snaps an end colour to before searching.
-pub fn snap(c: [f64; 3]) -> [f64; 3] {
+pub(crate) fn snap(c: [f64; 3]) -> [f64; 3] {
     grid_rgb(position(c))
 }
 
@@ -42,7 +42,7 @@ fn hue(b: f64, a: f64) -> f64 {
 }
 
 /// CIEDE2000 colour difference (k_L = k_C = k_H = 1).
-pub fn delta_e(l1: [f64; 3], l2: [f64; 3]) -> f64 {
+pub(crate) fn delta_e(l1: [f64; 3], l2: [f64; 3]) -> f64 {
     let norm = |a: f64, b: f64| (a * a + b * b).sqrt();
     let c1 = norm(l1[1], l1[2]);
     let c2 = norm(l2[1], l2[2]);
@@ -143,7 +143,7 @@ fn search(to: Pos) -> (Vec<f64>, Vec<Pos>) {
 
 /// The path from `c1` to `c2` as (fraction of the path length, grid colour), as VTK adds
 /// it to its helper Lab map. One point when both snap to the same grid colour.
-pub fn color_path(c1: [f64; 3], c2: [f64; 3]) -> Vec<(f64, [f64; 3])> {
+pub(crate) fn color_path(c1: [f64; 3], c2: [f64; 3]) -> Vec<(f64, [f64; 3])> {
     let (p1, p2) = (position(c1), position(c2));
     let (dist, pred) = search(p2);
     let total = dist[index(p1)];

@@ -8,7 +8,7 @@ const SIXTH: f64 = 1.0 / 6.0;
 /// VTK's D65 reference white (X, Y, Z).
 const WHITE: [f64; 3] = [0.9505, 1.0, 1.089];
 
-pub fn rgb_to_hsv(c: [f64; 3]) -> [f64; 3] {
+pub(crate) fn rgb_to_hsv(c: [f64; 3]) -> [f64; 3] {
     let [r, g, b] = c;
     // VTK finds min and max with an `else if`, so a green above r never lowers the min:
     // kept because it decides the hue of some ties.
@@ -41,7 +41,7 @@ pub fn rgb_to_hsv(c: [f64; 3]) -> [f64; 3] {
     [h, s, max]
 }
 
-pub fn hsv_to_rgb(hsv: [f64; 3]) -> [f64; 3] {
+pub(crate) fn hsv_to_rgb(hsv: [f64; 3]) -> [f64; 3] {
     let [h, s, v] = hsv;
     let sixth = 1.0 / 6.0;
     let (third, two_thirds, five_sixths) = (1.0 / 3.0, 2.0 / 3.0, 5.0 / 6.0);
@@ -123,11 +123,11 @@ fn lab_to_xyz(lab: [f64; 3]) -> [f64; 3] {
     [0, 1, 2].map(|i| WHITE[i] * inv(f[i]))
 }
 
-pub fn rgb_to_lab(c: [f64; 3]) -> [f64; 3] {
+pub(crate) fn rgb_to_lab(c: [f64; 3]) -> [f64; 3] {
     xyz_to_lab(rgb_to_xyz(c))
 }
 
-pub fn lab_to_rgb(lab: [f64; 3]) -> [f64; 3] {
+pub(crate) fn lab_to_rgb(lab: [f64; 3]) -> [f64; 3] {
     xyz_to_rgb(lab_to_xyz(lab))
 }
 

@@ -13,19 +13,25 @@ use super::simplify_polyline;
 /// ParaView's `ColorSpace` values.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum ColorSpace {
+    /// Linear in RGB.
     #[default]
     Rgb,
+    /// Linear in HSV (see [`ColorMap::hsv_wrap`]).
     Hsv,
+    /// Linear in CIELAB.
     Lab,
+    /// Moreland's diverging interpolation in Msh (polar Lab).
     Diverging,
+    /// VTK's "Lab/CIEDE2000": the shortest ΔE2000 path through a grid of RGB colours.
     LabCiede2000,
+    /// Constant over each segment, at the colour of its end point (VTK's Step).
     Step,
 }
 
 impl ColorSpace {
     /// The names ParaView writes (JSON `ColorSpace`, XML `space`), case-insensitive;
     /// "CIELAB" is the Lab spelling some of ParaView's own presets use.
-    pub fn parse(name: &str) -> Option<ColorSpace> {
+    pub(crate) fn parse(name: &str) -> Option<ColorSpace> {
         let all = [
             ("rgb", ColorSpace::Rgb),
             ("hsv", ColorSpace::Hsv),
@@ -58,6 +64,7 @@ impl ColorSpace {
 pub struct ColorMap {
     /// Ascending x; a repeated x is a jump (ParaView keeps duplicates in file order).
     pub points: Vec<(f64, [f64; 3])>,
+    /// The space colours are interpolated in between points.
     pub space: ColorSpace,
     /// HSV only: interpolate hue the short way round through red.
     pub hsv_wrap: bool,
@@ -76,7 +83,7 @@ const SAMPLES_PER_SEGMENT: usize = 1024;
 
 impl ColorMap {
     /// The colour at `x` (outside the points: the end colours, as ParaView clamps).
-    pub fn color_at(&self, x: f64) -> [f64; 3] {
+    pub(crate) fn color_at(&self, x: f64) -> [f64; 3] {
         self.eval(x, &mut PathCache::new())
     }
 
@@ -138,7 +145,7 @@ impl ColorMap {
     /// of this map: each segment sampled [`SAMPLES_PER_SEGMENT`] times, jumps as ramps of
     /// [`JUMP`] of the range, then simplified. RGB maps without a repeated x come back
     /// unchanged.
-    pub fn rgb_linear(&self, tol: f64) -> Vec<(f64, [f64; 3])> {
+    pub(crate) fn rgb_linear(&self, tol: f64) -> Vec<(f64, [f64; 3])> {
         let jumps = self.points.windows(2).any(|w| w[0].0 == w[1].0);
         if (self.space == ColorSpace::Rgb && !jumps) || self.points.len() < 2 {
             return self.points.clone();

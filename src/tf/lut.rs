@@ -5,13 +5,17 @@ use super::{ControlPoints, Lut, LutGrad};
 /// Gradient of a loss with respect to every control point: position, density and colour.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ControlPointsGrad {
+    /// ∂L/∂x per point.
     pub x: Vec<f64>,
+    /// ∂L/∂σ per point.
     pub sigma: Vec<f64>,
+    /// ∂L/∂rgb per point.
     pub rgb: Vec<[f64; 3]>,
 }
 
 impl ControlPointsGrad {
-    pub fn zeros(k: usize) -> ControlPointsGrad {
+    /// A zero gradient for `k` points.
+    pub(crate) fn zeros(k: usize) -> ControlPointsGrad {
         ControlPointsGrad {
             x: vec![0.0; k],
             sigma: vec![0.0; k],

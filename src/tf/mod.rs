@@ -16,26 +16,39 @@ mod simplify;
 pub use colorspace::{ColorMap, ColorSpace};
 pub use lut::ControlPointsGrad;
 pub use opacity::{default_unit_distance, opacity_to_sigma, sigma_to_opacity};
-pub use params::{TfParams, TfParamsGrad, SPACING_FLOOR};
-pub use simplify::{
-    dense_curves, interpolate, simplified_curves, simplify_polyline, DenseCurves, SimplifiedCurves,
-    DENSE_SAMPLES, EXPORT_TOLERANCE, JUMP_WIDTH, MIN_GAP, PARAVIEW_TABLE_SIZE,
-};
+pub use params::{TfParams, TfParamsGrad};
+pub use simplify::{interpolate, EXPORT_TOLERANCE, MIN_GAP};
+pub(crate) use simplify::{simplified_curves, simplify_polyline};
 
 /// Largest density: σ = 255 · (tanh(p) + 1) / 2 (paper, Appendix A).
-pub const SIGMA_MAX: f64 = 255.0;
+pub(crate) const SIGMA_MAX: f64 = 255.0;
 
 /// Why a TF could not be built.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum TfError {
+    /// Fewer than two control points (the count given).
     #[error("a transfer function needs at least 2 control points, got {0}")]
     TooFewPoints(usize),
+    /// The position, density and colour arrays differ in length.
     #[error(
         "control point arrays differ in length: {x} positions, {sigma} densities, {rgb} colours"
     )]
-    LengthMismatch { x: usize, sigma: usize, rgb: usize },
+    LengthMismatch {
+        /// Positions.
+        x: usize,
+        /// Densities.
+        sigma: usize,
+        /// Colours.
+        rgb: usize,
+    },
+    /// One control point is out of range or out of order.
     #[error("control point {index}: {message}")]
-    BadPoint { index: usize, message: String },
+    BadPoint {
+        /// Its index.
+        index: usize,
+        /// What is wrong with it.
+        message: String,
+    },
 }
 
 /// A piecewise-linear TF: density σ and RGB colour at ascending positions.
@@ -62,10 +75,12 @@ pub struct Lut {
 /// Gradient of a loss with respect to every LUT entry, accumulated in f64.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LutGrad {
+    /// ∂L/∂(σ, r, g, b) per entry.
     pub entries: Vec<[f64; 4]>,
 }
 
 impl LutGrad {
+    /// A zero gradient for a LUT of `n` entries.
     pub fn zeros(n: usize) -> LutGrad {
         LutGrad {
             entries: vec![[0.0; 4]; n],
@@ -83,10 +98,12 @@ impl LutGrad {
 }
 
 impl ControlPoints {
+    /// Number of control points.
     pub fn len(&self) -> usize {
         self.x.len()
     }
 
+    /// No control points.
     pub fn is_empty(&self) -> bool {
         self.x.is_empty()
     }

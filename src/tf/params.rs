@@ -5,7 +5,7 @@
 //!   c_0 = 0, c_k = Σ_{i<k} d_i, D = c_{K−1},  x_k = c_k / D      (first 0, last 1)
 //!   σ_k = 255 · (tanh(p_k) + 1) / 2,  rgb_k = (tanh(q_k) + 1) / 2
 
-use super::{ControlPoints, ControlPointsGrad, TfError, SIGMA_MAX};
+use super::{ControlPoints, ControlPointsGrad, SIGMA_MAX};
 
 /// Added to every softplus spacing. Why: softplus(s) → 0 as s → −∞, so without a floor two
 /// points can coincide to rounding, making x_{k+1} − x_k exactly 0; the LUT is then a jump and
@@ -13,7 +13,7 @@ use super::{ControlPoints, ControlPointsGrad, TfError, SIGMA_MAX};
 /// softplus = 1 (see [`TfParams::from_control_points`]), so this floor is 1e-4 of a typical
 /// spacing: small enough never to matter for a real TF (a LUT of 256 entries resolves 4e-3),
 /// large enough to keep every segment strictly positive in f64.
-pub const SPACING_FLOOR: f64 = 1e-4;
+const SPACING_FLOOR: f64 = 1e-4;
 
 /// Largest |parameter| the inverse maps produce: tanh(±7.25) = ±(1 − 1e-6), so σ = 0 and
 /// σ = 255 come back within 2.6e-4 and colour 0/1 within 5e-7, while the tanh derivative at
@@ -34,8 +34,11 @@ pub struct TfParams {
 /// Gradient of a loss with respect to [`TfParams`]; same shapes.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TfParamsGrad {
+    /// ∂L/∂spacing (K − 1).
     pub spacing: Vec<f64>,
+    /// ∂L/∂density (K).
     pub density: Vec<f64>,
+    /// ∂L/∂colour (K).
     pub colour: Vec<[f64; 3]>,
 }
 
@@ -73,14 +76,9 @@ impl TfParams {
         self.density.len()
     }
 
+    /// No control points.
     pub fn is_empty(&self) -> bool {
         self.density.is_empty()
-    }
-
-    /// K evenly spaced points, all with density `sigma` ∈ [0, 255] and colour `rgb` ∈ [0, 1]³.
-    pub fn evenly_spaced(k: usize, sigma: f64, rgb: [f64; 3]) -> Result<TfParams, TfError> {
-        let cp = ControlPoints::evenly_spaced(vec![sigma; k], vec![rgb; k])?;
-        Ok(TfParams::from_control_points(&cp))
     }
 
     /// The parameters whose [`TfParams::control_points`] reproduce `cp` (used to initialize).
@@ -89,7 +87,7 @@ impl TfParams {
     /// fixed fraction of a typical spacing. Spacings below the floor come back at the floor;
     /// σ and colours at the ends of their ranges come back within the `ATANH_CLAMP` margin.
     /// `cp` is expected to pass [`ControlPoints::validate`].
-    pub fn from_control_points(cp: &ControlPoints) -> TfParams {
+    pub(crate) fn from_control_points(cp: &ControlPoints) -> TfParams {
         let k = cp.len();
         let segments = k.saturating_sub(1).max(1) as f64;
         let spacing =
@@ -153,10 +151,10 @@ impl TfParams {
 
     /// Backward of [`TfParams::control_points`].
     ///
-    /// With x_k = c_k / D: ∂x_k/∂d_i = [i < k]/D − x_k/D, so
+    /// With x_k = c_k / D: ∂x_k/∂d_i = \[i < k\]/D − x_k/D, so
     /// ∂L/∂d_i = (Σ_{k>i} g_k − Σ_k g_k x_k) / D (a suffix sum: O(K)), then ∂d_i/∂s_i =
     /// logistic(s_i). The ends x_0 = 0 and x_{K−1} = 1 are constants, so their gradients drop
-    /// out (x_0 contributes g_0·0; x_{K−1}'s [i < K−1] − 1 cancel). ∂σ/∂p = 127.5 (1 − tanh²p),
+    /// out (x_0 contributes g_0·0; x_{K−1}'s \[i < K−1\] − 1 cancel). ∂σ/∂p = 127.5 (1 − tanh²p),
     /// ∂rgb/∂q = (1 − tanh²q)/2.
     pub fn backward(&self, g: &ControlPointsGrad) -> TfParamsGrad {
         let k = self.len();
@@ -209,7 +207,7 @@ impl TfParams {
     }
 
     /// Inverse of [`TfParams::to_flat`] for the same K; `None` if the length is wrong.
-    pub fn from_flat(k: usize, v: &[f64]) -> Option<TfParams> {
+    pub(crate) fn from_flat(k: usize, v: &[f64]) -> Option<TfParams> {
         if k < 2 || v.len() != (k - 1) + k + 3 * k {
             return None;
         }
@@ -317,7 +315,9 @@ mod tests {
                 assert!((back.rgb[i][c] - cp.rgb[i][c]).abs() < 1e-6);
             }
         }
-        let even = TfParams::evenly_spaced(5, 10.0, [0.5; 3]).unwrap();
+        let even = TfParams::from_control_points(
+            &ControlPoints::evenly_spaced(vec![10.0; 5], vec![[0.5; 3]; 5]).unwrap(),
+        );
         assert!(even
             .spacing
             .iter()

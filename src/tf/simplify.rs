@@ -12,11 +12,11 @@ use super::{sigma_to_opacity, ControlPoints};
 pub const EXPORT_TOLERANCE: f64 = 1e-3;
 
 /// Most samples per control-point segment in the dense curves (bounds work and output size).
-pub const DENSE_SAMPLES: usize = 1024;
+const DENSE_SAMPLES: usize = 1024;
 
 /// Normalized width of the ramp that stands for a jump (collapsed control points) when no
 /// larger gap is asked for.
-pub const JUMP_WIDTH: f64 = 1e-9;
+const JUMP_WIDTH: f64 = 1e-9;
 
 /// Widest 1D lookup table ParaView's GPU volume mapper can count on: VTK
 /// (`vtkOpenGLVolumeLookupTable`) sizes the opacity and colour tables as the next power of
@@ -24,20 +24,23 @@ pub const JUMP_WIDTH: f64 = 1e-9;
 /// texture it warns ("falling back to maximum allowed") and uses that. 16384 is the limit
 /// ParaView 5.11 reports with Mesa (its warning names it); a GPU with a larger one only
 /// leaves room to spare.
-pub const PARAVIEW_TABLE_SIZE: usize = 16384;
+const PARAVIEW_TABLE_SIZE: usize = 16384;
 
 /// Smallest gap between exported points, as a fraction of the TF's range: 1/16000 keeps
-/// ceil(range / gap) ≤ [`PARAVIEW_TABLE_SIZE`] with a 2 % margin for the rounding of
+/// ceil(range / gap) ≤ 16384 (the widest table ParaView's GPU volume mapper can count on) with a 2 % margin for the rounding of
 /// positions into data units. Finer detail is lost in ParaView's table anyway.
 pub const MIN_GAP: f64 = 1.0 / 16000.0;
+
+// The margin above, checked when compiling.
+const _: () = assert!(1.0 / MIN_GAP <= 0.98 * PARAVIEW_TABLE_SIZE as f64);
 
 /// The TF's opacity and colour sampled densely, at normalized positions `x` (ascending,
 /// including every control point).
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct DenseCurves {
-    pub x: Vec<f64>,
-    pub opacity: Vec<[f64; 1]>,
-    pub rgb: Vec<[f64; 3]>,
+struct DenseCurves {
+    x: Vec<f64>,
+    opacity: Vec<[f64; 1]>,
+    rgb: Vec<[f64; 3]>,
 }
 
 impl DenseCurves {
@@ -100,7 +103,7 @@ fn segment_samples(len: f64, s0: f64, s1: f64, ratio: f64, tol: f64, gap: f64) -
 /// `min_gap`, which only a segment steeper than ParaView's table resolves reaches), leaving
 /// 3/4 of the budget to the simplification. Colours are linear on segments: their samples
 /// are exact.
-pub fn dense_curves(cp: &ControlPoints, ratio: f64, tol: f64, min_gap: f64) -> DenseCurves {
+fn dense_curves(cp: &ControlPoints, ratio: f64, tol: f64, min_gap: f64) -> DenseCurves {
     // A hair wider than asked, so that rounding in `x − gap` and in the sample positions
     // (≤ 1e-16 for x ≤ 1) never leaves two points less than `min_gap` apart.
     let gap = min_gap.max(JUMP_WIDTH) * (1.0 + 1e-9);
@@ -137,7 +140,7 @@ pub fn dense_curves(cp: &ControlPoints, ratio: f64, tol: f64, min_gap: f64) -> D
 ///
 /// Douglas–Peucker: both polylines are linear between the dense points, so the error is
 /// largest at one of them, and checking the dense points checks the whole curve.
-pub fn simplify_polyline<const C: usize>(x: &[f64], v: &[[f64; C]], tol: f64) -> Vec<usize> {
+pub(crate) fn simplify_polyline<const C: usize>(x: &[f64], v: &[[f64; C]], tol: f64) -> Vec<usize> {
     let n = x.len();
     if n <= 2 {
         return (0..n).collect();
@@ -169,8 +172,10 @@ pub fn simplify_polyline<const C: usize>(x: &[f64], v: &[[f64; C]], tol: f64) ->
 
 /// Simplified opacity and colour curves of `cp` for export, in normalized x.
 #[derive(Clone, Debug, PartialEq)]
-pub struct SimplifiedCurves {
+pub(crate) struct SimplifiedCurves {
+    /// (x, opacity) points.
     pub opacity: Vec<(f64, f64)>,
+    /// (x, rgb) points.
     pub rgb: Vec<(f64, [f64; 3])>,
 }
 
@@ -179,7 +184,7 @@ pub struct SimplifiedCurves {
 /// except near detail narrower than `min_gap` (there it follows the true curve to within a
 /// few gaps). The kept points are dense samples, so no two of either curve, nor of both
 /// together, are closer than `min_gap` (export: [`MIN_GAP`]; 0 for the tolerance alone).
-pub fn simplified_curves(
+pub(crate) fn simplified_curves(
     cp: &ControlPoints,
     ratio: f64,
     tol: f64,
