@@ -125,7 +125,7 @@ pub struct PointCounts {
 }
 
 /// Every TF format, in the order [`write_all`] writes them and messages list them.
-pub static FORMATS: [&dyn TfFormat; 3] = [
+pub static FORMATS: &[&dyn TfFormat] = &[
     &paraview_json::ParaViewJson,
     &paraview_xml::ParaViewXml,
     &visit_ct::VisItCt,
