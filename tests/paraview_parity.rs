@@ -223,6 +223,11 @@ fn renders_match_paraview_screenshots() {
         for (pi, preset) in PRESETS.iter().enumerate() {
             if vol.id == "headsq-wide" {
                 // A window 5 % of the range wide over the tissue, opacity a tent inside it.
+                // Narrower windows (1 %, 2 %: 25–35 dB with or without --paraview-lut) are
+                // dominated by ParaView's own ray sampling, a step of 0.357 voxel here (VTK's
+                // SpacingAdjustedSampleDistance) with per-pixel noise that no deterministic
+                // render reproduces; measured and argued in BENCHMARKS.md "Render parity with
+                // ParaView".
                 let w = 0.05 * (max - min);
                 let lo = a + 0.2 * (b - a);
                 let (hi, mid) = (lo + w, lo + w / 2.0);
