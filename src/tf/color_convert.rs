@@ -58,7 +58,10 @@ pub(crate) fn hsv_to_rgb(hsv: [f64; 3]) -> [f64; 3] {
     } else {
         [1.0, h / sixth, 0.0]
     };
-    pure.map(|p| (s * p + (1.0 - s)) * v)
+    // VTK's formula can round past 1 at a sector edge (h = 1/2: (1/2 − 1/3)/(1/6) = 1 + 2⁻⁵²);
+    // the GPU clamps what it uploads, and the exporter's [0, 1] check would refuse the colour
+    // (ParaView's own "Blue to Red Rainbow" preset hit this).
+    pure.map(|p| ((s * p + (1.0 - s)) * v).clamp(0.0, 1.0))
 }
 
 fn rgb_to_xyz(c: [f64; 3]) -> [f64; 3] {
@@ -134,6 +137,16 @@ pub(crate) fn lab_to_rgb(lab: [f64; 3]) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn hsv_sector_edges_stay_in_the_unit_cube() {
+        // h = 1/2 gives (1/2 − 1/3)/(1/6) = 1 + 2⁻⁵² in f64 without the clamp.
+        for h in [0.0, 1.0 / 6.0, 1.0 / 3.0, 0.5, 2.0 / 3.0, 5.0 / 6.0, 1.0] {
+            let c = hsv_to_rgb([h, 1.0, 1.0]);
+            assert!(c.iter().all(|v| (0.0..=1.0).contains(v)), "h = {h}: {c:?}");
+        }
+        assert_eq!(hsv_to_rgb([0.5, 1.0, 1.0]), [0.0, 1.0, 1.0]);
+    }
 
     #[test]
     fn round_trips_stay_close() {
