@@ -16,7 +16,7 @@ mod paraview_util;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use paraview_util::{floats, paraview_available, psnr, repo, PVPYTHON};
+use paraview_util::{floats, paraview_available, psnr, repo, server, PVPYTHON};
 use t2tf::image::Image;
 
 const NEGHIP: &str = "../shared/data/volumes/neghip_64x64x64_uint8.raw";
@@ -227,4 +227,135 @@ fn problems_are_one_message_not_a_traceback() {
     ] {
         assert_eq!(all.matches(needle).count(), 1, "'{needle}' once in:\n{all}");
     }
+}
+
+/// Points per axis the pvserver test allows the proxy (neghip has 64).
+const PROXY_SIZE: usize = 32;
+
+#[test]
+fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
+    let name = "pvserver_gets_a_bounded_proxy_and_the_tf_transfers";
+    if !paraview_available(name) || !server::pvserver_available(name) {
+        return;
+    }
+    let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    // Dropped at the end of the test, passed or panicked: stops xvfb-run, mpiexec and ranks.
+    let server = server::PvServer::start(2, dir.path()).unwrap_or_else(|e| panic!("{e}"));
+    let json = dir.path().join("remote.json");
+    let (full_png, proxy_png) = (dir.path().join("full.png"), dir.path().join("proxy.png"));
+    let out = Command::new("timeout")
+        .args(["300", "xvfb-run", "-a", "pvpython", "--dr"])
+        .arg(repo().join("tests/paraview_plugin/remote.py"))
+        .arg(repo().join("paraview/t2tf_plugin.py"))
+        .arg(server.port.to_string())
+        .arg(repo().join(NEGHIP))
+        .arg(repo().join("tests/fixtures/clip/quick_gelu"))
+        .arg(repo().join("../shared/data/clip/tokenizer.json"))
+        .arg(PROXY_SIZE.to_string())
+        .args([&json, &full_png, &proxy_png])
+        .arg(SIZE.to_string())
+        .env("PYTHONPATH", repo().join("paraview/compat"))
+        .env("T2TF_BIN", env!("CARGO_BIN_EXE_t2tf"))
+        .output()
+        .expect("run xvfb-run pvpython");
+    assert!(
+        out.status.success(),
+        "{}\nserver:\n{}",
+        text(&out),
+        server.log_text()
+    );
+    let res: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap())
+        .expect("driver JSON");
+    assert_eq!(res["remote"], true);
+    assert_eq!(res["partitions"], 2, "two pvserver ranks");
+
+    // The proxy: at most PROXY_SIZE points per axis, over the full data's box.
+    let dims: Vec<u64> = res["proxy_dims"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d.as_u64().unwrap())
+        .collect();
+    assert_eq!(dims, vec![PROXY_SIZE as u64; 3], "neghip 64³ scaled to the bound");
+    assert_eq!(res["local_dims"], res["proxy_dims"]);
+    let local = res["local_points"].as_u64().unwrap();
+    assert_eq!(local, dims.iter().product::<u64>());
+    // ResampleToImage keeps the input's bounds up to a tiny margin (measured: 3e-5 and 9e-5
+    // of a 63-unit box).
+    for (p, f) in floats(&res["local_bounds"]).iter().zip(floats(&res["full_bounds"])) {
+        assert!((p - f).abs() < 1e-3, "proxy bounds {p} vs data bounds {f}");
+    }
+
+    // Only the proxy crossed: the client fetched exactly the pieces the server's
+    // ResampleToImage holds (the two ranks' pieces share one boundary plane), not the full
+    // data (64³ points, more with the ranks' shared planes); rendering stayed on the server
+    // (the driver sets RemoteRenderThreshold 0).
+    let fetched = res["fetched_points"].as_u64().unwrap();
+    let full = res["full_points"].as_u64().unwrap();
+    eprintln!("pvserver: fetched {fetched} points for a {local}-point proxy; full data {full}");
+    assert_eq!(fetched, res["proxy_points_on_server"].as_u64().unwrap());
+    assert!(
+        fetched <= local + (PROXY_SIZE * PROXY_SIZE) as u64,
+        "fetched {fetched} points for a {local}-point proxy"
+    );
+    assert!(full >= 64 * 64 * 64 && fetched * 4 < full);
+
+    // The full data's display holds t2tf's TF, computed on the proxy.
+    assert_eq!(res["interrupted"], false);
+    let preset: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(res["preset_file"].as_str().unwrap()).unwrap())
+            .unwrap();
+    let preset = &preset[0];
+    assert_eq!(res["representation"], "Volume");
+    assert_eq!(res["color_array"], "ImageFile");
+    assert_eq!(res["rescale"], "Never");
+    assert_close(&floats(&res["rgb"]), &floats(&preset["RGBPoints"]), "RGBPoints");
+    assert_close(&floats(&res["points"]), &floats(&preset["Points"]), "Points");
+    assert_eq!(
+        res["unit_distance"].as_f64().unwrap(),
+        preset["t2tfScalarOpacityUnitDistance"].as_f64().unwrap()
+    );
+    assert_eq!(res["has_preset"], true);
+
+    // The same TF and camera on the full data and on the proxy (both rendered by the
+    // server): opacity is per normalized box length (docs/DESIGN.md), so they agree.
+    let (a, b) = (
+        Image::load_png(&full_png).unwrap(),
+        Image::load_png(&proxy_png).unwrap(),
+    );
+    let shown = |img: &Image| {
+        (0..img.height)
+            .flat_map(|y| (0..img.width).map(move |x| (x, y)))
+            .filter(|&(x, y)| img.pixel(x, y).iter().any(|c| (c - 0.3).abs() > 2.0 / 255.0))
+            .count() as f64
+            / (img.width * img.height) as f64
+    };
+    eprintln!(
+        "pvserver: {:.0} % / {:.0} % of the pixels show the volume (full / proxy)",
+        100.0 * shown(&a),
+        100.0 * shown(&b)
+    );
+    assert!(shown(&a) > 0.05 && shown(&b) > 0.05, "nothing rendered");
+    let p = psnr(&a, &b);
+    eprintln!("pvserver: full-resolution render vs proxy render, same TF and camera: {p:.1} dB");
+    // The same over only the pixels where either image shows the volume (the background
+    // agrees trivially), for the record.
+    let (mut se, mut n) = (0.0f64, 0usize);
+    for y in 0..a.height {
+        for x in 0..a.width {
+            let (pa, pb) = (a.pixel(x, y), b.pixel(x, y));
+            let bg = |p: [f32; 3]| p.iter().all(|c| (c - 0.3).abs() <= 2.0 / 255.0);
+            if !bg(pa) || !bg(pb) {
+                se += (0..3).map(|i| ((pa[i] - pb[i]) as f64).powi(2)).sum::<f64>();
+                n += 3;
+            }
+        }
+    }
+    eprintln!(
+        "pvserver: over the {} pixels showing the volume: {:.1} dB",
+        n / 3,
+        10.0 * (1.0 / (se / n.max(1) as f64).max(1e-20)).log10()
+    );
+    assert!(p >= 30.0, "PSNR {p:.1} dB < 30");
 }
