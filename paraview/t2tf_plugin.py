@@ -411,6 +411,9 @@ def write_vti(image, array, path):
 @smhint.xml('<ShowInMenu category="t2tf" /><RepresentationType view="RenderView" type="Volume" />')
 @smproperty.input(name="Input", port_index=0)
 @smdomain.datatype(dataTypes=["vtkImageData"], composite_data_supported=False)
+# The domain the Array property's ArrayListDomain names: point arrays of one component.
+@smdomain.xml('<InputArrayDomain name="input_array" attribute_type="point" '
+              'number_of_components="1" />')
 class TextToTransferFunction(VTKPythonAlgorithmBase):
     """Optimizes a transfer function for a sentence with t2tf and shows the data with it."""
 
