@@ -701,7 +701,9 @@ def fetch_proxy(source, dims):
         ranks = max(1, servermanager.ActiveConnection.GetNumberOfDataPartitions())
         pieces = []
         for rank in range(ranks):
-            piece = servermanager.Fetch(resample, rank) if ranks > 1 else servermanager.Fetch(resample)
+            # Always by rank: with no rank Fetch merges through vtkAppendFilter, which turns
+            # image data into an unstructured grid even on one rank.
+            piece = servermanager.Fetch(resample, rank)
             if piece is not None and piece.GetNumberOfPoints() > 0:
                 pieces.append(piece)
     finally:

@@ -69,7 +69,14 @@ fn bov_header(g: &crate::volume::Geometry, fmt: &str, order: ByteOrder) -> Strin
         "TIME: 0\nDATA_FILE: %s\nDATA_SIZE: {} {} {}\nDATA_FORMAT: {fmt}\n\
          VARIABLE: scalars\nDATA_ENDIAN: {endian}\nCENTERING: NODAL\n\
          BRICK_ORIGIN: {:?} {:?} {:?}\nBRICK_SIZE: {:?} {:?} {:?}\n",
-        g.dims[0], g.dims[1], g.dims[2], g.origin[0], g.origin[1], g.origin[2], ext[0], ext[1],
+        g.dims[0],
+        g.dims[1],
+        g.dims[2],
+        g.origin[0],
+        g.origin[1],
+        g.origin[2],
+        ext[0],
+        ext[1],
         ext[2]
     )
 }

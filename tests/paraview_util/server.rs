@@ -73,7 +73,9 @@ impl PvServer {
                 return Ok(server);
             }
             if let Ok(Some(status)) = server.child.try_wait() {
-                return Err(format!("pvserver exited ({status}) before accepting:\n{text}"));
+                return Err(format!(
+                    "pvserver exited ({status}) before accepting:\n{text}"
+                ));
             }
             if start.elapsed() > Duration::from_secs(120) {
                 return Err(format!("pvserver did not accept within 120 s:\n{text}"));
