@@ -411,6 +411,9 @@ def write_vti(image, array, path):
 @smhint.xml('<ShowInMenu category="t2tf" /><RepresentationType view="RenderView" type="Volume" />')
 @smproperty.input(name="Input", port_index=0)
 @smdomain.datatype(dataTypes=["vtkImageData"], composite_data_supported=False)
+# The domain the Array property's ArrayListDomain names: point arrays of one component.
+@smdomain.xml('<InputArrayDomain name="input_array" attribute_type="point" '
+              'number_of_components="1" />')
 class TextToTransferFunction(VTKPythonAlgorithmBase):
     """Optimizes a transfer function for a sentence with t2tf and shows the data with it."""
 
@@ -607,13 +610,14 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
 
 def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, views=3, seed=0,
                               model=None, tokenizer=None, array=None, reference_image=None,
-                              proxy_size=None, view=None, camera=True, timeout=None):
+                              proxy_size=None, view=None, camera=True, timeout=None, extra=()):
     """Optimize a TF for `source` (default: the active source) and show it with it.
 
     In a builtin session this creates the TextToTransferFunction filter. Connected to a
     remote server it asks the server for a ResampleToImage proxy of at most `proxy_size`
     points per axis (default 256, or T2TF_PROXY_SIZE), fetches only that, runs t2tf here and
-    applies the TF to `source`'s own display (full resolution, on the server).
+    applies the TF to `source`'s own display (full resolution, on the server). `extra` are
+    further `t2tf optimize` flags (remote only), e.g. ["--l1", "0.001"].
     Returns (result, proxy_or_filter). Raises T2tfError with a one-line reason.
     """
     import paraview.simple as pvs
@@ -625,6 +629,7 @@ def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, v
     if not (prompt or "").strip() and not reference_image:
         raise T2tfError("the prompt is empty: type what the rendering should show")
     find_binary()
+    source.UpdatePipeline()
     info = source.GetDataInformation()
     if info.GetDataClassName() not in ("vtkImageData", "vtkUniformGrid", "vtkStructuredPoints"):
         raise T2tfError("the input is a %s, not image data (vtkImageData)" % info.GetDataClassName())
@@ -641,25 +646,84 @@ def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, v
         if algo.result is None:
             raise T2tfError("t2tf gave no result (see the messages above)")
         return algo.result, f
-    size = int(proxy_size or os.environ.get("T2TF_PROXY_SIZE") or PROXY_SIZE)
+    size = proxy_size_setting(proxy_size)
     dims = _proxy_dims(info.GetExtent(), size)
-    resample = pvs.ResampleToImage(Input=source)
-    resample.UseInputBounds = 1
-    resample.SamplingDimensions = dims
-    local = servermanager.Fetch(resample)
-    pvs.Delete(resample)
+    local, fetched = fetch_proxy(source, dims)
     out = tempfile.mkdtemp(prefix="t2tf-plugin-")
     volume = os.path.join(out, "proxy.vti")
     write_vti(local, array, volume)
     result = optimize(volume, os.path.join(out, "tf"), prompt, negatives, steps, views, seed,
                       model, tokenizer, array=array, reference_image=reference_image,
-                      timeout=timeout)
-    result.update(array=array, volume=volume, proxy_dims=dims)
+                      extra=extra, timeout=timeout)
+    result.update(array=array, volume=volume, proxy_dims=dims, fetched_points=fetched)
     register_preset(result)
     view = view or pvs.GetActiveViewOrCreate("RenderView")
     pvs.Show(source, view)
+    # The full data's own display: on the server, at full resolution. The TF transfers
+    # because t2tf's opacity is per normalized box length (docs/DESIGN.md) and the proxy
+    # spans the same box (UseInputBounds).
     apply_to_display(result, source, view, array, camera)
     return result, local
+
+
+def proxy_size_setting(proxy_size=None):
+    """Points per axis of the remote proxy: the argument, else T2TF_PROXY_SIZE, else 256."""
+    raw = proxy_size if proxy_size is not None else os.environ.get("T2TF_PROXY_SIZE")
+    if raw is None or str(raw).strip() == "":
+        return PROXY_SIZE
+    try:
+        size = int(raw)
+    except ValueError:
+        raise T2tfError("the proxy size must be a whole number of points per axis, not %r" % raw)
+    if size < 2:
+        raise T2tfError("the proxy size must be at least 2 points per axis, not %d" % size)
+    return size
+
+
+def fetch_proxy(source, dims):
+    """Resample `source` on the server with ParaView's ResampleToImage to `dims` points over
+    its own bounds and bring only that to the client. Returns (image, points fetched).
+
+    Under MPI the resampled image is distributed: rank r holds a piece whose extent shares a
+    boundary plane with its neighbour's. servermanager.Fetch with no rank would merge the
+    pieces with vtkAppendFilter (an unstructured grid), so each rank's piece is fetched on its
+    own (Fetch(proxy, rank)) and the pieces are put back into one image by extent here
+    (vtkImageAppend with PreserveExtents)."""
+    import paraview.simple as pvs
+    from paraview import servermanager
+    from vtkmodules.vtkFiltersCore import vtkImageAppend
+
+    resample = pvs.ResampleToImage(Input=source)
+    try:
+        resample.UseInputBounds = 1
+        resample.SamplingDimensions = list(dims)
+        resample.UpdatePipeline()
+        ranks = max(1, servermanager.ActiveConnection.GetNumberOfDataPartitions())
+        pieces = []
+        for rank in range(ranks):
+            # Always by rank: with no rank Fetch merges through vtkAppendFilter, which turns
+            # image data into an unstructured grid even on one rank.
+            piece = servermanager.Fetch(resample, rank)
+            if piece is not None and piece.GetNumberOfPoints() > 0:
+                pieces.append(piece)
+    finally:
+        pvs.Delete(resample)
+    if not pieces:
+        raise T2tfError("the server's ResampleToImage proxy of the data is empty")
+    fetched = sum(p.GetNumberOfPoints() for p in pieces)
+    if len(pieces) == 1:
+        image = pieces[0]
+    else:
+        append = vtkImageAppend()
+        append.PreserveExtentsOn()
+        for piece in pieces:
+            append.AddInputData(piece)
+        append.Update()
+        image = append.GetOutput()
+    got = list(image.GetDimensions())
+    if got != list(dims):
+        raise T2tfError("the server's proxy has %s points per axis, expected %s" % (got, list(dims)))
+    return image, fetched
 
 
 def _active_array(source):

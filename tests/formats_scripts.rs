@@ -113,9 +113,13 @@ fn write_all_writes_every_output_atomically() {
         "atts.useColorVarMin = 1",
         "COLOR_MIN = 0.0",
         "COLOR_MAX = 160.0",
-        "DATA_FORMAT: SHORT",
-        "DATA_ENDIAN: BIG",
-        "BRICK_ORIGIN: -1.0 2.0 3.5",
+        // uint16 has no exact BOV type: a .vti copy typed UInt16, big-endian like the file.
+        "BOV_HEADER = None",
+        r#"type=\"UInt16\""#,
+        r#"byte_order=\"BigEndian\""#,
+        r#"Origin=\"-1.0 2.0 3.5\" Spacing=\"0.5 1.0 2.0\""#,
+        "VTI_ORDER = \">\"",
+        "VTI_BYTES = 480",
         "VIEW_ANGLE = 45.0",
     ] {
         assert!(vi.contains(needle), "VisIt script lacks {needle}");
@@ -190,4 +194,176 @@ fn readers_per_source_format_and_missing_source() {
     assert!(files.paraview_script.is_none() && files.visit_script.is_none());
     assert!(files.json.exists());
     assert!(write_all(d.path(), "../x", &cp(), &none, &view, [0.0; 3], None).is_err());
+}
+
+/// Stand-ins for the VisIt CLI functions the script calls, so that its own Python (the
+/// database it prepares and opens) runs here. Every VisIt name it uses must be listed: a name
+/// missing here is a NameError. The names were checked against VisIt's documentation:
+/// OpenDatabase, AddPlot, SetPlotOptions, DrawPlots, GetView3D/SetView3D, AnnotationAttributes/
+/// SetAnnotationAttributes, SaveWindowAttributes/SetSaveWindowAttributes/SaveWindow and
+/// ColorControlPointList/ColorControlPoint are functions of VisIt's Python CLI (Python
+/// Scripting manual); VolumeAttributes' fields opacityMode (FreeformMode), freeformOpacity
+/// (256 unsigned chars), opacityAttenuation, useColorVarMin/colorVarMin, useColorVarMax/
+/// colorVarMax, useOpacityVarMin/opacityVarMin, useOpacityVarMax/opacityVarMax, lightingFlag
+/// and colorControlPoints are the Volume plot's attributes (src/plots/Volume/Volume.xml).
+const VISIT_STUBS: &str = r#"
+import json, sys
+class Stub:
+    def __init__(self, *a, **k): pass
+    def __getattr__(self, name): return Stub()
+    def __call__(self, *a, **k): return Stub()
+opened = []
+def OpenDatabase(path): opened.append(path)
+names = {n: Stub for n in ["AddPlot", "VolumeAttributes", "ColorControlPointList",
+    "ColorControlPoint", "SetPlotOptions", "AnnotationAttributes", "SetAnnotationAttributes",
+    "DrawPlots", "GetView3D", "SetView3D", "SaveWindowAttributes", "SetSaveWindowAttributes",
+    "SaveWindow"]}
+script = sys.argv[1]
+g = dict(names, OpenDatabase=OpenDatabase, __name__="__main__", __file__=script)
+sys.argv = [script]
+exec(compile(open(script).read(), script, "exec"), g)
+print(json.dumps(opened))
+"#;
+
+/// The values VisIt reads from the database the script opens: a `.vti` (read with t2tf's
+/// own VTK XML reader), or a `.bov` interpreted as VisIt's BOV documentation defines its
+/// DATA_FORMAT values (BYTE unsigned 8-bit, SHORT signed 16-bit, INT signed 32-bit, FLOAT,
+/// DOUBLE) and DATA_ENDIAN.
+fn values_visit_reads(db: &Path) -> Vec<f64> {
+    if db.extension().unwrap() == "vti" {
+        let d = t2tf::volume::decode(db, &Default::default()).unwrap();
+        let mut v = Vec::new();
+        d.buffer.for_each(|x| v.push(x));
+        return v;
+    }
+    assert_eq!(db.extension().unwrap(), "bov", "{}", db.display());
+    let header = std::fs::read_to_string(db).unwrap();
+    let key = |k: &str| {
+        header
+            .lines()
+            .find_map(|l| l.strip_prefix(&format!("{k}: ")))
+            .unwrap_or_else(|| panic!("{k} missing in {header}"))
+            .trim()
+            .to_string()
+    };
+    let bytes = std::fs::read(db.with_file_name(key("DATA_FILE"))).unwrap();
+    let big = key("DATA_ENDIAN") == "BIG";
+    let size = match key("DATA_FORMAT").as_str() {
+        "BYTE" => 1,
+        "SHORT" => 2,
+        "INT" => 4,
+        f => panic!("DATA_FORMAT {f} not handled by this test"),
+    };
+    let read = |b: &[u8]| -> f64 {
+        match b.len() {
+            1 => b[0] as f64,
+            2 => {
+                let a = [b[0], b[1]];
+                (if big {
+                    i16::from_be_bytes(a)
+                } else {
+                    i16::from_le_bytes(a)
+                }) as f64
+            }
+            _ => {
+                let a = [b[0], b[1], b[2], b[3]];
+                (if big {
+                    i32::from_be_bytes(a)
+                } else {
+                    i32::from_le_bytes(a)
+                }) as f64
+            }
+        }
+    };
+    bytes.chunks(size).map(read).collect()
+}
+
+/// Run the VisIt script's own Python with stand-ins for VisIt; the database it opened.
+fn visit_opens(script: &Path, dir: &Path) -> Option<PathBuf> {
+    let stubs = dir.join("visit_stubs.py");
+    std::fs::write(&stubs, VISIT_STUBS).unwrap();
+    let out = match Command::new("python3").arg(&stubs).arg(script).output() {
+        Ok(o) => o,
+        Err(_) => {
+            eprintln!("python3 not found: VisIt script run skipped");
+            return None;
+        }
+    };
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let opened: Vec<String> = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(opened.len(), 1, "{opened:?}");
+    Some(PathBuf::from(&opened[0]))
+}
+
+#[test]
+fn visit_reads_raw_values_exactly() {
+    // uint16 values above 32767 (a SHORT BOV header, as written before, read them as negative
+    // numbers), and int16 / uint8 files, which keep their lossless BOV header, in both byte
+    // orders.
+    for (t, order) in [
+        (ScalarType::U16, ByteOrder::Little),
+        (ScalarType::U16, ByteOrder::Big),
+        (ScalarType::I16, ByteOrder::Big),
+        (ScalarType::U8, ByteOrder::Little),
+    ] {
+        let d = tempfile::tempdir().unwrap();
+        let g = Geometry {
+            dims: [8, 6, 5],
+            spacing: [0.5, 1.0, 2.0],
+            origin: [-1.0, 2.0, 3.5],
+        };
+        let n = g.voxel_count();
+        let (lo, hi) = t.integer_range().unwrap();
+        let want: Vec<f64> = (0..n)
+            .map(|i| lo + ((i as f64 * 977.0) % (hi - lo + 1.0)))
+            .collect();
+        let bytes: Vec<u8> = want
+            .iter()
+            .flat_map(|&v| match (t, order) {
+                (ScalarType::U16, ByteOrder::Little) => (v as u16).to_le_bytes().to_vec(),
+                (ScalarType::U16, ByteOrder::Big) => (v as u16).to_be_bytes().to_vec(),
+                (ScalarType::I16, ByteOrder::Big) => (v as i16).to_be_bytes().to_vec(),
+                _ => vec![v as u8],
+            })
+            .collect();
+        let raw_path = d.path().join(format!("vol_8x6x5_{}.raw", t.scivis_name()));
+        std::fs::write(&raw_path, &bytes).unwrap();
+        let mut vol = volume(SourceFormat::Raw {
+            scalar_type: t,
+            byte_order: order,
+        });
+        vol.source.as_mut().unwrap().path = raw_path.clone();
+        let tf = ExportTf::from_control_points("t", &cp(), &vol, None);
+        let view = ScriptView::front(&vol, 2.0);
+        let script = d.path().join("t_visit.py");
+        std::fs::write(
+            &script,
+            visit_script(&tf, &vol, &view, [0.0; 3], "t_visit.py").unwrap(),
+        )
+        .unwrap();
+        let Some(db) = visit_opens(&script, d.path()) else {
+            return;
+        };
+        assert!(want.iter().any(|&v| v > 32767.0) || t != ScalarType::U16);
+        let got = values_visit_reads(&db);
+        assert_eq!(
+            got,
+            want,
+            "{t:?} {order:?}: VisIt would read other values from {}",
+            db.display()
+        );
+        if t == ScalarType::U16 {
+            let geometry = t2tf::volume::decode(&db, &Default::default()).unwrap();
+            assert_eq!(geometry.geometry.dims, g.dims);
+            assert_eq!(geometry.geometry.spacing, g.spacing);
+            assert_eq!(geometry.geometry.origin, g.origin);
+            assert_eq!(geometry.buffer.scalar_type(), ScalarType::U16);
+            // A second run reuses the copy (it is newer than the raw file).
+            assert_eq!(visit_opens(&script, d.path()).unwrap(), db);
+        }
+    }
 }

@@ -8,6 +8,8 @@ use std::process::Command;
 
 use t2tf::image::Image;
 
+pub mod server;
+
 /// Whether pvpython and xvfb-run are here; panics if they are required but missing.
 pub fn paraview_available(test: &str) -> bool {
     let found = ["pvpython", "xvfb-run"].iter().all(|exe| {

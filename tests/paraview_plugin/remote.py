@@ -1,0 +1,82 @@
+"""pvpython driver for tests/paraview_plugin.rs's pvserver test: connects to a running
+`mpiexec -n 2 pvserver`, opens a volume on the server, runs the plugin's remote path
+(t2tf_plugin.text_to_transfer_function: ResampleToImage proxy fetched, t2tf here, TF applied
+to the full data's display on the server) and writes what happened as JSON, a screenshot of
+the full data and one of the proxy with the same TF and camera
+(argv: plugin, port, volume, model, tokenizer, proxy_size, result.json, full.png, proxy.png,
+size)."""
+import json
+import os
+import sys
+
+import paraview.simple as pvs
+from paraview import servermanager
+
+plugin, port, volume, model, tokenizer, proxy_size, out_json, full_png, proxy_png, size = sys.argv[1:11]
+size, proxy_size = int(size), int(proxy_size)
+sys.path.insert(0, os.path.dirname(plugin))
+import t2tf_plugin  # noqa: E402 (the remote path runs here, on the client)
+
+
+
+def text(value):
+    return str(value.GetData() if hasattr(value, "GetData") else value)
+
+
+pvs.Connect("localhost", int(port))
+conn = servermanager.ActiveConnection
+res = {"remote": bool(conn.IsRemote()), "partitions": conn.GetNumberOfDataPartitions()}
+
+pvs._DisableFirstRenderCameraReset()
+view = pvs.GetActiveViewOrCreate("RenderView")
+view.ViewSize = [size, size]
+view.UseColorPaletteForBackground = 0
+view.Background = [0.3, 0.3, 0.3]
+view.OrientationAxesVisibility = 0
+# Render on the server whatever the data's size, so that no geometry (here: the volume) is
+# delivered to the client for local rendering: only the proxy and images cross.
+pvs.GetSettingsProxy("RenderViewSettings").RemoteRenderThreshold = 0.0
+
+# The volume is read by the server (same machine, same path), in pieces across the ranks.
+full = pvs.ImageReader(FileNames=[volume])
+full.DataScalarType = "unsigned char"
+full.DataExtent = [0, 63, 0, 63, 0, 63]
+full.ScalarArrayName = "ImageFile"
+full.UpdatePipeline()
+res["full_points"] = full.GetDataInformation().GetNumberOfPoints()
+
+result, local = t2tf_plugin.text_to_transfer_function(
+    full, "a protein molecule", negatives=["a blank image", "a cat"], steps=5, views=1, seed=3,
+    model=model, tokenizer=tokenizer, proxy_size=proxy_size, view=view, camera=True, timeout=240,
+    # A strong L1 pull keeps the 5-step random-CLIP TF translucent (an opaque box would only
+    # compare the box's faces): zero below ~107, opaque above ~150 on neghip.
+    extra=["--l1", "1"])
+disp = pvs.GetDisplayProperties(full, view)
+lut = pvs.GetColorTransferFunction("ImageFile")
+pwf = pvs.GetOpacityTransferFunction("ImageFile")
+presets = servermanager.vtkSMTransferFunctionPresets.GetInstance()
+res.update(
+    proxy_dims=list(result["proxy_dims"]), local_dims=list(local.GetDimensions()),
+    local_points=local.GetNumberOfPoints(), fetched_points=result["fetched_points"],
+    local_bounds=list(local.GetBounds()), full_bounds=list(full.GetDataInformation().GetBounds()),
+    representation=text(disp.Representation), color_array=str(disp.ColorArrayName[1]),
+    rgb=list(lut.RGBPoints), points=list(pwf.Points),
+    rescale=text(lut.AutomaticRescaleRangeMode), unit_distance=disp.ScalarOpacityUnitDistance,
+    has_preset=bool(presets.HasPreset(result["name"])), preset_file=result["preset_file"],
+    volume=result["volume"], out=result["out"], interrupted=result["interrupted"])
+pvs.SaveScreenshot(full_png, view, ImageResolution=[size, size])
+
+# The proxy, resampled again on the server with the same dimensions, shown alone with the
+# same TF, unit distance and camera.
+pvs.Hide(full, view)
+again = pvs.ResampleToImage(Input=full)
+again.UseInputBounds = 1
+again.SamplingDimensions = result["proxy_dims"]
+again.UpdatePipeline()
+res["proxy_points_on_server"] = again.GetDataInformation().GetNumberOfPoints()
+pvs.Show(again, view)
+t2tf_plugin.apply_to_display(result, again, view, "ImageFile", camera=True)
+pvs.SaveScreenshot(proxy_png, view, ImageResolution=[size, size])
+with open(out_json, "w") as fh:
+    json.dump(res, fh)
+pvs.Disconnect()
