@@ -25,9 +25,13 @@ res = {}
 
 
 def raw_reader(path):
+    # Open SciVis names: NAME_XxYxZ_TYPE.raw, little-endian.
+    dims, dtype = os.path.basename(path)[:-4].split("_")[-2:]
+    nx, ny, nz = (int(n) for n in dims.split("x"))
     r = pvs.ImageReader(FileNames=[path])
-    r.DataScalarType = "unsigned char"
-    r.DataExtent = [0, 63, 0, 63, 0, 63]
+    r.DataScalarType = {"uint8": "unsigned char", "uint16": "unsigned short"}[dtype]
+    r.DataByteOrder = "LittleEndian"
+    r.DataExtent = [0, nx - 1, 0, ny - 1, 0, nz - 1]
     r.ScalarArrayName = "ImageFile"
     return r
 
@@ -63,7 +67,7 @@ def record(f, array):
 
 if mode == "vti":
     # The shared volume as a .vti file written by ParaView: the plugin hands t2tf the file.
-    vti = os.path.join(os.path.dirname(out_json), "neghip.vti")
+    vti = os.path.join(os.path.dirname(out_json), "volume.vti")
     pvs.XMLImageDataWriter(Input=raw_reader(volume), FileName=vti).UpdatePipeline()
     f = tf_filter(pvs.XMLImageDataReader(FileName=[vti]))
     pvs.Show(f, view)
