@@ -75,6 +75,7 @@ impl Linear {
     }
 
     /// The engine this layer was built for.
+    #[cfg(test)]
     pub fn engine(&self) -> Engine {
         match self.w {
             Weight::Packed { .. } => Engine::Packed,
@@ -83,6 +84,7 @@ impl Linear {
     }
 
     /// The micro-kernel of a packed layer (`None` for the `gemm` crate).
+    #[cfg(test)]
     pub fn kernel(&self) -> Option<Kernel> {
         match &self.w {
             Weight::Packed { fwd, .. } => Some(fwd.kernel()),

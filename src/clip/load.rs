@@ -29,6 +29,9 @@ pub const DEFAULT_REVISION: &str = "main";
 
 const CONFIG: &str = "config.json";
 const TOKENIZER: &str = "tokenizer.json";
+/// Optional: the image processor's statistics and sizes (`Preprocessing`); CLIP's constants
+/// where a model has none.
+const PREPROCESSOR: &str = "preprocessor_config.json";
 
 /// Weight files in the order transformers tries them; `true` for an index naming shards.
 pub const WEIGHT_FILES: [(&str, WeightFormat, bool); 4] = [
@@ -79,6 +82,8 @@ pub struct ModelFiles {
     pub weights: Vec<PathBuf>,
     pub format: WeightFormat,
     pub tokenizer: PathBuf,
+    /// `preprocessor_config.json`, where the model has one.
+    pub preprocessor: Option<PathBuf>,
 }
 
 /// Resolve a request with the Hub settings of the environment (`HF_*` variables).
@@ -223,6 +228,9 @@ fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<Model
         })
     };
     let config = required(CONFIG)?;
+    // Optional: absent (a 404 from the Hub, remembered in the cache like any missing file, or
+    // offline and never fetched) means CLIP's constants.
+    let preprocessor = src.probe(PREPROCESSOR)?;
     let (weights, format) = find_weights(src)?;
     let tokenizer = match tokenizer {
         Some(t) => t.to_path_buf(),
@@ -237,6 +245,7 @@ fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<Model
         weights,
         format,
         tokenizer,
+        preprocessor,
     })
 }
 

@@ -29,7 +29,7 @@ use std::arch::x86_64::*;
 use super::{Tile, MR};
 
 /// Columns of these kernels' B panels.
-pub const NR: usize = 64;
+pub(super) const NR: usize = 64;
 /// 16-lane vectors per tile row.
 const NV: usize = NR / 16;
 
@@ -115,7 +115,7 @@ fn prefetch_all(prefetch: &[f32], crow: *mut f32, ldc: usize, t: &Tile) {
 /// `kc·NR` floats and 64-byte aligned; `t.nr == NR`; C as in `Tile::store_scalar`.
 #[target_feature(enable = "avx512f")]
 #[allow(clippy::too_many_arguments)]
-pub unsafe fn tile_f32(
+pub(super) unsafe fn tile_f32(
     kc: usize,
     a: *const f32,
     lda: usize,
@@ -154,7 +154,7 @@ pub unsafe fn tile_f32(
 /// readable for `kq·NR` u32s and 64-byte aligned; `t.nr == NR`; C as in `Tile::store_scalar`.
 #[target_feature(enable = "avx512f,avx512bf16")]
 #[allow(clippy::too_many_arguments)]
-pub unsafe fn tile_bf16(
+pub(super) unsafe fn tile_bf16(
     kq: usize,
     a: *const u32,
     lda: usize,
@@ -194,6 +194,6 @@ pub unsafe fn tile_bf16(
 /// # Safety
 /// AVX-512F and AVX-512BW present.
 #[target_feature(enable = "avx512f,avx512bw")]
-pub unsafe fn to_bf16_pairs(src: &[f32], dst: &mut [u32]) {
+pub(super) unsafe fn to_bf16_pairs(src: &[f32], dst: &mut [u32]) {
     super::to_bf16_pairs_body(src, dst)
 }
