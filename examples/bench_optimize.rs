@@ -24,6 +24,8 @@
 //!                                   level, render, seed, lr (unset keys keep the defaults)
 //!     --no-grid                     skip the steps × views grid
 //!     --quick                       a smoke test: reference 20 steps × 1 view, one 10-step row
+//!     --steps N                     the default run with N steps instead of the paper's 300
+//!                                   (error measurements on a busy machine)
 //!     --threads N                   rayon threads (default: rayon's choice)
 //!     --out DIR                     write the held-out renders of every row as PNGs
 //!     --reference-tf FILE           save the default run's TF there, or, if FILE exists, read
@@ -310,7 +312,10 @@ fn main() -> anyhow::Result<()> {
             steps: 10,
             ..reference.clone()
         });
-    } else if !has("--no-grid") {
+    } else if let Some(n) = list::<usize>(&args, "--steps").map_err(err)? {
+        reference.steps = n[0];
+    }
+    if !quick && !has("--no-grid") {
         let steps = list::<usize>(&args, "--steps-list")
             .map_err(err)?
             .unwrap_or(vec![50, 100, 200, 300]);

@@ -10,7 +10,9 @@ use rayon::prelude::*;
 
 use super::config::Activation;
 use super::matmul::{matmul, Mat, Op};
-use super::packed::{self, Engine, Kernel, PackedB};
+use super::packed::{self, PackedB};
+#[cfg(test)]
+use super::packed::{Engine, Kernel};
 
 /// `torch.nn.Linear`: `y = x Wᵀ + b`, `W` being `[out, in]` in the checkpoint.
 ///

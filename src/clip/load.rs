@@ -70,17 +70,22 @@ impl ModelRequest {
 /// How the weights are stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum WeightFormat {
+    /// `*.safetensors`.
     Safetensors,
+    /// PyTorch's `torch.save` zip (`pytorch_model.bin`).
     PyTorch,
 }
 
 /// Paths of the files a model needs.
 #[derive(Clone, Debug)]
 pub struct ModelFiles {
+    /// `config.json`.
     pub config: PathBuf,
     /// One file, or every shard an index names, in the index's order.
     pub weights: Vec<PathBuf>,
+    /// How the weights are stored.
     pub format: WeightFormat,
+    /// `tokenizer.json` (the model's own or `--tokenizer`).
     pub tokenizer: PathBuf,
     /// `preprocessor_config.json`, where the model has one.
     pub preprocessor: Option<PathBuf>,

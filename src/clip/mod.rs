@@ -30,11 +30,16 @@
 
 mod attention;
 mod checkpoint;
+/// `config.json`: the shapes of both towers.
 pub mod config;
 mod encoder;
 mod layers;
+/// Finding a model's files (a directory or the Hugging Face Hub).
 pub mod load;
+/// Products by the `gemm` crate.
 pub mod matmul;
+/// Weights packed at load for the hand-written micro-kernels, and the engine and precision
+/// settings.
 pub mod packed;
 mod prefix;
 mod preprocess;
@@ -64,21 +69,45 @@ use crate::image::Image;
 use text::TextModel;
 use vision::VisionModel;
 
+/// What can go wrong loading or running CLIP; every variant about a file names it.
 #[derive(Debug, thiserror::Error)]
 pub enum ClipError {
+    /// A file could not be read.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: PathBuf,
+        /// Why.
         source: std::io::Error,
     },
+    /// `config.json` (or `preprocessor_config.json`) is not a configuration this code runs.
     #[error("{path}: bad CLIP config: {msg}")]
-    Config { path: PathBuf, msg: String },
+    Config {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong in it.
+        msg: String,
+    },
+    /// A weight file is malformed or lacks a tensor of the right shape.
     #[error("{path}: {msg}")]
-    Weights { path: PathBuf, msg: String },
+    Weights {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong in it.
+        msg: String,
+    },
+    /// `tokenizer.json` cannot be loaded or cannot encode a text.
     #[error("{path}: tokenizer: {msg}")]
-    Tokenizer { path: PathBuf, msg: String },
+    Tokenizer {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        msg: String,
+    },
+    /// A model, file or tensor is not where it was looked for (the message says where).
     #[error("{0}")]
     Missing(String),
+    /// An input the model cannot take (image size, token ids, gradient shapes).
     #[error("CLIP input: {0}")]
     Input(String),
 }

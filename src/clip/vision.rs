@@ -49,6 +49,7 @@ impl ImageCache {
     pub fn len(&self) -> usize {
         self.images
     }
+    /// Whether it encoded no image.
     pub fn is_empty(&self) -> bool {
         self.images == 0
     }

@@ -68,14 +68,17 @@ impl CaptionPool {
         Ok(pool)
     }
 
+    /// The captions, in the order of the source.
     pub fn captions(&self) -> &[String] {
         &self.captions
     }
 
+    /// How many captions.
     pub fn len(&self) -> usize {
         self.captions.len()
     }
 
+    /// Whether there are none.
     pub fn is_empty(&self) -> bool {
         self.captions.is_empty()
     }

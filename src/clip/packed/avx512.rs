@@ -114,6 +114,9 @@ fn prefetch_all(prefetch: &[f32], crow: *mut f32, ldc: usize, t: &Tile) {
 /// AVX-512F present; for r < MR, `a + r·lda` readable for `kc` floats; `b` readable for
 /// `kc·NR` floats and 64-byte aligned; `t.nr == NR`; C as in `Tile::store_scalar`.
 #[target_feature(enable = "avx512f")]
+// Flat on purpose: a micro-kernel is the innermost call of the product; its pointers,
+// strides and counts stay in registers from `run_tile`, and the `# Safety` contract above is
+// stated per argument (a struct would be unpacked again on entry).
 #[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn tile_f32(
     kc: usize,
@@ -153,6 +156,9 @@ pub(super) unsafe fn tile_f32(
 /// AVX-512F and AVX512_BF16 present; for r < MR, `a + r·lda` readable for `kq` u32s; `b`
 /// readable for `kq·NR` u32s and 64-byte aligned; `t.nr == NR`; C as in `Tile::store_scalar`.
 #[target_feature(enable = "avx512f,avx512bf16")]
+// Flat on purpose: a micro-kernel is the innermost call of the product; its pointers,
+// strides and counts stay in registers from `run_tile`, and the `# Safety` contract above is
+// stated per argument (a struct would be unpacked again on entry).
 #[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn tile_bf16(
     kq: usize,

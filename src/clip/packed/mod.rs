@@ -80,6 +80,7 @@ pub enum Engine {
 /// attention, activations, residuals) stays f32.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Precision {
+    /// Single precision throughout (the default).
     F32,
     /// Weights and activations rounded to bf16 (round to nearest even), products accumulated
     /// in f32 by `vdpbf16ps` (`Kernel::Avx512Bf16`).
@@ -162,6 +163,7 @@ impl Precision {
         }
     }
 
+    /// `f32` or `bf16`, as `--precision` spells it.
     pub fn name(self) -> &'static str {
         match self {
             Precision::F32 => "f32",
@@ -198,6 +200,7 @@ pub enum Kernel {
 }
 
 impl Kernel {
+    /// Every kernel, whether this CPU has it or not.
     pub const ALL: [Kernel; 5] = [
         Kernel::Portable,
         Kernel::Avx2Fma,
@@ -206,6 +209,7 @@ impl Kernel {
         Kernel::Avx512Bf16,
     ];
 
+    /// A short description ("avx512f 6x64 f32"), as benchmarks and report.json print it.
     pub fn name(self) -> &'static str {
         match self {
             Kernel::Portable => "portable 6x16 f32",
@@ -216,6 +220,7 @@ impl Kernel {
         }
     }
 
+    /// The number format of its products.
     pub fn precision(self) -> Precision {
         match self {
             Kernel::Portable | Kernel::Avx2Fma | Kernel::Avx512F => Precision::F32,
@@ -245,6 +250,7 @@ impl Kernel {
         }
     }
 
+    /// Whether this CPU runs it.
     pub fn available(self) -> bool {
         self.missing().is_none()
     }
@@ -523,6 +529,9 @@ fn to_bf16_pairs(src: &[f32], dst: &mut [u32]) {
 /// - `bias`: indexed by B's column, length `b.n()`.
 ///
 /// Runs `b.kernel()`; with a bf16 kernel A is rounded to bf16 first.
+// BLAS's sgemm order (C, ldc, A, lda, m, B, its row and column ranges, bias, β ∈ {0, 1}): the
+// leading dimensions sit next to the slices whose bounds the assertions check against them;
+// an argument struct would separate the two.
 #[allow(clippy::too_many_arguments)]
 pub fn gemm(
     c: &mut [f32],
@@ -601,6 +610,7 @@ pub(crate) fn gemm_new(
 pub(crate) type Post<'a> = &'a (dyn Fn(usize, usize, &mut [f32]) + Sync);
 
 /// `gemm_new` with `post` applied to every finished block of C.
+// `gemm`'s argument list without C (see there), plus `post`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn gemm_new_post(
     a: &[f32],
@@ -783,6 +793,8 @@ fn pack_a<'a>(
 /// `c` is valid for reads and writes of `c_len` floats and not aliased during the call;
 /// elements are read only where `accumulate` is set (then they must be initialized) or after
 /// this call wrote them.
+// `gemm`'s arguments (see there) with C as a raw pointer and length, which the safety contract
+// above is about, and `post`.
 #[allow(clippy::too_many_arguments)]
 unsafe fn gemm_raw(
     c: *mut f32,
@@ -978,6 +990,8 @@ impl Tile<'_> {
 /// As `Tile::store_scalar`; `kernel` is available on this CPU; `ap` was packed for `kernel`
 /// with at least `kb + kc` packed rows and more than `i` row panels; `bpanel` holds `kc·nr`
 /// floats of a 64-byte-aligned packed panel.
+// The micro-kernels' arguments (flat, see `avx512::tile_f32`) plus the panel indices they are
+// cut from: this is the call in the innermost loop of the product.
 #[allow(clippy::too_many_arguments)]
 unsafe fn run_tile(
     kernel: Kernel,
@@ -1068,7 +1082,6 @@ mod tests {
     use super::*;
 
     /// C = base + A·B (+ bias) in f64, B given row-major [k, n].
-    #[allow(clippy::too_many_arguments)]
     fn naive(
         base: &[f32],
         a: &[f32],
