@@ -542,7 +542,9 @@ fn pool_first_use(run: &[Setup], cfg: &ClipConfig) -> Result<(), Box<dyn std::er
         "\ncaption pool first use: {} captions (tokenize + embed; wall, and CPU s / threads):",
         refs.len()
     );
-    println!("| setup | one call: wall (CPU / threads) | {batch}-caption calls: wall (CPU / threads) |");
+    println!(
+        "| setup | one call: wall (CPU / threads) | {batch}-caption calls: wall (CPU / threads) |"
+    );
     println!("|---|---|---|");
     let threads = rayon::current_num_threads() as f64;
     for setup in run {

@@ -389,9 +389,8 @@ fn main() -> anyhow::Result<()> {
     if let Some((a, b)) = &compare {
         return compare_tfs(&volume, a, b);
     }
-    let mut clip = packed::with_precision(precision, || {
-        Clip::from_source(cfg, &RandomSource::new(7))
-    })?;
+    let mut clip =
+        packed::with_precision(precision, || Clip::from_source(cfg, &RandomSource::new(7)))?;
     clip.set_tokenizer(ClipTokenizer::from_file(
         &root.join("data/clip/tokenizer.json"),
         context,

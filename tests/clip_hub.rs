@@ -361,7 +361,10 @@ fn preprocessor_config_is_optional_on_the_hub() {
     let server = HubServer::start(hub_spec());
     let cache = tempfile::tempdir().unwrap();
     let online = Hub::new(settings(&server, cache.path(), false));
-    for (repo, has) in [("t2tf-test/preprocessor", true), ("t2tf-test/safetensors", false)] {
+    for (repo, has) in [
+        ("t2tf-test/preprocessor", true),
+        ("t2tf-test/safetensors", false),
+    ] {
         let files = resolve_with(&ModelRequest::new(repo), &online).unwrap();
         assert_eq!(files.preprocessor.is_some(), has, "{repo}");
         let clip = Clip::load_files(&files).unwrap();
@@ -370,7 +373,10 @@ fn preprocessor_config_is_optional_on_the_hub() {
     }
     server.clear_requests();
     let offline = Hub::new(settings(&server, cache.path(), true));
-    for (repo, has) in [("t2tf-test/preprocessor", true), ("t2tf-test/safetensors", false)] {
+    for (repo, has) in [
+        ("t2tf-test/preprocessor", true),
+        ("t2tf-test/safetensors", false),
+    ] {
         let files = resolve_with(&ModelRequest::new(repo), &offline).unwrap();
         assert_eq!(files.preprocessor.is_some(), has, "offline {repo}");
     }

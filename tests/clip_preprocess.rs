@@ -77,7 +77,10 @@ fn preprocessor_config_is_used_when_present_and_clip_constants_otherwise() {
     )
     .unwrap();
     let raw = Clip::load_with_tokenizer(dir.path().to_str().unwrap(), Some(tok)).unwrap();
-    assert_eq!((raw.preprocessing().mean, raw.preprocessing().std), ([0.0; 3], [1.0; 3]));
+    assert_eq!(
+        (raw.preprocessing().mean, raw.preprocessing().std),
+        ([0.0; 3], [1.0; 3])
+    );
     let mut im = Image::new(s, s);
     for (i, v) in im.data.iter_mut().enumerate() {
         *v = ((i * 37) % 251) as f32 / 250.0;
@@ -101,5 +104,8 @@ fn preprocessor_config_is_used_when_present_and_clip_constants_otherwise() {
         .err()
         .unwrap()
         .to_string();
-    assert!(e.contains("preprocessor_config.json") && e.contains("crops to"), "{e}");
+    assert!(
+        e.contains("preprocessor_config.json") && e.contains("crops to"),
+        "{e}"
+    );
 }

@@ -255,7 +255,10 @@ mod tests {
         for &(c, n) in ends {
             by_caption[c] = n;
         }
-        assert_eq!(by_caption[0], by_caption[2], "identical captions share their end");
+        assert_eq!(
+            by_caption[0], by_caption[2],
+            "identical captions share their end"
+        );
         for (c, ids) in caps.iter().enumerate() {
             let path = tree.path(by_caption[c]);
             let tokens: Vec<u32> = path.iter().map(|&n| tree.tokens[n as usize]).collect();
@@ -281,7 +284,12 @@ mod tests {
         for p in &parts {
             assert!(p.tree.len() <= 20, "{}", p.tree.len());
             for &(c, n) in &p.ends {
-                let t: Vec<u32> = p.tree.path(n).iter().map(|&k| p.tree.tokens[k as usize]).collect();
+                let t: Vec<u32> = p
+                    .tree
+                    .path(n)
+                    .iter()
+                    .map(|&k| p.tree.tokens[k as usize])
+                    .collect();
                 assert_eq!(t, caps[c]);
             }
         }

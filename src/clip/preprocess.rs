@@ -100,7 +100,8 @@ impl Preprocessing {
             let Some(x) = v.get(key).filter(|x| !x.is_null()) else {
                 return Ok(None);
             };
-            let bad = || format!("{key} must be a positive size or a square {{height, width}}, got {x}");
+            let bad =
+                || format!("{key} must be a positive size or a square {{height, width}}, got {x}");
             let get = |n: &str| x.get(n).and_then(Value::as_u64);
             let n = match x.as_u64() {
                 Some(n) => n,
@@ -112,7 +113,11 @@ impl Preprocessing {
                     },
                 },
             };
-            usize::try_from(n).ok().filter(|&n| n > 0).map(Some).ok_or_else(bad)
+            usize::try_from(n)
+                .ok()
+                .filter(|&n| n > 0)
+                .map(Some)
+                .ok_or_else(bad)
         };
         if let Some(r) = side("size", &["shortest_edge"])? {
             p.resize = r;
@@ -316,16 +321,25 @@ mod tests {
             "do_resize": true, "feature_extractor_type": "CLIPFeatureExtractor",
             "image_mean": [0.48145466, 0.4578275, 0.40821073],
             "image_std": [0.26862954, 0.26130258, 0.27577711], "resample": 3, "size": 224}"#;
-        assert_eq!(Preprocessing::from_json(openai, 224).unwrap(), Preprocessing::clip(224));
+        assert_eq!(
+            Preprocessing::from_json(openai, 224).unwrap(),
+            Preprocessing::clip(224)
+        );
         // Newer dict sizes and other statistics (SigLIP-like: mean = std = 0.5).
         let other = r#"{"crop_size": {"height": 256, "width": 256},
             "size": {"shortest_edge": 288}, "image_mean": [0.5, 0.5, 0.5],
             "image_std": [0.5, 0.5, 0.5]}"#;
         let p = Preprocessing::from_json(other, 256).unwrap();
-        assert_eq!((p.mean, p.std, p.resize, p.crop), ([0.5; 3], [0.5; 3], 288, 256));
+        assert_eq!(
+            (p.mean, p.std, p.resize, p.crop),
+            ([0.5; 3], [0.5; 3], 288, 256)
+        );
         assert_eq!(p.apply(&Image::new(400, 300)).width, 256);
         // Keys left out keep CLIP's values; no normalisation is mean 0, std 1.
-        assert_eq!(Preprocessing::from_json("{}", 32).unwrap(), Preprocessing::clip(32));
+        assert_eq!(
+            Preprocessing::from_json("{}", 32).unwrap(),
+            Preprocessing::clip(32)
+        );
         let p = Preprocessing::from_json(r#"{"do_normalize": false}"#, 32).unwrap();
         assert_eq!((p.mean, p.std), ([0.0; 3], [1.0; 3]));
         for (bad, says) in [

@@ -222,7 +222,11 @@ mod tests {
     fn head_gradient_matches_finite_differences() {
         let head = Head::new(100.0).unwrap();
         let image = [0.3f32, -1.2, 0.7, 2.0];
-        let classes: [&[f32]; 3] = [&[1.0, 0.5, -0.4, 0.9], &[-0.2, 0.1, 0.8, 0.3], &[0.0, 1.0, 0.0, 0.0]];
+        let classes: [&[f32]; 3] = [
+            &[1.0, 0.5, -0.4, 0.9],
+            &[-0.2, 0.1, 0.8, 0.3],
+            &[0.0, 1.0, 0.0, 0.0],
+        ];
         let d = [0.7, -0.2, 0.4];
         let l = head.logits(&image, &classes).unwrap();
         assert!((l.logits[2] - 100.0 * cosine_checked(&image, classes[2]).unwrap()).abs() < 1e-12);
@@ -245,12 +249,22 @@ mod tests {
             p[i] += 1e-4;
             m[i] -= 1e-4;
             let fd = (f(&p) - f(&m)) / 2e-4;
-            assert!((g[i] - fd).abs() < 1e-5 * (1.0 + fd.abs()), "{i}: {} vs {fd}", g[i]);
+            assert!(
+                (g[i] - fd).abs() < 1e-5 * (1.0 + fd.abs()),
+                "{i}: {} vs {fd}",
+                g[i]
+            );
         }
         assert!(Head::new(0.0).is_err() && Head::new(f64::NAN).is_err());
         let e = head.logits(&image, &[&[1.0, 2.0]]).unwrap_err().to_string();
-        assert!(e.contains("text embedding 0 has 2 values") && e.contains("has 4"), "{e}");
+        assert!(
+            e.contains("text embedding 0 has 2 values") && e.contains("has 4"),
+            "{e}"
+        );
         let e = head.logits(&[0.0; 4], &classes).unwrap_err().to_string();
-        assert!(e.starts_with("image embedding") && e.contains("zero"), "{e}");
+        assert!(
+            e.starts_with("image embedding") && e.contains("zero"),
+            "{e}"
+        );
     }
 }

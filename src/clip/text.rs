@@ -116,7 +116,12 @@ impl TextModel {
         let mut out = vec![Vec::new(); captions.len()];
         for part in prefix::forest(&prefixes, prefix::MAX_ROWS) {
             let tree = &part.tree;
-            let mut x = self.embed(tree.tokens.iter().copied().zip(tree.positions.iter().copied()));
+            let mut x = self.embed(
+                tree.tokens
+                    .iter()
+                    .copied()
+                    .zip(tree.positions.iter().copied()),
+            );
             let ends: Vec<usize> = part.ends.iter().map(|&(_, n)| n).collect();
             let pooled = match self.tower.layers.split_last() {
                 Some((last, body)) => {

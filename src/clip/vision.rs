@@ -129,7 +129,8 @@ impl VisionModel {
                     for kx in 0..p {
                         let px = ((gy * p + ky) * s + gx * p + kx) * 3;
                         for c in 0..3 {
-                            row[c * p * p + ky * p + kx] = (im.data[px + c] - self.mean[c]) / self.std[c];
+                            row[c * p * p + ky * p + kx] =
+                                (im.data[px + c] - self.mean[c]) / self.std[c];
                         }
                     }
                 }

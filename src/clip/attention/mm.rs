@@ -47,7 +47,10 @@ pub fn mm(c: &mut [f32], ldc: usize, a: Lhs, b: Rhs, m: usize, n: usize, k: usiz
             a.data.len() > (m - 1) * a.row + (k - 1) * a.col,
             "attention mm: A too small"
         );
-        assert!(b.data.len() >= (k - 1) * b.ld + n, "attention mm: B too small");
+        assert!(
+            b.data.len() >= (k - 1) * b.ld + n,
+            "attention mm: B too small"
+        );
     }
     #[cfg(target_arch = "x86_64")]
     {
