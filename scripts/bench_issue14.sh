@@ -14,7 +14,8 @@
 #     scripts/bench_issue14.sh [WORKDIR]
 # WORKDIR (default: a new temporary directory) receives the worktree, builds, logs and TFs.
 # Environment: BEFORE_REV overrides the "before" commit; THREADS sets rayon's thread count
-# (default: rayon's choice, all cores); STEPS_ARGS adds flags to every bench_optimize run.
+# (default: rayon's choice, all cores); STEPS_ARGS adds flags to every bench_optimize run
+# (only flags both builds know: the before build has no --precision, --steps or --compare-tfs).
 # Run it on an idle machine: every row's wall time is only comparable if nothing else runs.
 set -euo pipefail
 

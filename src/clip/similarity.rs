@@ -14,10 +14,13 @@ fn norm(v: &[f32]) -> f64 {
 /// Why two embeddings have no cosine similarity.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum Incomparable {
+    /// The two lengths differ.
     #[error("embeddings of different lengths ({0} and {1}) cannot be compared")]
     Lengths(usize, usize),
+    /// A NaN or infinite value, at this index.
     #[error("has a non-finite value at index {0}")]
     NonFinite(usize),
+    /// All zero: no direction.
     #[error("has zero length: its cosine similarity is undefined")]
     Zero,
 }
