@@ -400,10 +400,10 @@ fn main() -> anyhow::Result<()> {
         "rayon threads: {threads}; ViT-B/32 random weights (seed 7); 256³ aneurism; prompt \"{PROMPT}\"; load average at start {}",
         load_avg()
     );
+    // `describe` names the kernel, the precision and the CPU's features.
     println!(
-        "CLIP: {} ({})",
-        packed::with_precision(precision, packed::describe),
-        packed::cpu_features()
+        "CLIP: {}",
+        packed::with_precision(precision, packed::describe)
     );
 
     let pool = CaptionPool::builtin();
