@@ -6,13 +6,18 @@
 //!   1. GEMM microbenchmark of the shapes the model runs, in GFLOPS;
 //!   2. image encoder forward + input backward for a batch of 3 views at 224²;
 //!   3. text encoder for 128 typical short captions;
-//!   4. bf16: embedding and input-gradient error against f32 (relative L2, worst view).
+//!   4. bf16: embedding and input-gradient error against f32 (relative L2, worst view);
+//!   5. the caption pool's first use: the built-in 6,000 negatives (`data/captions.txt`)
+//!      tokenized and embedded in one call, as `t2tf optimize` does before its first step when
+//!      the on-disk cache has no entry for the model (`--pool`/`--pool-only`, one rep: it is
+//!      seconds long), and the same captions in 256-caption calls in file order.
 //!
 //! Run from the repository root (the tokenizer is read from ../shared/data/clip):
-//!     cargo run --release --example bench_clip [-- --reps N] [--image-only]
-//!         [--only crate|avx2|avx512f|bf16] [--engine packed|crate]
-//! `--image-only` runs just the image loop (for profilers); `--only` keeps one setup (and
-//! `--engine` is `--only` for the detected f32 kernel or the crate).
+//!     cargo run --release --example bench_clip [-- --reps N] [--image-only] [--pool]
+//!         [--pool-only] [--only crate|avx2|avx512f|bf16] [--engine packed|crate]
+//! `--image-only` runs just the image loop (for profilers); `--pool` adds section 5,
+//! `--pool-only` runs only it; `--only` keeps one setup (and `--engine` is `--only` for the
+//! detected f32 kernel or the crate).
 
 use std::path::Path;
 use std::time::Instant;
@@ -237,6 +242,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // `--image-only`: just the image forward + backward loop (for profilers), no GEMM table,
     // text or error sections.
     let image_only = std::env::args().any(|a| a == "--image-only");
+    let pool_only = std::env::args().any(|a| a == "--pool-only");
+    let pool = pool_only || std::env::args().any(|a| a == "--pool");
     let (mut run, skipped) = setups();
     let only = match arg("--engine").as_deref() {
         None => arg("--only"),
@@ -261,6 +268,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     for s in &skipped {
         println!("skipped: {s}");
+    }
+    let cfg = ClipConfig::vit_b32();
+    if pool_only {
+        return pool_first_use(&run, &cfg);
     }
 
     // 1. GEMM microbenchmark.
@@ -310,7 +321,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     // 2. Image encoder, forward + backward, 3 views: every setup, interleaved so that all see
     // the same machine load.
-    let cfg = ClipConfig::vit_b32();
     let t = Instant::now();
     let models: Vec<Clip> = run
         .iter()
@@ -512,6 +522,53 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             setup.name(),
             worst(&e, &emb32),
             worst(&te, &t32)
+        );
+    }
+    if pool {
+        pool_first_use(&run, &cfg)?;
+    }
+    Ok(())
+}
+
+/// Section 5: the built-in caption pool embedded from scratch with each setup's model, as
+/// `t2tf optimize` does on first use of a model (tokenizing included), once in one call and
+/// once in the 256-caption calls of `optimize::driver::TEXT_BATCH`. One rep each: seconds long.
+fn pool_first_use(run: &[Setup], cfg: &ClipConfig) -> Result<(), Box<dyn std::error::Error>> {
+    let pool = t2tf::optimize::captions::CaptionPool::builtin();
+    let refs: Vec<&str> = pool.captions().iter().map(String::as_str).collect();
+    let tok_path = Path::new("../shared/data/clip/tokenizer.json");
+    let batch = t2tf::optimize::driver::TEXT_BATCH;
+    println!(
+        "\ncaption pool first use: {} captions (tokenize + embed; wall, and CPU s / threads):",
+        refs.len()
+    );
+    println!(
+        "| setup | one call: wall (CPU / threads) | {batch}-caption calls: wall (CPU / threads) |"
+    );
+    println!("|---|---|---|");
+    let threads = rayon::current_num_threads() as f64;
+    for setup in run {
+        let mut model = setup.build(cfg)?;
+        model.set_tokenizer(ClipTokenizer::from_file(tok_path, cfg.text.max_positions)?);
+        let (c0, t0) = (cpu_seconds(), Instant::now());
+        let all = model.encode_text(&refs)?;
+        let (one_wall, one_cpu) = (t0.elapsed().as_secs_f64(), cpu_seconds() - c0);
+        let (c0, t0) = (cpu_seconds(), Instant::now());
+        let mut chunked = Vec::with_capacity(refs.len());
+        for c in refs.chunks(batch) {
+            chunked.extend(model.encode_text(c)?);
+        }
+        let (ch_wall, ch_cpu) = (t0.elapsed().as_secs_f64(), cpu_seconds() - c0);
+        let worst = all
+            .iter()
+            .zip(&chunked)
+            .map(|(a, b)| rel_err(a, b))
+            .fold(0.0, f64::max);
+        println!(
+            "| {} | {one_wall:.1} s ({:.1} s) | {ch_wall:.1} s ({:.1} s) | (one call vs calls: worst relative difference {worst:.1e})",
+            setup.name(),
+            one_cpu / threads,
+            ch_cpu / threads,
         );
     }
     Ok(())

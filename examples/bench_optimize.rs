@@ -24,10 +24,18 @@
 //!                                   level, render, seed, lr (unset keys keep the defaults)
 //!     --no-grid                     skip the steps × views grid
 //!     --quick                       a smoke test: reference 20 steps × 1 view, one 10-step row
+//!     --steps N                     the default run with N steps instead of the paper's 300
+//!                                   (error measurements on a busy machine)
 //!     --threads N                   rayon threads (default: rayon's choice)
 //!     --out DIR                     write the held-out renders of every row as PNGs
 //!     --reference-tf FILE           save the default run's TF there, or, if FILE exists, read
 //!                                   it instead of running the default again
+//!     --precision f32|bf16|auto     CLIP's precision, as `t2tf optimize --precision` (default
+//!                                   f32); the pool's embeddings are cached per precision
+//!     --compare-tfs A.json B.json   no optimization: the distance between two saved TFs
+//!                                   (`--reference-tf` files of two runs, e.g. f32 and bf16, or
+//!                                   1 and 2 threads): opacity and colour RMS and the PSNR of
+//!                                   B's held-out renders against A's
 //!
 //! Timings on a shared machine are noisy: the CPU column (user + system of this process,
 //! from /proc) divided by the thread count estimates the wall time on an idle machine.
@@ -37,6 +45,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use t2tf::camera::UpAxis;
+use t2tf::clip::packed::{self, Precision};
 use t2tf::clip::{Clip, ClipConfig, ClipTokenizer, RandomSource};
 use t2tf::image::Image;
 use t2tf::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer};
@@ -275,6 +284,23 @@ fn main() -> anyhow::Result<()> {
         .position(|a| a == "--out")
         .and_then(|i| args.get(i + 1))
         .map(PathBuf::from);
+    let precision = match args.iter().position(|a| a == "--precision") {
+        Some(i) => {
+            let name = args
+                .get(i + 1)
+                .ok_or_else(|| err("--precision needs a value".into()))?;
+            Precision::resolve(name).map_err(|e| err(format!("--precision: {e}")))?
+        }
+        None => Precision::F32,
+    };
+    let compare: Option<(PathBuf, PathBuf)> = args
+        .iter()
+        .position(|a| a == "--compare-tfs")
+        .map(|i| match (args.get(i + 1), args.get(i + 2)) {
+            (Some(a), Some(b)) => Ok((PathBuf::from(a), PathBuf::from(b))),
+            _ => Err(err("--compare-tfs needs two TF files".into())),
+        })
+        .transpose()?;
 
     // The rows: the default run first (the reference), then the grid and the extra rows.
     let mut reference = Row::default_run();
@@ -286,7 +312,10 @@ fn main() -> anyhow::Result<()> {
             steps: 10,
             ..reference.clone()
         });
-    } else if !has("--no-grid") {
+    } else if let Some(n) = list::<usize>(&args, "--steps").map_err(err)? {
+        reference.steps = n[0];
+    }
+    if !quick && !has("--no-grid") {
         let steps = list::<usize>(&args, "--steps-list")
             .map_err(err)?
             .unwrap_or(vec![50, 100, 200, 300]);
@@ -357,7 +386,11 @@ fn main() -> anyhow::Result<()> {
     )?;
     let cfg = ClipConfig::vit_b32();
     let context = cfg.text.max_positions;
-    let mut clip = Clip::from_source(cfg, &RandomSource::new(7))?;
+    if let Some((a, b)) = &compare {
+        return compare_tfs(&volume, a, b);
+    }
+    let mut clip =
+        packed::with_precision(precision, || Clip::from_source(cfg, &RandomSource::new(7)))?;
     clip.set_tokenizer(ClipTokenizer::from_file(
         &root.join("data/clip/tokenizer.json"),
         context,
@@ -367,24 +400,35 @@ fn main() -> anyhow::Result<()> {
         "rayon threads: {threads}; ViT-B/32 random weights (seed 7); 256³ aneurism; prompt \"{PROMPT}\"; load average at start {}",
         load_avg()
     );
+    // `describe` names the kernel, the precision and the CPU's features.
+    println!(
+        "CLIP: {}",
+        packed::with_precision(precision, packed::describe)
+    );
 
     let pool = CaptionPool::builtin();
     let user = captions::user_negatives(&[])?;
     let (t0, c0) = (Instant::now(), cpu_seconds());
     let positive = clip.encode_text(&[PROMPT])?.remove(0);
     let user_emb = clip.encode_text(&user.iter().map(String::as_str).collect::<Vec<_>>())?;
-    // Cached on disk like the CLI's, keyed by what makes the random weights (not a file hash).
+    // Cached on disk like the CLI's, keyed by what makes the random weights (not a file hash)
+    // and the precision (bf16 embeddings differ from f32 ones). f32 keeps the key of earlier
+    // versions. The whole pool is one call: the text tower shares common beginnings across
+    // the captions of a call (clip/prefix.rs) and bounds its memory itself.
+    let key = match precision {
+        Precision::F32 => "bench_optimize: ClipConfig::vit_b32, RandomSource::new(7)".to_string(),
+        p => format!(
+            "bench_optimize: ClipConfig::vit_b32, RandomSource::new(7), {}",
+            p.name()
+        ),
+    };
     let (pool_emb, cached) = captions::cached_embeddings(
         captions::cache_dir().as_deref(),
-        b"bench_optimize: ClipConfig::vit_b32, RandomSource::new(7)",
+        key.as_bytes(),
         pool.captions(),
         |c: &[String]| -> anyhow::Result<Vec<Vec<f32>>> {
-            let mut e = Vec::with_capacity(c.len());
-            for chunk in c.chunks(t2tf::optimize::driver::TEXT_BATCH) {
-                let refs: Vec<&str> = chunk.iter().map(String::as_str).collect();
-                e.extend(clip.encode_text(&refs)?);
-            }
-            Ok(e)
+            let refs: Vec<&str> = c.iter().map(String::as_str).collect();
+            Ok(clip.encode_text(&refs)?)
         },
     )?;
     let cached = matches!(cached, captions::CacheOutcome::Hit(_));
@@ -592,5 +636,36 @@ fn main() -> anyhow::Result<()> {
         }
     }
     println!("\nload average at the end: {}", load_avg());
+    Ok(())
+}
+
+/// `--compare-tfs A B`: how far B's TF is from A's, as the table's error columns measure it.
+fn compare_tfs(volume: &Volume, a: &Path, b: &Path) -> anyhow::Result<()> {
+    let (ta, tb) = (read_tf(a)?, read_tf(b)?);
+    let size = ClipConfig::vit_b32().vision.image_size;
+    let eval = VolumeRenderer {
+        volume,
+        options: RenderOptions::default(),
+        up: UpAxis::Z,
+        size,
+        render_size: size,
+        jitter: false,
+    };
+    let render = |cp: &ControlPoints| -> anyhow::Result<Vec<Image>> {
+        let lut = cp.to_lut(LUT_SIZE);
+        held_out_views(&Settings::default())
+            .iter()
+            .map(|v| eval.render(&lut, v).map(|r| r.0))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| anyhow::anyhow!("held-out render: {e}"))
+    };
+    let u_over_l = default_unit_distance(&volume.geometry) / volume.geometry.longest_side();
+    let (o, c) = tf_distance(&tb, &ta, u_over_l);
+    println!(
+        "compare {} against {}: opacity RMS {o:.2e}, colour RMS {c:.2e}, PSNR held-out {:.1} dB",
+        b.display(),
+        a.display(),
+        psnr(&render(&tb)?, &render(&ta)?)
+    );
     Ok(())
 }

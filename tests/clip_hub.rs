@@ -77,6 +77,13 @@ fn hub_spec() -> HubSpec {
         read("tests/fixtures/clip/torch/hostile_os_system.bin"),
     ));
     spec.repo("t2tf-test/hostile").revision("main", hostile);
+    let mut with_processor = files_of("safetensors");
+    with_processor.push((
+        "preprocessor_config.json".into(),
+        br#"{"image_mean": [0.5, 0.5, 0.5], "image_std": [0.25, 0.25, 0.25]}"#.to_vec(),
+    ));
+    spec.repo("t2tf-test/preprocessor")
+        .revision("main", with_processor);
     spec
 }
 
@@ -345,4 +352,33 @@ fn cli_uses_the_default_model_from_the_hub_then_offline() {
         ),
         &["no-such-branch"],
     );
+}
+
+/// `preprocessor_config.json` is optional: fetched where the repo has it (and used), absent
+/// (404) where it has not, and offline neither case asks the server anything.
+#[test]
+fn preprocessor_config_is_optional_on_the_hub() {
+    let server = HubServer::start(hub_spec());
+    let cache = tempfile::tempdir().unwrap();
+    let online = Hub::new(settings(&server, cache.path(), false));
+    for (repo, has) in [
+        ("t2tf-test/preprocessor", true),
+        ("t2tf-test/safetensors", false),
+    ] {
+        let files = resolve_with(&ModelRequest::new(repo), &online).unwrap();
+        assert_eq!(files.preprocessor.is_some(), has, "{repo}");
+        let clip = Clip::load_files(&files).unwrap();
+        let want = if has { [0.5; 3] } else { t2tf::clip::MEAN };
+        assert_eq!(clip.preprocessing().mean, want, "{repo}");
+    }
+    server.clear_requests();
+    let offline = Hub::new(settings(&server, cache.path(), true));
+    for (repo, has) in [
+        ("t2tf-test/preprocessor", true),
+        ("t2tf-test/safetensors", false),
+    ] {
+        let files = resolve_with(&ModelRequest::new(repo), &offline).unwrap();
+        assert_eq!(files.preprocessor.is_some(), has, "offline {repo}");
+    }
+    assert!(server.requests().is_empty(), "{:?}", server.requests());
 }

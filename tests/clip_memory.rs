@@ -89,6 +89,7 @@ fn loading_needs_at_most_one_point_three_times_the_file_beyond_the_model() {
         weights: vec![weights],
         format: t2tf::clip::load::WeightFormat::Safetensors,
         tokenizer: Path::new("../shared/data/clip/tokenizer.json").to_path_buf(),
+        preprocessor: None,
     };
 
     std::fs::write("/proc/self/clear_refs", "5").unwrap();

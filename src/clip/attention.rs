@@ -111,10 +111,34 @@ impl Attention {
                 let lp = padded(len);
                 let kt = transpose_padded(k, 3 * d, len, dh, lp);
                 let mut p = vec![0.0f32; len * lp];
-                mm::mm(&mut p, lp, q, 3 * d, 1, &kt, lp, len, lp, dh);
+                mm::mm(
+                    &mut p,
+                    lp,
+                    mm::Lhs {
+                        data: q,
+                        row: 3 * d,
+                        col: 1,
+                    },
+                    mm::Rhs { data: &kt, ld: lp },
+                    len,
+                    lp,
+                    dh,
+                );
                 softmax_rows(&mut p, lp, len, seg.causal);
                 let mut o = vec![0.0f32; len * dh];
-                mm::mm(&mut o, dh, &p, lp, 1, v, 3 * d, len, dh, len);
+                mm::mm(
+                    &mut o,
+                    dh,
+                    mm::Lhs {
+                        data: &p,
+                        row: lp,
+                        col: 1,
+                    },
+                    mm::Rhs { data: v, ld: 3 * d },
+                    len,
+                    dh,
+                    len,
+                );
                 (p, o)
             })
             .collect();
@@ -163,7 +187,19 @@ impl Attention {
                 let lp = padded(len);
                 let vt = transpose_padded(v, 3 * d, len, dh, lp);
                 let mut dp = vec![0.0f32; len * lp];
-                mm::mm(&mut dp, lp, dout, d, 1, &vt, lp, len, lp, dh);
+                mm::mm(
+                    &mut dp,
+                    lp,
+                    mm::Lhs {
+                        data: dout,
+                        row: d,
+                        col: 1,
+                    },
+                    mm::Rhs { data: &vt, ld: lp },
+                    len,
+                    lp,
+                    dh,
+                );
                 // Padding columns: p = 0 there, so dS = 0 too.
                 for (dr, pr) in dp.chunks_exact_mut(lp).zip(p.chunks_exact(lp)) {
                     let dot: f32 = dr[..len].iter().zip(&pr[..len]).map(|(a, b)| a * b).sum();
@@ -174,9 +210,45 @@ impl Attention {
                 // dqkv block for this head: [len, 3 dh] = (dQ | dK | dV); dK and dV read dS
                 // and P transposed through their strides.
                 let mut g = vec![0.0f32; len * 3 * dh];
-                mm::mm(&mut g, 3 * dh, &dp, lp, 1, k, 3 * d, len, dh, len);
-                mm::mm(&mut g[dh..], 3 * dh, &dp, 1, lp, q, 3 * d, len, dh, len);
-                mm::mm(&mut g[2 * dh..], 3 * dh, p, 1, lp, dout, d, len, dh, len);
+                mm::mm(
+                    &mut g,
+                    3 * dh,
+                    mm::Lhs {
+                        data: &dp,
+                        row: lp,
+                        col: 1,
+                    },
+                    mm::Rhs { data: k, ld: 3 * d },
+                    len,
+                    dh,
+                    len,
+                );
+                mm::mm(
+                    &mut g[dh..],
+                    3 * dh,
+                    mm::Lhs {
+                        data: &dp,
+                        row: 1,
+                        col: lp,
+                    },
+                    mm::Rhs { data: q, ld: 3 * d },
+                    len,
+                    dh,
+                    len,
+                );
+                mm::mm(
+                    &mut g[2 * dh..],
+                    3 * dh,
+                    mm::Lhs {
+                        data: p,
+                        row: 1,
+                        col: lp,
+                    },
+                    mm::Rhs { data: dout, ld: d },
+                    len,
+                    dh,
+                    len,
+                );
                 g
             })
             .collect();
@@ -352,7 +424,7 @@ impl Attention {
 /// Row-wise softmax of a `[len, len]` score block stored with row stride `ld` (columns past
 /// len untouched), in place; with `causal`, entries above the diagonal get probability 0 (as
 /// adding -inf to the scores would).
-fn softmax_rows(p: &mut [f32], ld: usize, len: usize, causal: bool) {
+pub(crate) fn softmax_rows(p: &mut [f32], ld: usize, len: usize, causal: bool) {
     for (i, row) in p.chunks_exact_mut(ld).enumerate() {
         let row = &mut row[..len];
         let keep = if causal { i + 1 } else { len };

@@ -73,15 +73,22 @@ impl Activation {
 /// Shape of one transformer tower (text or vision).
 #[derive(Clone, Debug, PartialEq)]
 pub struct TowerConfig {
+    /// Width D of the residual stream.
     pub hidden_size: usize,
+    /// Width of the MLP's hidden layer.
     pub intermediate_size: usize,
+    /// Number of encoder layers.
     pub num_layers: usize,
+    /// Attention heads per layer (D / heads channels each).
     pub num_heads: usize,
+    /// The MLP's activation.
     pub act: Activation,
+    /// Layer norms' ε.
     pub layer_norm_eps: f32,
 }
 
 impl TowerConfig {
+    /// Channels per attention head.
     pub fn head_dim(&self) -> usize {
         self.hidden_size / self.num_heads
     }
@@ -97,7 +104,9 @@ impl TowerConfig {
 /// The text tower (`CLIPTextConfig`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct TextConfig {
+    /// Its transformer.
     pub tower: TowerConfig,
+    /// Token ids are below this.
     pub vocab_size: usize,
     /// Context length; captions are truncated to this many tokens (77 for OpenAI CLIP).
     pub max_positions: usize,
@@ -108,9 +117,13 @@ pub struct TextConfig {
 /// The vision tower (`CLIPVisionConfig`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct VisionConfig {
+    /// Its transformer.
     pub tower: TowerConfig,
+    /// Side of the square input images, in pixels.
     pub image_size: usize,
+    /// Side of the square patches, in pixels.
     pub patch_size: usize,
+    /// Colour channels of the input (3).
     pub num_channels: usize,
 }
 
@@ -129,8 +142,11 @@ impl VisionConfig {
 /// A whole `CLIPModel`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ClipConfig {
+    /// The text tower.
     pub text: TextConfig,
+    /// The vision tower.
     pub vision: VisionConfig,
+    /// Length of both towers' projected embeddings.
     pub projection_dim: usize,
 }
 

@@ -10,7 +10,9 @@ use rayon::prelude::*;
 
 use super::config::Activation;
 use super::matmul::{matmul, Mat, Op};
-use super::packed::{self, Engine, Kernel, PackedB};
+use super::packed::{self, PackedB};
+#[cfg(test)]
+use super::packed::{Engine, Kernel};
 
 /// `torch.nn.Linear`: `y = x Wᵀ + b`, `W` being `[out, in]` in the checkpoint.
 ///
@@ -75,6 +77,7 @@ impl Linear {
     }
 
     /// The engine this layer was built for.
+    #[cfg(test)]
     pub fn engine(&self) -> Engine {
         match self.w {
             Weight::Packed { .. } => Engine::Packed,
@@ -83,6 +86,7 @@ impl Linear {
     }
 
     /// The micro-kernel of a packed layer (`None` for the `gemm` crate).
+    #[cfg(test)]
     pub fn kernel(&self) -> Option<Kernel> {
         match &self.w {
             Weight::Packed { fwd, .. } => Some(fwd.kernel()),

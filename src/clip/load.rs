@@ -29,6 +29,9 @@ pub const DEFAULT_REVISION: &str = "main";
 
 const CONFIG: &str = "config.json";
 const TOKENIZER: &str = "tokenizer.json";
+/// Optional: the image processor's statistics and sizes (`Preprocessing`); CLIP's constants
+/// where a model has none.
+const PREPROCESSOR: &str = "preprocessor_config.json";
 
 /// Weight files in the order transformers tries them; `true` for an index naming shards.
 pub const WEIGHT_FILES: [(&str, WeightFormat, bool); 4] = [
@@ -67,18 +70,25 @@ impl ModelRequest {
 /// How the weights are stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum WeightFormat {
+    /// `*.safetensors`.
     Safetensors,
+    /// PyTorch's `torch.save` zip (`pytorch_model.bin`).
     PyTorch,
 }
 
 /// Paths of the files a model needs.
 #[derive(Clone, Debug)]
 pub struct ModelFiles {
+    /// `config.json`.
     pub config: PathBuf,
     /// One file, or every shard an index names, in the index's order.
     pub weights: Vec<PathBuf>,
+    /// How the weights are stored.
     pub format: WeightFormat,
+    /// `tokenizer.json` (the model's own or `--tokenizer`).
     pub tokenizer: PathBuf,
+    /// `preprocessor_config.json`, where the model has one.
+    pub preprocessor: Option<PathBuf>,
 }
 
 /// Resolve a request with the Hub settings of the environment (`HF_*` variables).
@@ -223,6 +233,9 @@ fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<Model
         })
     };
     let config = required(CONFIG)?;
+    // Optional: absent (a 404 from the Hub, remembered in the cache like any missing file, or
+    // offline and never fetched) means CLIP's constants.
+    let preprocessor = src.probe(PREPROCESSOR)?;
     let (weights, format) = find_weights(src)?;
     let tokenizer = match tokenizer {
         Some(t) => t.to_path_buf(),
@@ -237,6 +250,7 @@ fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<Model
         weights,
         format,
         tokenizer,
+        preprocessor,
     })
 }
 

@@ -10,18 +10,23 @@ use gemm::Parallelism;
 /// Whether an operand is used as stored or transposed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Op {
+    /// As stored.
     N,
+    /// Transposed.
     T,
 }
 
 /// A row-major matrix view: element (i, j) of the *stored* matrix is `data[i * ld + j]`.
 #[derive(Clone, Copy)]
 pub struct Mat<'a> {
+    /// The elements, row-major.
     pub data: &'a [f32],
+    /// Leading dimension: the distance between rows.
     pub ld: usize,
 }
 
 impl<'a> Mat<'a> {
+    /// A view of `data` with rows `ld` apart.
     pub fn new(data: &'a [f32], ld: usize) -> Mat<'a> {
         Mat { data, ld }
     }
@@ -33,6 +38,8 @@ const PARALLEL_MIN_MACS: usize = 1 << 20;
 
 /// `C = op(A) · op(B)` (or `C += ...` with `accumulate`), `C` being m×n with leading dimension
 /// `ldc`. `op(A)` is m×k, `op(B)` is k×n.
+// BLAS's sgemm signature (C, ldc, A, op, B, op, m, n, k, β ∈ {0, 1}), which the `gemm` crate
+// call below takes apart again; kept flat so it reads like the reference it wraps.
 #[allow(clippy::too_many_arguments)]
 pub fn matmul(
     c: &mut [f32],

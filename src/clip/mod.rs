@@ -30,12 +30,18 @@
 
 mod attention;
 mod checkpoint;
+/// `config.json`: the shapes of both towers.
 pub mod config;
 mod encoder;
 mod layers;
+/// Finding a model's files (a directory or the Hugging Face Hub).
 pub mod load;
+/// Products by the `gemm` crate.
 pub mod matmul;
+/// Weights packed at load for the hand-written micro-kernels, and the engine and precision
+/// settings.
 pub mod packed;
+mod prefix;
 mod preprocess;
 mod similarity;
 mod source;
@@ -49,32 +55,59 @@ use std::path::{Path, PathBuf};
 
 pub use config::{Activation, ClipConfig};
 pub use load::{ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
-pub use preprocess::preprocess;
-pub use similarity::{cosine, cosine_checked, cosine_grad, softmax_scaled, unit, Incomparable};
+pub use preprocess::{preprocess, Preprocessing, MEAN, STD};
+pub use similarity::{
+    cosine, cosine_checked, cosine_grad, softmax_scaled, unit, Head, Incomparable, Logits,
+    LogitsError,
+};
 pub use source::{RandomSource, TensorSource};
 pub use tokenizer::ClipTokenizer;
-pub use vision::{ImageCache, MEAN, STD};
+pub use vision::ImageCache;
 pub use weights::Checkpoint;
 
 use crate::image::Image;
 use text::TextModel;
 use vision::VisionModel;
 
+/// What can go wrong loading or running CLIP; every variant about a file names it.
 #[derive(Debug, thiserror::Error)]
 pub enum ClipError {
+    /// A file could not be read.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: PathBuf,
+        /// Why.
         source: std::io::Error,
     },
+    /// `config.json` (or `preprocessor_config.json`) is not a configuration this code runs.
     #[error("{path}: bad CLIP config: {msg}")]
-    Config { path: PathBuf, msg: String },
+    Config {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong in it.
+        msg: String,
+    },
+    /// A weight file is malformed or lacks a tensor of the right shape.
     #[error("{path}: {msg}")]
-    Weights { path: PathBuf, msg: String },
+    Weights {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong in it.
+        msg: String,
+    },
+    /// `tokenizer.json` cannot be loaded or cannot encode a text.
     #[error("{path}: tokenizer: {msg}")]
-    Tokenizer { path: PathBuf, msg: String },
+    Tokenizer {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        msg: String,
+    },
+    /// A model, file or tensor is not where it was looked for (the message says where).
     #[error("{0}")]
     Missing(String),
+    /// An input the model cannot take (image size, token ids, gradient shapes).
     #[error("CLIP input: {0}")]
     Input(String),
 }
@@ -86,6 +119,7 @@ pub struct Clip {
     vision: VisionModel,
     tokenizer: Option<ClipTokenizer>,
     logit_scale: f32,
+    preprocessing: Preprocessing,
 }
 
 impl Clip {
@@ -112,9 +146,17 @@ impl Clip {
     pub fn load_files(files: &ModelFiles) -> Result<Clip, ClipError> {
         let config = ClipConfig::from_file(&files.config)?;
         let tok = ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
+        let prep = files
+            .preprocessor
+            .as_deref()
+            .map(|p| Preprocessing::from_file(p, config.vision.image_size))
+            .transpose()?;
         let weights = Checkpoint::open(&files.weights)?;
         let mut clip = Clip::from_source(config, &weights)?;
         clip.tokenizer = Some(tok);
+        if let Some(p) = prep {
+            clip.set_preprocessing(p);
+        }
         Ok(clip)
     }
 
@@ -124,6 +166,9 @@ impl Clip {
     pub fn check(files: &ModelFiles) -> Result<String, ClipError> {
         let config = ClipConfig::from_file(&files.config)?;
         ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
+        if let Some(p) = &files.preprocessor {
+            Preprocessing::from_file(p, config.vision.image_size)?;
+        }
         let weights = Checkpoint::open(&files.weights)?;
         Ok(format!(
             "{:?} weights in {} file(s), {} tensors; vision {}x{} px, patch {}, {} layers",
@@ -140,22 +185,39 @@ impl Clip {
     /// Build the model from any tensor source (checkpoint or `RandomSource`); no tokenizer, so
     /// `encode_text` needs `set_tokenizer` first, `encode_tokens` works.
     pub fn from_source(config: ClipConfig, src: &dyn TensorSource) -> Result<Clip, ClipError> {
-        let text = TextModel::load(src, &config.text, config.projection_dim)?;
-        let vision = VisionModel::load(src, &config.vision, config.projection_dim)?;
-        let logit_scale = src.tensor("logit_scale", &[])?[0].exp();
+        let root = source::Names::root(src);
+        let text = TextModel::load(&root, &config.text, config.projection_dim)?;
+        let vision = VisionModel::load(&root, &config.vision, config.projection_dim)?;
+        let logit_scale = root.tensor("logit_scale", &[])?[0].exp();
+        let preprocessing = Preprocessing::clip(config.vision.image_size);
         Ok(Clip {
             config,
             text,
             vision,
             tokenizer: None,
             logit_scale,
+            preprocessing,
         })
     }
 
+    /// Use `tokenizer` for `encode_text` (a model built `from_source` has none).
     pub fn set_tokenizer(&mut self, tokenizer: ClipTokenizer) {
         self.tokenizer = Some(tokenizer);
     }
 
+    /// Use another image processor's statistics and sizes (`load_files` reads the model's
+    /// `preprocessor_config.json` when it has one; CLIP's constants otherwise).
+    pub fn set_preprocessing(&mut self, p: Preprocessing) {
+        self.vision.set_normalization(p.mean, p.std);
+        self.preprocessing = p;
+    }
+
+    /// The image processor in force: pixel mean/std, resize and crop.
+    pub fn preprocessing(&self) -> &Preprocessing {
+        &self.preprocessing
+    }
+
+    /// The model's configuration (`config.json`).
     pub fn config(&self) -> &ClipConfig {
         &self.config
     }
@@ -210,9 +272,17 @@ impl Clip {
         self.logit_scale
     }
 
+    /// How this model scores an image embedding against class embeddings (CLIP: the scaled
+    /// cosine) and the gradient of those logits: what a loss asks the model for instead of
+    /// knowing its formula. An error where the checkpoint's logit scale is not positive and
+    /// finite.
+    pub fn head(&self) -> Result<Head, ClipError> {
+        Head::new(self.logit_scale as f64).map_err(ClipError::Input)
+    }
+
     /// `CLIPImageProcessor`'s resize (shortest side, bicubic) and centre crop to
-    /// `image_size()`², for arbitrary pictures; see `preprocess`.
+    /// `image_size()`², for arbitrary pictures, with the sizes of `preprocessing()`.
     pub fn preprocess(&self, image: &Image) -> Image {
-        preprocess::preprocess(image, self.image_size())
+        self.preprocessing.apply(image)
     }
 }

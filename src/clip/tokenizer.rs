@@ -11,6 +11,7 @@ use tokenizers::{Tokenizer, TruncationParams};
 
 use super::ClipError;
 
+/// CLIP's tokenizer, from a `tokenizer.json`.
 pub struct ClipTokenizer {
     tok: Tokenizer,
     path: PathBuf,

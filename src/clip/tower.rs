@@ -1,4 +1,4 @@
-//! A stack of encoder layers read from `{prefix}.encoder.layers.{i}` (`transformers`
+//! A stack of encoder layers read from `encoder.layers.{i}` under a tower (`transformers`
 //! modeling_clip.py `CLIPEncoder`), with q/k/v projections stacked into one matrix so a layer's
 //! input projection is a single GEMM.
 
@@ -6,7 +6,7 @@ use super::attention::{Attention, Segments};
 use super::config::TowerConfig;
 use super::encoder::{EncoderLayer, LayerSaved, PooledLayerSaved};
 use super::layers::Linear;
-use super::source::TensorSource;
+use super::source::Names;
 use super::ClipError;
 
 /// A projection's checkpoint tensors before stacking.
@@ -20,16 +20,18 @@ pub struct Tower {
 }
 
 impl Tower {
-    pub fn load(src: &dyn TensorSource, prefix: &str, c: &TowerConfig) -> Result<Tower, ClipError> {
+    /// The layers under `encoder` (a tower's `encoder`: `layers.{i}.*`).
+    pub fn load(encoder: &Names, c: &TowerConfig) -> Result<Tower, ClipError> {
         let d = c.hidden_size;
         let mut layers = Vec::with_capacity(c.num_layers);
         for i in 0..c.num_layers {
-            let p = format!("{prefix}.encoder.layers.{i}");
+            let p = encoder.pp("layers").pp(i);
+            let attn = p.pp("self_attn");
             let raw = |name: &str| -> Result<Raw, ClipError> {
-                let pre = format!("{p}.self_attn.{name}");
+                let proj = attn.pp(name);
                 Ok(Raw {
-                    weight: src.tensor(&format!("{pre}.weight"), &[d, d])?,
-                    bias: src.tensor(&format!("{pre}.bias"), &[d])?,
+                    weight: proj.tensor("weight", &[d, d])?,
+                    bias: proj.tensor("bias", &[d])?,
                 })
             };
             let (q, k, v) = (raw("q_proj")?, raw("k_proj")?, raw("v_proj")?);
@@ -39,16 +41,17 @@ impl Tower {
                 d,
                 3 * d,
             );
+            let mlp = p.pp("mlp");
             layers.push(EncoderLayer {
-                ln1: src.layer_norm(&format!("{p}.layer_norm1"), d, c.layer_norm_eps)?,
+                ln1: p.pp("layer_norm1").layer_norm(d, c.layer_norm_eps)?,
                 attn: Attention {
                     qkv,
-                    out: src.linear(&format!("{p}.self_attn.out_proj"), d, d, true)?,
+                    out: attn.pp("out_proj").linear(d, d, true)?,
                     num_heads: c.num_heads,
                 },
-                ln2: src.layer_norm(&format!("{p}.layer_norm2"), d, c.layer_norm_eps)?,
-                fc1: src.linear(&format!("{p}.mlp.fc1"), c.intermediate_size, d, true)?,
-                fc2: src.linear(&format!("{p}.mlp.fc2"), d, c.intermediate_size, true)?,
+                ln2: p.pp("layer_norm2").layer_norm(d, c.layer_norm_eps)?,
+                fc1: mlp.pp("fc1").linear(c.intermediate_size, d, true)?,
+                fc2: mlp.pp("fc2").linear(d, c.intermediate_size, true)?,
                 act: c.act,
             });
         }

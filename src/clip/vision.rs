@@ -12,17 +12,11 @@ use rayon::prelude::*;
 use super::attention::Segments;
 use super::config::VisionConfig;
 use super::layers::{LayerNorm, Linear, LnSaved};
-use super::source::TensorSource;
+use super::preprocess::{MEAN, STD};
+use super::source::Names;
 use super::tower::{Tower, TowerSaved};
 use super::ClipError;
 use crate::image::Image;
-
-/// OpenAI CLIP's pixel statistics (`image_mean` / `image_std` of CLIPImageProcessor), written
-/// with the digits published in preprocessor_config.json.
-#[allow(clippy::excessive_precision)]
-pub const MEAN: [f32; 3] = [0.481_454_66, 0.457_827_5, 0.408_210_73];
-#[allow(clippy::excessive_precision)]
-pub const STD: [f32; 3] = [0.268_629_54, 0.261_302_58, 0.275_777_11];
 
 pub struct VisionModel {
     pub cfg: VisionConfig,
@@ -37,6 +31,9 @@ pub struct VisionModel {
     post_ln: LayerNorm,
     /// `[P, D]`, no bias
     projection: Linear,
+    /// Per-channel pixel mean and std (`Preprocessing`; CLIP's constants by default).
+    mean: [f32; 3],
+    std: [f32; 3],
 }
 
 /// The activations `VisionModel::backward` needs, from one `forward` call.
@@ -52,37 +49,44 @@ impl ImageCache {
     pub fn len(&self) -> usize {
         self.images
     }
+    /// Whether it encoded no image.
     pub fn is_empty(&self) -> bool {
         self.images == 0
     }
 }
 
 impl VisionModel {
-    pub fn load(
-        src: &dyn TensorSource,
-        cfg: &VisionConfig,
-        proj: usize,
-    ) -> Result<VisionModel, ClipError> {
+    /// The vision tower under `root` (the checkpoint's top level: `vision_model.*` and
+    /// `visual_projection`), projecting to `proj` dimensions.
+    pub fn load(root: &Names, cfg: &VisionConfig, proj: usize) -> Result<VisionModel, ClipError> {
         let d = cfg.tower.hidden_size;
         let p = cfg.patch_size;
-        let pe = src.tensor(
-            "vision_model.embeddings.patch_embedding.weight",
-            &[d, 3, p, p],
-        )?;
+        let eps = cfg.tower.layer_norm_eps;
+        let model = root.pp("vision_model");
+        let emb = model.pp("embeddings");
+        let pe = emb.pp("patch_embedding").tensor("weight", &[d, 3, p, p])?;
         Ok(VisionModel {
             cfg: cfg.clone(),
             patch_embedding: Linear::new(pe, None, 3 * p * p, d),
-            class_embedding: src.tensor("vision_model.embeddings.class_embedding", &[d])?,
-            position_embedding: src.tensor(
-                "vision_model.embeddings.position_embedding.weight",
-                &[cfg.num_tokens(), d],
-            )?,
+            class_embedding: emb.tensor("class_embedding", &[d])?,
+            position_embedding: emb
+                .pp("position_embedding")
+                .tensor("weight", &[cfg.num_tokens(), d])?,
             // "pre_layrnorm" is the checkpoint's spelling.
-            pre_ln: src.layer_norm("vision_model.pre_layrnorm", d, cfg.tower.layer_norm_eps)?,
-            tower: Tower::load(src, "vision_model", &cfg.tower)?,
-            post_ln: src.layer_norm("vision_model.post_layernorm", d, cfg.tower.layer_norm_eps)?,
-            projection: src.linear("visual_projection", proj, d, false)?,
+            pre_ln: model.pp("pre_layrnorm").layer_norm(d, eps)?,
+            tower: Tower::load(&model.pp("encoder"), &cfg.tower)?,
+            post_ln: model.pp("post_layernorm").layer_norm(d, eps)?,
+            projection: root.pp("visual_projection").linear(proj, d, false)?,
+            mean: MEAN,
+            std: STD,
         })
+    }
+
+    /// Normalise pixels with these per-channel statistics (a model's
+    /// `preprocessor_config.json`) instead of CLIP's.
+    pub fn set_normalization(&mut self, mean: [f32; 3], std: [f32; 3]) {
+        self.mean = mean;
+        self.std = std;
     }
 
     fn check(&self, images: &[Image]) -> Result<(), ClipError> {
@@ -125,7 +129,8 @@ impl VisionModel {
                     for kx in 0..p {
                         let px = ((gy * p + ky) * s + gx * p + kx) * 3;
                         for c in 0..3 {
-                            row[c * p * p + ky * p + kx] = (im.data[px + c] - MEAN[c]) / STD[c];
+                            row[c * p * p + ky * p + kx] =
+                                (im.data[px + c] - self.mean[c]) / self.std[c];
                         }
                     }
                 }
@@ -219,7 +224,7 @@ impl VisionModel {
                         for kx in 0..p {
                             let px = (gx * p + kx) * 3;
                             for c in 0..3 {
-                                line[px + c] = row[c * p * p + ky * p + kx] / STD[c];
+                                line[px + c] = row[c * p * p + ky * p + kx] / self.std[c];
                             }
                         }
                     }

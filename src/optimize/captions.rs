@@ -68,14 +68,17 @@ impl CaptionPool {
         Ok(pool)
     }
 
+    /// The captions, in the order of the source.
     pub fn captions(&self) -> &[String] {
         &self.captions
     }
 
+    /// How many captions.
     pub fn len(&self) -> usize {
         self.captions.len()
     }
 
+    /// Whether there are none.
     pub fn is_empty(&self) -> bool {
         self.captions.is_empty()
     }
@@ -262,25 +265,40 @@ pub fn cached_embeddings<E>(
         ),
         Some(p) => match store(&p, &key, &emb) {
             Ok(()) => CacheOutcome::Stored(p),
-            Err(e) => CacheOutcome::NotStored(format!("{e:#}")),
+            Err(e) => CacheOutcome::NotStored(e.to_string()),
         },
     };
     Ok((emb, outcome))
 }
 
-fn store(path: &Path, key: &[u8; 32], emb: &[Vec<f32>]) -> anyhow::Result<()> {
+/// Why the cache file could not be written (a warning, never an error of the run).
+#[derive(Debug, thiserror::Error)]
+enum StoreError {
+    #[error("{0}: embeddings have unequal or zero length; not cached")]
+    Shape(PathBuf),
+    #[error("{path}: cannot create: {source}")]
+    Dir {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    /// `crate::fs::atomic_write_bytes`'s message (it names the file).
+    #[error("{0}")]
+    Write(String),
+}
+
+fn store(path: &Path, key: &[u8; 32], emb: &[Vec<f32>]) -> Result<(), StoreError> {
     let dim = emb.first().map_or(0, Vec::len);
     if dim == 0 || emb.iter().any(|e| e.len() != dim) {
-        anyhow::bail!(
-            "{}: embeddings have unequal or zero length; not cached",
-            path.display()
-        );
+        return Err(StoreError::Shape(path.to_path_buf()));
     }
     if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent)
-            .map_err(|e| anyhow::anyhow!("{}: cannot create: {e}", parent.display()))?;
+        std::fs::create_dir_all(parent).map_err(|source| StoreError::Dir {
+            path: parent.to_path_buf(),
+            source,
+        })?;
     }
-    crate::formats::atomic_write_bytes(path, &encode(key, emb))
+    crate::fs::atomic_write_bytes(path, &encode(key, emb))
+        .map_err(|e| StoreError::Write(format!("{e:#}")))
 }
 
 #[cfg(test)]

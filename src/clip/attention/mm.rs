@@ -17,21 +17,24 @@ const R: usize = 4;
 /// Lanes per column chunk.
 const W: usize = 16;
 
-/// `C[m × n] = A[m × k] · B[k × n]`, overwriting C: `A(i, p) = a[i·a_row + p·a_col]`, B's row p
-/// is `b[p·ldb .. p·ldb + n]`, C's row i is `c[i·ldc .. i·ldc + n]`.
-#[allow(clippy::too_many_arguments)]
-pub fn mm(
-    c: &mut [f32],
-    ldc: usize,
-    a: &[f32],
-    a_row: usize,
-    a_col: usize,
-    b: &[f32],
-    ldb: usize,
-    m: usize,
-    n: usize,
-    k: usize,
-) {
+/// The left operand: `A(i, p) = data[i·row + p·col]` (so a transposed A is only other
+/// strides).
+#[derive(Clone, Copy)]
+pub struct Lhs<'a> {
+    pub data: &'a [f32],
+    pub row: usize,
+    pub col: usize,
+}
+
+/// The right operand: row p of B is `data[p·ld .. p·ld + n]`.
+#[derive(Clone, Copy)]
+pub struct Rhs<'a> {
+    pub data: &'a [f32],
+    pub ld: usize,
+}
+
+/// `C[m × n] = A[m × k] · B[k × n]`, overwriting C, whose row i is `c[i·ldc .. i·ldc + n]`.
+pub fn mm(c: &mut [f32], ldc: usize, a: Lhs, b: Rhs, m: usize, n: usize, k: usize) {
     if m == 0 || n == 0 {
         return;
     }
@@ -41,23 +44,26 @@ pub fn mm(
     );
     if k > 0 {
         assert!(
-            a.len() > (m - 1) * a_row + (k - 1) * a_col,
+            a.data.len() > (m - 1) * a.row + (k - 1) * a.col,
             "attention mm: A too small"
         );
-        assert!(b.len() >= (k - 1) * ldb + n, "attention mm: B too small");
+        assert!(
+            b.data.len() >= (k - 1) * b.ld + n,
+            "attention mm: B too small"
+        );
     }
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx512f") {
             // SAFETY: the CPU has AVX-512F (checked just above).
-            return unsafe { mm_avx512(c, ldc, a, a_row, a_col, b, ldb, m, n, k) };
+            return unsafe { mm_avx512(c, ldc, a, b, m, n, k) };
         }
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2 (checked just above).
-            return unsafe { mm_avx2(c, ldc, a, a_row, a_col, b, ldb, m, n, k) };
+            return unsafe { mm_avx2(c, ldc, a, b, m, n, k) };
         }
     }
-    mm_body(c, ldc, a, a_row, a_col, b, ldb, m, n, k)
+    mm_body(c, ldc, a, b, m, n, k)
 }
 
 /// `mm` compiled for AVX-512F (16-lane chunks are one zmm each).
@@ -66,20 +72,8 @@ pub fn mm(
 /// The CPU has AVX-512F.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn mm_avx512(
-    c: &mut [f32],
-    ldc: usize,
-    a: &[f32],
-    a_row: usize,
-    a_col: usize,
-    b: &[f32],
-    ldb: usize,
-    m: usize,
-    n: usize,
-    k: usize,
-) {
-    mm_body(c, ldc, a, a_row, a_col, b, ldb, m, n, k)
+unsafe fn mm_avx512(c: &mut [f32], ldc: usize, a: Lhs, b: Rhs, m: usize, n: usize, k: usize) {
+    mm_body(c, ldc, a, b, m, n, k)
 }
 
 /// `mm` compiled for AVX2.
@@ -88,47 +82,24 @@ unsafe fn mm_avx512(
 /// The CPU has AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn mm_avx2(
-    c: &mut [f32],
-    ldc: usize,
-    a: &[f32],
-    a_row: usize,
-    a_col: usize,
-    b: &[f32],
-    ldb: usize,
-    m: usize,
-    n: usize,
-    k: usize,
-) {
-    mm_body(c, ldc, a, a_row, a_col, b, ldb, m, n, k)
+unsafe fn mm_avx2(c: &mut [f32], ldc: usize, a: Lhs, b: Rhs, m: usize, n: usize, k: usize) {
+    mm_body(c, ldc, a, b, m, n, k)
 }
 
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn mm_body(
-    c: &mut [f32],
-    ldc: usize,
-    a: &[f32],
-    a_row: usize,
-    a_col: usize,
-    b: &[f32],
-    ldb: usize,
-    m: usize,
-    n: usize,
-    k: usize,
-) {
+fn mm_body(c: &mut [f32], ldc: usize, a: Lhs, b: Rhs, m: usize, n: usize, k: usize) {
     for i in (0..m).step_by(R) {
         let rows = R.min(m - i);
         let mut j = 0;
         // Full 16-column chunks, four at a time where possible.
         while j + W <= n {
             let chunks = ((n - j) / W).min(4);
+            let at = Block { i, rows, j };
             match chunks {
-                4 => tile::<4>(c, ldc, a, a_row, a_col, b, ldb, i, rows, j, k),
-                3 => tile::<3>(c, ldc, a, a_row, a_col, b, ldb, i, rows, j, k),
-                2 => tile::<2>(c, ldc, a, a_row, a_col, b, ldb, i, rows, j, k),
-                _ => tile::<1>(c, ldc, a, a_row, a_col, b, ldb, i, rows, j, k),
+                4 => tile::<4>(c, ldc, a, b, at, k),
+                3 => tile::<3>(c, ldc, a, b, at, k),
+                2 => tile::<2>(c, ldc, a, b, at, k),
+                _ => tile::<1>(c, ldc, a, b, at, k),
             }
             j += chunks * W;
         }
@@ -137,7 +108,7 @@ fn mm_body(
             for jj in j..n {
                 let mut s = 0.0f32;
                 for p in 0..k {
-                    s += a[(i + r) * a_row + p * a_col] * b[p * ldb + jj];
+                    s += a.data[(i + r) * a.row + p * a.col] * b.data[p * b.ld + jj];
                 }
                 c[(i + r) * ldc + jj] = s;
             }
@@ -145,25 +116,21 @@ fn mm_body(
     }
 }
 
-/// Rows `i .. i + rows` (≤ R) × columns `j .. j + NC·W` of C.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn tile<const NC: usize>(
-    c: &mut [f32],
-    ldc: usize,
-    a: &[f32],
-    a_row: usize,
-    a_col: usize,
-    b: &[f32],
-    ldb: usize,
+/// Where a register tile sits in C: rows `i .. i + rows` (≤ R), columns from `j`.
+#[derive(Clone, Copy)]
+struct Block {
     i: usize,
     rows: usize,
     j: usize,
-    k: usize,
-) {
+}
+
+/// Rows `at.i .. at.i + at.rows` × columns `at.j .. at.j + NC·W` of C.
+#[inline(always)]
+fn tile<const NC: usize>(c: &mut [f32], ldc: usize, a: Lhs, b: Rhs, at: Block, k: usize) {
+    let Block { i, rows, j } = at;
     let mut acc = [[[0.0f32; W]; NC]; R];
     for p in 0..k {
-        let brow: &[f32] = &b[p * ldb + j..][..NC * W];
+        let brow: &[f32] = &b.data[p * b.ld + j..][..NC * W];
         let mut bv = [[0.0f32; W]; NC];
         for (v, chunk) in bv.iter_mut().zip(brow.chunks_exact(W)) {
             v.copy_from_slice(chunk);
@@ -171,7 +138,7 @@ fn tile<const NC: usize>(
         for (r, acc_r) in acc.iter_mut().enumerate() {
             // Rows past m multiply by 0 (their results are not stored).
             let av = if r < rows {
-                a[(i + r) * a_row + p * a_col]
+                a.data[(i + r) * a.row + p * a.col]
             } else {
                 0.0
             };
@@ -219,7 +186,19 @@ mod tests {
                 let b: Vec<f32> = (0..k.max(1) * ldb).map(|i| val(i, 2)).collect();
                 let ldc = n + 1;
                 let mut c = vec![7.0f32; m * ldc];
-                mm(&mut c, ldc, &a, a_row, a_col, &b, ldb, m, n, k);
+                mm(
+                    &mut c,
+                    ldc,
+                    Lhs {
+                        data: &a,
+                        row: a_row,
+                        col: a_col,
+                    },
+                    Rhs { data: &b, ld: ldb },
+                    m,
+                    n,
+                    k,
+                );
                 for i in 0..m {
                     for j in 0..ldc {
                         let got = c[i * ldc + j];
@@ -248,8 +227,16 @@ mod tests {
         let b: Vec<f32> = (0..k * n).map(|i| (i as f32 * 0.11).cos()).collect();
         let mut fast = vec![0.0; m * n];
         let mut base = vec![0.0; m * n];
-        mm(&mut fast, n, &a, k, 1, &b, n, m, n, k);
-        mm_body(&mut base, n, &a, k, 1, &b, n, m, n, k);
+        let (la, rb) = (
+            Lhs {
+                data: &a,
+                row: k,
+                col: 1,
+            },
+            Rhs { data: &b, ld: n },
+        );
+        mm(&mut fast, n, la, rb, m, n, k);
+        mm_body(&mut base, n, la, rb, m, n, k);
         assert!(fast
             .iter()
             .zip(&base)

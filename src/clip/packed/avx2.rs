@@ -6,7 +6,7 @@ use std::arch::x86_64::*;
 use super::{Tile, MR};
 
 /// Columns of this kernel's B panels.
-pub const NR: usize = 16;
+pub(super) const NR: usize = 16;
 
 /// The 6 × 16 micro-kernel: 12 ymm accumulators (row r in `c[2r]`, `c[2r + 1]`), per k step
 /// two aligned loads of B, six broadcasts of A and twelve FMAs, which keeps both of Zen 3's
@@ -16,7 +16,7 @@ pub const NR: usize = 16;
 /// AVX2 and FMA present; `a` readable for `kc·MR` floats (`[kc][MR]`), `b` for `kc·NR` floats
 /// and 32-byte aligned; `t.nr == NR`; C as in `Tile::store_scalar`.
 #[target_feature(enable = "avx2,fma")]
-pub unsafe fn tile(
+pub(super) unsafe fn tile(
     kc: usize,
     a: *const f32,
     b: *const f32,

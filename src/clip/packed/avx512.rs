@@ -29,7 +29,7 @@ use std::arch::x86_64::*;
 use super::{Tile, MR};
 
 /// Columns of these kernels' B panels.
-pub const NR: usize = 64;
+pub(super) const NR: usize = 64;
 /// 16-lane vectors per tile row.
 const NV: usize = NR / 16;
 
@@ -114,8 +114,11 @@ fn prefetch_all(prefetch: &[f32], crow: *mut f32, ldc: usize, t: &Tile) {
 /// AVX-512F present; for r < MR, `a + r·lda` readable for `kc` floats; `b` readable for
 /// `kc·NR` floats and 64-byte aligned; `t.nr == NR`; C as in `Tile::store_scalar`.
 #[target_feature(enable = "avx512f")]
+// Flat on purpose: a micro-kernel is the innermost call of the product; its pointers,
+// strides and counts stay in registers from `run_tile`, and the `# Safety` contract above is
+// stated per argument (a struct would be unpacked again on entry).
 #[allow(clippy::too_many_arguments)]
-pub unsafe fn tile_f32(
+pub(super) unsafe fn tile_f32(
     kc: usize,
     a: *const f32,
     lda: usize,
@@ -153,8 +156,11 @@ pub unsafe fn tile_f32(
 /// AVX-512F and AVX512_BF16 present; for r < MR, `a + r·lda` readable for `kq` u32s; `b`
 /// readable for `kq·NR` u32s and 64-byte aligned; `t.nr == NR`; C as in `Tile::store_scalar`.
 #[target_feature(enable = "avx512f,avx512bf16")]
+// Flat on purpose: a micro-kernel is the innermost call of the product; its pointers,
+// strides and counts stay in registers from `run_tile`, and the `# Safety` contract above is
+// stated per argument (a struct would be unpacked again on entry).
 #[allow(clippy::too_many_arguments)]
-pub unsafe fn tile_bf16(
+pub(super) unsafe fn tile_bf16(
     kq: usize,
     a: *const u32,
     lda: usize,
@@ -194,6 +200,6 @@ pub unsafe fn tile_bf16(
 /// # Safety
 /// AVX-512F and AVX-512BW present.
 #[target_feature(enable = "avx512f,avx512bw")]
-pub unsafe fn to_bf16_pairs(src: &[f32], dst: &mut [u32]) {
+pub(super) unsafe fn to_bf16_pairs(src: &[f32], dst: &mut [u32]) {
     super::to_bf16_pairs_body(src, dst)
 }

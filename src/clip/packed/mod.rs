@@ -57,7 +57,7 @@ mod avx512;
 mod portable;
 
 /// Rows of C per micro-tile (every kernel).
-pub const MR: usize = 6;
+pub(crate) const MR: usize = 6;
 /// Widest tile (bias scratch size).
 const NR_MAX: usize = 64;
 /// At most this many rows of A are kept in L2 per pass: 168 × 256 × 4 B = 168 KiB. A multiple
@@ -80,6 +80,7 @@ pub enum Engine {
 /// attention, activations, residuals) stays f32.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Precision {
+    /// Single precision throughout (the default).
     F32,
     /// Weights and activations rounded to bf16 (round to nearest even), products accumulated
     /// in f32 by `vdpbf16ps` (`Kernel::Avx512Bf16`).
@@ -111,7 +112,7 @@ fn scoped<T: Copy + 'static, R>(
 impl Engine {
     /// The faster engine on this machine: this module wherever a SIMD f32 kernel exists (AVX2 +
     /// FMA, or AVX-512F), the `gemm` crate elsewhere.
-    pub fn detect() -> Engine {
+    pub(crate) fn detect() -> Engine {
         if Kernel::best(Precision::F32) == Some(Kernel::Portable) {
             Engine::Crate
         } else {
@@ -120,7 +121,7 @@ impl Engine {
     }
 
     /// What layers built now on this thread use: the `with_engine` override, else `detect()`.
-    pub fn current() -> Engine {
+    pub(crate) fn current() -> Engine {
         ENGINE.with(Cell::get).unwrap_or_else(Engine::detect)
     }
 }
@@ -162,6 +163,7 @@ impl Precision {
         }
     }
 
+    /// `f32` or `bf16`, as `--precision` spells it.
     pub fn name(self) -> &'static str {
         match self {
             Precision::F32 => "f32",
@@ -170,7 +172,7 @@ impl Precision {
     }
 
     /// What layers built now on this thread use: the `with_precision` override, else f32.
-    pub fn current() -> Precision {
+    pub(crate) fn current() -> Precision {
         PRECISION.with(Cell::get).unwrap_or(Precision::F32)
     }
 }
@@ -198,6 +200,7 @@ pub enum Kernel {
 }
 
 impl Kernel {
+    /// Every kernel, whether this CPU has it or not.
     pub const ALL: [Kernel; 5] = [
         Kernel::Portable,
         Kernel::Avx2Fma,
@@ -206,6 +209,7 @@ impl Kernel {
         Kernel::Avx512Bf16,
     ];
 
+    /// A short description ("avx512f 6x64 f32"), as benchmarks and report.json print it.
     pub fn name(self) -> &'static str {
         match self {
             Kernel::Portable => "portable 6x16 f32",
@@ -216,6 +220,7 @@ impl Kernel {
         }
     }
 
+    /// The number format of its products.
     pub fn precision(self) -> Precision {
         match self {
             Kernel::Portable | Kernel::Avx2Fma | Kernel::Avx512F => Precision::F32,
@@ -245,6 +250,7 @@ impl Kernel {
         }
     }
 
+    /// Whether this CPU runs it.
     pub fn available(self) -> bool {
         self.missing().is_none()
     }
@@ -284,8 +290,7 @@ impl Kernel {
 }
 
 /// Run `f` with layers built on this thread packed for `kernel` (whatever the engine and
-/// precision settings), and `PackedB::from_rows`/`from_cols` defaulting to it. Panics if the
-/// CPU lacks the kernel's instructions.
+/// precision settings). Panics if the CPU lacks the kernel's instructions.
 pub fn with_kernel<R>(kernel: Kernel, f: impl FnOnce() -> R) -> R {
     if let Some(what) = kernel.missing() {
         panic!("kernel {}: this CPU lacks {what}", kernel.name());
@@ -296,7 +301,7 @@ pub fn with_kernel<R>(kernel: Kernel, f: impl FnOnce() -> R) -> R {
 /// The kernel `Linear` layers built now on this thread are packed for, or `None` for the
 /// `gemm` crate: the `with_kernel` override; else with `Precision::Bf16` the native bf16
 /// kernel if any; else by `Engine::current()`, the best f32 kernel or the crate.
-pub fn layer_kernel() -> Option<Kernel> {
+pub(crate) fn layer_kernel() -> Option<Kernel> {
     if let Some(k) = KERNEL.with(Cell::get) {
         return Some(k);
     }
@@ -381,27 +386,17 @@ pub struct PackedB {
 }
 
 impl PackedB {
-    /// From B stored row-major `[k, n]`: `B[p][j] = b[p·n + j]`, for the `with_kernel`
-    /// override or the best f32 kernel.
-    pub fn from_rows(b: &[f32], k: usize, n: usize) -> PackedB {
-        PackedB::from_rows_for(default_kernel(), b, k, n)
-    }
-
-    /// From Bᵀ stored row-major `[n, k]` (a checkpoint `[out, in]` weight is `(Wᵀ)ᵀ`):
-    /// `B[p][j] = bt[j·k + p]`.
-    pub fn from_cols(bt: &[f32], k: usize, n: usize) -> PackedB {
-        PackedB::from_cols_for(default_kernel(), bt, k, n)
-    }
-
-    /// `from_rows` for `kernel` (panics if the CPU lacks it).
+    /// From B stored row-major `[k, n]` (`B[p][j] = b[p·n + j]`), for `kernel` (panics if
+    /// the CPU lacks it).
     pub fn from_rows_for(kernel: Kernel, b: &[f32], k: usize, n: usize) -> PackedB {
-        assert_eq!(b.len(), k * n, "PackedB::from_rows: size");
+        assert_eq!(b.len(), k * n, "PackedB::from_rows_for: size");
         PackedB::build(kernel, k, n, |p, j| b[p * n + j])
     }
 
-    /// `from_cols` for `kernel` (panics if the CPU lacks it).
+    /// From Bᵀ stored row-major `[n, k]` (a checkpoint `[out, in]` weight is `(Wᵀ)ᵀ`:
+    /// `B[p][j] = bt[j·k + p]`), for `kernel` (panics if the CPU lacks it).
     pub fn from_cols_for(kernel: Kernel, bt: &[f32], k: usize, n: usize) -> PackedB {
-        assert_eq!(bt.len(), k * n, "PackedB::from_cols: size");
+        assert_eq!(bt.len(), k * n, "PackedB::from_cols_for: size");
         PackedB::build(kernel, k, n, |p, j| bt[j * k + p])
     }
 
@@ -429,7 +424,7 @@ impl PackedB {
                         std::slice::from_raw_parts_mut(panel.as_mut_ptr().cast(), panel.len() * 16)
                     };
                     let cols = nr.min(n - jp * nr);
-                    // Column-outer: with `from_cols` each column is a contiguous source row.
+                    // Column-outer: with `from_cols_for` each column is a contiguous source row.
                     for c in 0..cols {
                         let col = jp * nr + c;
                         if kernel.bf16() {
@@ -458,12 +453,6 @@ impl PackedB {
         }
     }
 
-    pub fn k(&self) -> usize {
-        self.k
-    }
-    pub fn n(&self) -> usize {
-        self.n
-    }
     /// The kernel this matrix was packed for (and that multiplies with it).
     pub fn kernel(&self) -> Kernel {
         self.kernel
@@ -479,13 +468,6 @@ impl PackedB {
     }
 }
 
-fn default_kernel() -> Kernel {
-    KERNEL
-        .with(Cell::get)
-        .or_else(|| Kernel::best(Precision::F32))
-        .unwrap_or(Kernel::Portable)
-}
-
 /// Rows of a packed panel holding k rows of B.
 fn packed_rows(kernel: Kernel, k: usize) -> usize {
     if kernel.bf16() {
@@ -496,7 +478,7 @@ fn packed_rows(kernel: Kernel, k: usize) -> usize {
 }
 
 /// `x` rounded to bf16 (nearest, ties to even), as its 16 bits; NaN stays NaN.
-pub fn bf16_bits(x: f32) -> u16 {
+pub(crate) fn bf16_bits(x: f32) -> u16 {
     let u = x.to_bits();
     let rounded = (u.wrapping_add(0x7fff + ((u >> 16) & 1)) >> 16) as u16;
     if x.is_nan() {
@@ -547,6 +529,9 @@ fn to_bf16_pairs(src: &[f32], dst: &mut [u32]) {
 /// - `bias`: indexed by B's column, length `b.n()`.
 ///
 /// Runs `b.kernel()`; with a bf16 kernel A is rounded to bf16 first.
+// BLAS's sgemm order (C, ldc, A, lda, m, B, its row and column ranges, bias, β ∈ {0, 1}): the
+// leading dimensions sit next to the slices whose bounds the assertions check against them;
+// an argument struct would separate the two.
 #[allow(clippy::too_many_arguments)]
 pub fn gemm(
     c: &mut [f32],
@@ -605,7 +590,7 @@ pub fn gemm(
 
 /// `gemm` into a new `[m, cols.len()]` matrix (`ldc = cols.len()`), never zero-filled first:
 /// every element is written by the first k-block.
-pub fn gemm_new(
+pub(crate) fn gemm_new(
     a: &[f32],
     lda: usize,
     m: usize,
@@ -622,11 +607,12 @@ pub fn gemm_new(
 /// rewrite it; every element of C is passed exactly once, by the thread that computed it,
 /// while the tile is still in L1 (a separate pass re-reads C from L2/L3: the MLP activation
 /// was ≈ 5 % of the single-thread bf16 image pass that way).
-pub type Post<'a> = &'a (dyn Fn(usize, usize, &mut [f32]) + Sync);
+pub(crate) type Post<'a> = &'a (dyn Fn(usize, usize, &mut [f32]) + Sync);
 
 /// `gemm_new` with `post` applied to every finished block of C.
+// `gemm`'s argument list without C (see there), plus `post`.
 #[allow(clippy::too_many_arguments)]
-pub fn gemm_new_post(
+pub(crate) fn gemm_new_post(
     a: &[f32],
     lda: usize,
     m: usize,
@@ -807,6 +793,8 @@ fn pack_a<'a>(
 /// `c` is valid for reads and writes of `c_len` floats and not aliased during the call;
 /// elements are read only where `accumulate` is set (then they must be initialized) or after
 /// this call wrote them.
+// `gemm`'s arguments (see there) with C as a raw pointer and length, which the safety contract
+// above is about, and `post`.
 #[allow(clippy::too_many_arguments)]
 unsafe fn gemm_raw(
     c: *mut f32,
@@ -1002,6 +990,8 @@ impl Tile<'_> {
 /// As `Tile::store_scalar`; `kernel` is available on this CPU; `ap` was packed for `kernel`
 /// with at least `kb + kc` packed rows and more than `i` row panels; `bpanel` holds `kc·nr`
 /// floats of a 64-byte-aligned packed panel.
+// The micro-kernels' arguments (flat, see `avx512::tile_f32`) plus the panel indices they are
+// cut from: this is the call in the innermost loop of the product.
 #[allow(clippy::too_many_arguments)]
 unsafe fn run_tile(
     kernel: Kernel,
@@ -1092,7 +1082,6 @@ mod tests {
     use super::*;
 
     /// C = base + A·B (+ bias) in f64, B given row-major [k, n].
-    #[allow(clippy::too_many_arguments)]
     fn naive(
         base: &[f32],
         a: &[f32],

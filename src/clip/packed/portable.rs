@@ -9,7 +9,14 @@ use super::{Tile, MR};
 ///
 /// # Safety
 /// As `Tile::store_scalar`; `a` and `b` hold at least `kc·MR` and `kc·t.nr` floats.
-pub unsafe fn tile_f32(kc: usize, a: &[f32], b: &[f32], crow: *mut f32, ldc: usize, t: &Tile) {
+pub(super) unsafe fn tile_f32(
+    kc: usize,
+    a: &[f32],
+    b: &[f32],
+    crow: *mut f32,
+    ldc: usize,
+    t: &Tile,
+) {
     let nr = t.nr;
     let mut acc = vec![0.0f32; MR * nr];
     for (ap, bp) in a[..kc * MR]
@@ -32,7 +39,7 @@ pub unsafe fn tile_f32(kc: usize, a: &[f32], b: &[f32], crow: *mut f32, ldc: usi
 ///
 /// # Safety
 /// As `Tile::store_scalar`; `a` holds `(MR − 1)·lda + kq` u32s, `b` at least `kq·t.nr`.
-pub unsafe fn tile_bf16(
+pub(super) unsafe fn tile_bf16(
     kq: usize,
     a: &[u32],
     lda: usize,
