@@ -14,8 +14,8 @@ use crate::image::Image;
 use crate::tf::ControlPoints;
 
 /// Default size of tf.png.
-pub const WIDTH: usize = 512;
-pub const HEIGHT: usize = 256;
+pub(crate) const WIDTH: usize = 512;
+pub(crate) const HEIGHT: usize = 256;
 /// Height of the colour strip and of the gap above it.
 const STRIP: usize = 32;
 const GAP: usize = 4;
@@ -51,7 +51,7 @@ impl Curve {
 
 /// Draw `cp` over `histogram` (counts of equal bins over [0, 1]) into a `width × height` image.
 /// Needs width ≥ 2 and height > STRIP + GAP + 2; smaller sizes are raised to that.
-pub fn draw(
+pub(crate) fn draw(
     cp: &ControlPoints,
     histogram: &[u64],
     curve: Curve,
@@ -133,7 +133,7 @@ pub fn save(
     cp: &ControlPoints,
     histogram: &[u64],
     curve: Curve,
-) -> anyhow::Result<()> {
+) -> Result<(), crate::image::ImageError> {
     draw(cp, histogram, curve, WIDTH, HEIGHT).save_png(path)
 }
 
