@@ -1,4 +1,4 @@
-//! SIGINT, SIGTERM and SIGHUP ask a long run to stop: the first one raises [`STOP`] (the loop
+//! SIGINT, SIGTERM and SIGHUP ask a long run to stop: the first one raises the [`stop_flag`] (the loop
 //! ends after its current step and the result is written), a second one exits at once. The
 //! signal is remembered so the process can exit with 128 + its number, as shells expect.
 

@@ -27,10 +27,10 @@ use crate::clip::Incomparable;
 /// parameter to move anyway.
 pub(crate) const PRIOR_EPS: f64 = 1e-4;
 
-/// Result of [`contrastive`].
+/// Result of `contrastive` (the contrastive loss of one image embedding).
 #[derive(Clone, Debug)]
 pub struct Contrastive {
-    /// Cross-entropy −log softmax(logits)[0].
+    /// Cross-entropy −log softmax(logits)\[0\].
     pub loss: f64,
     /// `s · cos(e_I, e_k)` per class, class 0 first.
     pub logits: Vec<f64>,

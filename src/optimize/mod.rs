@@ -121,7 +121,7 @@ pub trait Parameterization {
 /// What the images are compared against.
 #[derive(Clone, Copy, Debug)]
 pub struct Targets<'a> {
-    /// The positive class, shape [D]: the prompt's text embedding, or the image embedding of
+    /// The positive class, shape \[D\]: the prompt's text embedding, or the image embedding of
     /// `--reference-image`.
     pub positive: &'a [f32],
     /// Embeddings of the caption pool, indexed by `StepPlan::negatives`.
@@ -486,7 +486,7 @@ const HIT_T: f32 = 0.999;
 /// seed, densities from `histogram` scaled so the mean T_N of [`View::initial`] is ρ; returns
 /// the parameters and what the search found.
 ///
-/// The mean is over the rays of V0 that see the volume (T < [`HIT_T`] with σ = 255
+/// The mean is over the rays of V0 that see the volume (T < `HIT_T` = 0.999 with σ = 255
 /// everywhere), not over the whole frame: at the paper's distances the box fills only part of
 /// a 45° view, and rays that miss it keep T = 1 whatever the TF, so over all rays ρ = 0.05
 /// would be unreachable for most volumes (measured: 0.68 at best for the 41³ nucleon at 3

@@ -31,7 +31,10 @@ pub enum Curve {
     /// σ / 255 (the optimizer's own quantity).
     Density,
     /// Opacity 1 − exp(−σ · r) with r = u / L (unit distance over the box's longest side).
-    Opacity { unit_over_length: f64 },
+    Opacity {
+        /// ParaView's scalar opacity unit distance u over the box's longest side L.
+        unit_over_length: f64,
+    },
 }
 
 impl Curve {
