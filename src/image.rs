@@ -5,19 +5,70 @@
 
 use std::fs::File;
 use std::io::BufReader;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+/// Why a PNG could not be read or written; every message names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    /// The file could not be opened.
+    #[error("{}: cannot open", path.display())]
+    Open {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The header is not a PNG's.
+    #[error("{}: not a readable PNG", path.display())]
+    NotPng {
+        /// The file.
+        path: PathBuf,
+        /// What the decoder said.
+        source: png::DecodingError,
+    },
+    /// The pixel data does not decode.
+    #[error("{}: corrupt PNG data", path.display())]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// What the decoder said.
+        source: png::DecodingError,
+    },
+    /// A 0-pixel-wide or -high image.
+    #[error("{}: image has no pixels", path.display())]
+    NoPixels {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The size the header claims does not fit the memory budget.
+    #[error(transparent)]
+    TooLarge(#[from] crate::memory::MemoryError),
+    /// The image could not be encoded as a PNG.
+    #[error("{}: writing failed", path.display())]
+    Encode {
+        /// The file it was meant for.
+        path: PathBuf,
+        /// What the encoder said.
+        source: png::EncodingError,
+    },
+    /// The encoded file could not be written (`crate::fs`'s error, which names the file).
+    #[error(transparent)]
+    Write(Box<dyn std::error::Error + Send + Sync + 'static>),
+}
 
 /// An RGB image: `data[(y * width + x) * 3 + c]`, y = 0 is the top row.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
+    /// Width in pixels.
     pub width: usize,
+    /// Height in pixels.
     pub height: usize,
+    /// RGB values, `width · height · 3` of them.
     pub data: Vec<f32>,
 }
 
 impl Image {
+    /// A black image.
     pub fn new(width: usize, height: usize) -> Image {
         Image {
             width,
@@ -26,6 +77,7 @@ impl Image {
         }
     }
 
+    /// An image of one colour.
     pub fn filled(width: usize, height: usize, rgb: [f32; 3]) -> Image {
         let mut im = Image::new(width, height);
         for px in im.data.chunks_exact_mut(3) {
@@ -34,12 +86,14 @@ impl Image {
         im
     }
 
+    /// The colour at column `x`, row `y` (0: top).
     #[inline]
     pub fn pixel(&self, x: usize, y: usize) -> [f32; 3] {
         let i = (y * self.width + x) * 3;
         [self.data[i], self.data[i + 1], self.data[i + 2]]
     }
 
+    /// Set the colour at column `x`, row `y` (0: top).
     #[inline]
     pub fn set_pixel(&mut self, x: usize, y: usize, rgb: [f32; 3]) {
         let i = (y * self.width + x) * 3;
@@ -70,7 +124,7 @@ impl Image {
     }
 
     /// 8-bit RGB bytes, clamped and rounded; NaN becomes 0.
-    pub fn to_rgb8(&self) -> Vec<u8> {
+    pub(crate) fn to_rgb8(&self) -> Vec<u8> {
         self.data
             .iter()
             .map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
@@ -78,27 +132,40 @@ impl Image {
     }
 
     /// Write an 8-bit RGB PNG atomically (temporary file in the same folder, then rename).
-    pub fn save_png(&self, path: &Path) -> Result<()> {
-        let bytes = self.to_rgb8();
-        crate::formats::atomic_write(path, |w| {
-            let mut enc = png::Encoder::new(w, self.width as u32, self.height as u32);
-            enc.set_color(png::ColorType::Rgb);
-            enc.set_depth(png::BitDepth::Eight);
-            let mut writer = enc.write_header()?;
-            writer.write_image_data(&bytes)?;
-            writer.finish()?;
-            Ok(())
-        })
+    pub fn save_png(&self, path: &Path) -> Result<(), ImageError> {
+        // Encoded in memory first (previews and plots are small), so that the file is
+        // written by one call whatever `crate::fs`'s writer type is.
+        let mut png_bytes = Vec::new();
+        self.encode_png(&mut png_bytes)
+            .map_err(|source| ImageError::Encode {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        crate::fs::atomic_write_bytes(path, &png_bytes).map_err(|e| ImageError::Write(e.into()))
+    }
+
+    /// The 8-bit RGB PNG encoding of the image, appended to `out`.
+    fn encode_png(&self, out: &mut Vec<u8>) -> Result<(), png::EncodingError> {
+        let mut enc = png::Encoder::new(out, self.width as u32, self.height as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut writer = enc.write_header()?;
+        writer.write_image_data(&self.to_rgb8())?;
+        writer.finish()
     }
 
     /// Read a PNG (gray, gray+alpha, RGB, RGBA; 8 or 16 bit) as RGB in [0, 1]. Alpha is dropped.
-    pub fn load_png(path: &Path) -> Result<Image> {
-        let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
+    pub fn load_png(path: &Path) -> Result<Image, ImageError> {
+        let file = File::open(path).map_err(|source| ImageError::Open {
+            path: path.to_path_buf(),
+            source,
+        })?;
         let mut decoder = png::Decoder::new(BufReader::new(file));
         decoder.set_transformations(png::Transformations::EXPAND);
-        let mut reader = decoder
-            .read_info()
-            .with_context(|| format!("{}: not a readable PNG", path.display()))?;
+        let mut reader = decoder.read_info().map_err(|source| ImageError::NotPng {
+            path: path.to_path_buf(),
+            source,
+        })?;
         // The header's size is the file's claim: check it before allocating (a 74-byte file
         // can claim 100000² pixels).
         let (w, h) = reader.info().size();
@@ -112,7 +179,10 @@ impl Image {
         let mut buf = vec![0; reader.output_buffer_size()];
         let info = reader
             .next_frame(&mut buf)
-            .with_context(|| format!("{}: corrupt PNG data", path.display()))?;
+            .map_err(|source| ImageError::Corrupt {
+                path: path.to_path_buf(),
+                source,
+            })?;
         let (w, h) = (info.width as usize, info.height as usize);
         let channels = info.color_type.samples();
         let sixteen = info.bit_depth == png::BitDepth::Sixteen;
@@ -124,7 +194,9 @@ impl Image {
             }
         };
         if w == 0 || h == 0 {
-            bail!("{}: image has no pixels", path.display());
+            return Err(ImageError::NoPixels {
+                path: path.to_path_buf(),
+            });
         }
         let mut im = Image::new(w, h);
         for p in 0..w * h {
@@ -143,7 +215,7 @@ impl Image {
 /// centres aligned (source coordinate (x + ½)·w/nw − ½, clamped at the edges: PyTorch's
 /// `interpolate(mode="bilinear", align_corners=False)` without antialiasing). Used to render
 /// below CLIP's input size and upsample; [`resize_bilinear_adjoint`] is its exact transpose.
-pub fn resize_bilinear(
+pub(crate) fn resize_bilinear(
     src: &[f32],
     (w, h): (usize, usize),
     channels: usize,
@@ -161,7 +233,7 @@ pub fn resize_bilinear(
 
 /// The transpose of [`resize_bilinear`]: the gradient with respect to the `w`×`h` source of
 /// a loss whose gradient with respect to the `nw`×`nh` result is `d`.
-pub fn resize_bilinear_adjoint(
+pub(crate) fn resize_bilinear_adjoint(
     d: &[f32],
     (nw, nh): (usize, usize),
     channels: usize,

@@ -2,11 +2,10 @@
 //!
 //! The pipeline (see ARCHITECTURE.md) flows one way through these modules:
 //! `volume` → `tf` → `camera`/`background` → `render` → `clip` → `optimize` → `formats`.
-//! `cli` is the thin layer the binary calls into.
+//! The command-line interface is the binary's (src/main.rs, src/cli), not part of this API.
 
 pub mod background;
 pub mod camera;
-pub mod cli;
 pub mod clip;
 pub mod formats;
 pub mod fs;

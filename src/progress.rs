@@ -34,8 +34,11 @@ impl ProgressMode {
 /// One step's numbers.
 #[derive(Clone, Debug, Default)]
 pub struct StepReport {
+    /// Total loss of the step.
     pub loss: f64,
+    /// Its contrastive (CLIP) term.
     pub clip: f64,
+    /// Softmax probability of the prompt among prompt and negatives.
     pub prompt_probability: f64,
 }
 

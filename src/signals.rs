@@ -1,16 +1,31 @@
-//! SIGINT, SIGTERM and SIGHUP ask a long run to stop: the first one raises [`STOP`] (the loop
+//! SIGINT, SIGTERM and SIGHUP ask a long run to stop: the first one raises the [`stop_flag`] (the loop
 //! ends after its current step and the result is written), a second one exits at once. The
 //! signal is remembered so the process can exit with 128 + its number, as shells expect.
 
 use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
+use std::sync::OnceLock;
 
-/// Raised by the first stop signal.
-pub static STOP: AtomicBool = AtomicBool::new(false);
+/// Raised by the first stop signal (read it through [`stop_flag`], which installs the
+/// handlers).
+static STOP: AtomicBool = AtomicBool::new(false);
 /// The first stop signal received (0: none).
 static SIGNAL: AtomicI32 = AtomicI32::new(0);
 
+/// The stop flag: SIGINT, SIGTERM or SIGHUP raise it, which ends the loop after the current
+/// step with that step's TF; the handlers are installed on first use (a warning on stderr
+/// if the system refuses them).
+pub fn stop_flag() -> &'static AtomicBool {
+    static INSTALLED: OnceLock<()> = OnceLock::new();
+    INSTALLED.get_or_init(|| {
+        if let Err(e) = install() {
+            eprintln!("warning: Ctrl-C will not stop cleanly: {e}");
+        }
+    });
+    &STOP
+}
+
 /// Install the handlers (idempotent). Returns an error text if the system refused.
-pub fn install() -> Result<(), String> {
+fn install() -> Result<(), String> {
     #[cfg(unix)]
     for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
         // SAFETY: a zeroed sigaction with only the handler set is valid; the handler below

@@ -9,7 +9,7 @@ use std::sync::atomic::AtomicBool;
 use optimize_toy::*;
 use t2tf::image::Image;
 use t2tf::optimize::captions::{CacheOutcome, CaptionPool};
-use t2tf::optimize::driver::{self, Finished, Job, Positive};
+use t2tf::optimize::driver::{self, Finished, Job, Models, Positive};
 use t2tf::optimize::report::Report;
 use t2tf::optimize::tf_plot::Curve;
 use t2tf::optimize::{OptimizeError, Renderer, Settings};
@@ -60,8 +60,9 @@ fn run(
     cache: Option<(&Path, &[u8])>,
     hist: &[u64],
 ) -> Result<Finished, OptimizeError> {
+    let s = s.validate()?;
     let job = Job {
-        settings: s,
+        settings: &s,
         positive,
         user_negatives: user,
         pool,
@@ -70,15 +71,13 @@ fn run(
         logit_scale: 100.0,
         preview_views: 4,
     };
-    driver::run_job(
-        &job,
-        &f.toy,
-        &f.enc,
-        t,
-        &TanhTf,
-        &AtomicBool::new(false),
-        &mut |_, _| {},
-    )
+    let models = Models {
+        renderer: &f.toy,
+        image_encoder: &f.enc,
+        text_encoder: t,
+        tf: &TanhTf,
+    };
+    driver::run_job(&job, &models, &AtomicBool::new(false), &mut |_, _| {})
 }
 
 #[test]

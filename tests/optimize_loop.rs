@@ -11,18 +11,29 @@ use optimize_toy::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use t2tf::optimize::{
-    self, schedule, Background, OptimizeError, Parameterization, PhaseTimes, Renderer, Settings,
-    Targets, View,
+    self, schedule, Background, OptimizeError, Parameterization, PhaseTimes, Problem, Renderer,
+    Settings, Targets, ValidSettings, View,
 };
 use t2tf::tf::ControlPoints;
 
-fn loss_at(f: &Fixture, s: &Settings, plan: &schedule::StepPlan, p: &[f64]) -> f64 {
+/// The toy problem: the fixture's renderer and encoder, the tanh TF, `targets` and `s`.
+fn problem<'a>(
+    f: &'a Fixture,
+    targets: Targets<'a>,
+    s: &'a ValidSettings,
+) -> Problem<'a, Toy, LinearEncoder, TanhTf> {
+    Problem {
+        renderer: &f.toy,
+        encoder: &f.enc,
+        tf: &TanhTf,
+        targets,
+        settings: s,
+    }
+}
+
+fn loss_at(f: &Fixture, s: &ValidSettings, plan: &schedule::StepPlan, p: &[f64]) -> f64 {
     optimize::step_gradient(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &f.targets(),
-        s,
+        &problem(f, f.targets(), s),
         plan,
         p,
         &mut PhaseTimes::default(),
@@ -35,7 +46,7 @@ fn loss_at(f: &Fixture, s: &Settings, plan: &schedule::StepPlan, p: &[f64]) -> f
 #[test]
 fn step_gradient_matches_central_differences_through_every_term() {
     let f = Fixture::new();
-    let s = settings();
+    let s = settings().validate().unwrap();
     // A step after gray_steps and prior_start: augmented backgrounds, prior on, L1/L2 on.
     let plan = schedule::plan(&s, f.pool.len(), 50);
     assert!(plan.prior && !matches!(plan.views[0].background, Background::Gray { .. }));
@@ -46,11 +57,7 @@ fn step_gradient_matches_central_differences_through_every_term() {
         *v += r.random_range(-0.5..0.5);
     }
     let (log, g) = optimize::step_gradient(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &f.targets(),
-        &s,
+        &problem(&f, f.targets(), &s),
         &plan,
         &p,
         &mut PhaseTimes::default(),
@@ -86,15 +93,11 @@ fn step_gradient_matches_central_differences_through_every_term() {
 #[test]
 fn loss_decreases_and_run_is_deterministic() {
     let f = Fixture::new();
-    let s = settings();
+    let s = settings().validate().unwrap();
     let stop = AtomicBool::new(false);
     let mut seen = 0;
     let out = optimize::optimize(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &f.targets(),
-        &s,
+        &problem(&f, f.targets(), &s),
         start_params(),
         &stop,
         &mut |log, total| {
@@ -139,24 +142,21 @@ fn loss_decreases_and_run_is_deterministic() {
     );
 
     let again = optimize::optimize(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &f.targets(),
-        &s,
+        &problem(&f, f.targets(), &s),
         start_params(),
         &stop,
         &mut |_, _| {},
     )
     .unwrap();
     assert_eq!(out.params, again.params, "same seed must give the same TF");
-    let other = Settings { seed: 1, ..s };
+    let other = Settings {
+        seed: 1,
+        ..settings()
+    }
+    .validate()
+    .unwrap();
     let third = optimize::optimize(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &f.targets(),
-        &other,
+        &problem(&f, f.targets(), &other),
         start_params(),
         &stop,
         &mut |_, _| {},
@@ -168,14 +168,10 @@ fn loss_decreases_and_run_is_deterministic() {
 #[test]
 fn stop_flag_returns_the_last_completed_step() {
     let f = Fixture::new();
-    let s = settings();
+    let s = settings().validate().unwrap();
     let stop = AtomicBool::new(false);
     let out = optimize::optimize(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &f.targets(),
-        &s,
+        &problem(&f, f.targets(), &s),
         start_params(),
         &stop,
         &mut |log, _| {
@@ -200,13 +196,11 @@ fn zero_steps_returns_the_initialization() {
     let s = Settings {
         steps: 0,
         ..settings()
-    };
+    }
+    .validate()
+    .unwrap();
     let out = optimize::optimize(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &f.targets(),
-        &s,
+        &problem(&f, f.targets(), &s),
         start_params(),
         &AtomicBool::new(false),
         &mut |_, _| {},
@@ -225,22 +219,15 @@ fn hard_cases_are_errors_or_finite() {
     let s0 = Settings {
         negatives_per_step: 0,
         ..settings()
-    };
+    }
+    .validate()
+    .unwrap();
     let t = Targets {
         user_negatives: &[],
         ..f.targets()
     };
-    let e = optimize::optimize(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &t,
-        &s0,
-        start_params(),
-        &stop,
-        &mut |_, _| {},
-    )
-    .unwrap_err();
+    let e = optimize::optimize(&problem(&f, t, &s0), start_params(), &stop, &mut |_, _| {})
+        .unwrap_err();
     assert!(matches!(e, OptimizeError::NoNegatives), "{e}");
     assert_eq!(f.toy.calls.get(), calls);
     // Saturated densities (σ = 255 everywhere, tanh flat): finite steps.
@@ -254,28 +241,17 @@ fn hard_cases_are_errors_or_finite() {
     let s = Settings {
         steps: 5,
         ..settings()
-    };
-    let out = optimize::optimize(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &f.targets(),
-        &s,
-        sat,
-        &stop,
-        &mut |_, _| {},
-    )
+    }
+    .validate()
     .unwrap();
+    let out =
+        optimize::optimize(&problem(&f, f.targets(), &s), sat, &stop, &mut |_, _| {}).unwrap();
     assert!(out.params.iter().all(|p| p.is_finite()));
     assert!(out.steps.iter().all(|l| l.total.is_finite()));
     // A renderer that starts returning NaN: an error naming the problem, never NaN params.
     f.toy.nan_after = Some(f.toy.calls.get() + 4);
     let e = optimize::optimize(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &f.targets(),
-        &s,
+        &problem(&f, f.targets(), &s),
         start_params(),
         &stop,
         &mut |_, _| {},
@@ -285,17 +261,8 @@ fn hard_cases_are_errors_or_finite() {
     // Non-finite starting parameters.
     let mut bad = start_params();
     bad[2] = f64::NAN;
-    let e = optimize::optimize(
-        &f.toy,
-        &f.enc,
-        &TanhTf,
-        &f.targets(),
-        &s,
-        bad,
-        &stop,
-        &mut |_, _| {},
-    )
-    .unwrap_err();
+    let e =
+        optimize::optimize(&problem(&f, f.targets(), &s), bad, &stop, &mut |_, _| {}).unwrap_err();
     assert!(
         e.to_string().contains("initial parameter at index 2"),
         "{e}"
@@ -305,7 +272,7 @@ fn hard_cases_are_errors_or_finite() {
 #[test]
 fn initialization_reaches_rho_on_a_renderer() {
     let f = Fixture::new();
-    let s = settings();
+    let s = settings().validate().unwrap();
     let mut hist = vec![100u64; 256];
     hist[0] = 50_000;
     let (params, found) = optimize::initialize(&f.toy, &TanhTf, &hist, &s).unwrap();
@@ -395,7 +362,7 @@ impl Renderer for HalfMissing {
 #[test]
 fn initialization_averages_over_rays_that_see_the_volume() {
     let r = HalfMissing(Toy::new(1));
-    let s = settings();
+    let s = settings().validate().unwrap();
     let (params, found) = optimize::initialize(&r, &TanhTf, &[10u64; 256], &s).unwrap();
     assert!(found.reached, "{found:?}");
     let lut = TanhTf.control_points(&params).unwrap().to_lut(LUT_N);

@@ -113,7 +113,9 @@ fn start(r: &VolumeRenderer, tf: &PaperTf, v: &Volume) -> Vec<f64> {
         seed: 3,
         ..Settings::default()
     };
-    initialize(r, tf, &v.histogram, &settings).unwrap().0
+    initialize(r, tf, &v.histogram, &settings.validate().unwrap())
+        .unwrap()
+        .0
 }
 
 #[test]

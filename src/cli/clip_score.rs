@@ -30,12 +30,11 @@ pub struct ClipScoreArgs {
 
 pub fn run(args: ClipScoreArgs) -> Result<()> {
     let image = Image::load_png(&args.image)?;
-    args.model.precision()?;
-    let files =
-        crate::clip::load::resolve(&args.model.request()).context("cannot load the CLIP model")?;
+    let precision = args.model.precision()?;
     let clip = args
         .model
-        .load(&files)
+        .resolve(precision)
+        .and_then(|m| m.load())
         .context("cannot load the CLIP model")?;
     let input = clip.preprocess(&image);
     let (img, _) = clip.encode_images(&[input])?;

@@ -1,6 +1,6 @@
 //! The CLIP model flags every command that loads a model shares.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use crate::clip::packed::{with_precision, Precision};
 use crate::clip::{Clip, ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
@@ -35,10 +35,16 @@ impl ModelArgs {
         Precision::resolve(&self.precision).map_err(|e| anyhow::anyhow!("--precision: {e}"))
     }
 
-    /// Load the model at the requested precision.
-    pub fn load(&self, files: &ModelFiles) -> anyhow::Result<Clip> {
-        let p = self.precision()?;
-        Ok(with_precision(p, || Clip::load_files(files))?)
+    /// Resolve `--model` once to its files (a local folder, or the Hub cache, downloading on
+    /// first use), to be loaded at `precision` (from [`ModelArgs::precision`]).
+    pub fn resolve(&self, precision: Precision) -> anyhow::Result<ChosenModel> {
+        let files = crate::clip::load::resolve(&self.request())?;
+        Ok(ChosenModel {
+            files,
+            precision,
+            // A local folder has no revision.
+            revision: (!Path::new(&self.model).is_dir()).then(|| self.revision.clone()),
+        })
     }
 
     /// What to load.
@@ -48,5 +54,24 @@ impl ModelArgs {
             revision: self.revision.clone(),
             tokenizer: self.tokenizer.clone(),
         }
+    }
+}
+
+/// The model the flags chose, resolved once by [`ModelArgs::resolve`].
+pub struct ChosenModel {
+    /// Its config, tokenizer and weight files.
+    pub files: ModelFiles,
+    /// The number format of its weight products on this CPU.
+    pub precision: Precision,
+    /// The Hub revision asked for; `None` for a local folder.
+    pub revision: Option<String>,
+}
+
+impl ChosenModel {
+    /// Load the model at its precision.
+    pub fn load(&self) -> anyhow::Result<Clip> {
+        Ok(with_precision(self.precision, || {
+            Clip::load_files(&self.files)
+        })?)
     }
 }

@@ -4,17 +4,15 @@
 //! loading the volume and CLIP, then binds them to the loop through `optimize::adapters`.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
-use std::sync::OnceLock;
 
 use anyhow::{bail, Context, Result};
 
 use super::{ModelArgs, VolumeArgs};
 use crate::image::Image;
 use crate::optimize::captions::{self, CacheOutcome, CaptionPool};
-use crate::optimize::driver::{self, Job, Positive, TextEncoder};
+use crate::optimize::driver::{self, Finished, Job, Models, Positive, TextEncoder};
 use crate::optimize::report::{ModelInfo, Report, StepLog, VolumeInfo};
-use crate::optimize::settings::{defaults, Settings};
+use crate::optimize::settings::{defaults, Settings, ValidSettings};
 use crate::optimize::tf_plot::Curve;
 use crate::optimize::{ImageEncoder, Parameterization, Renderer};
 use crate::progress::{Progress, ProgressMode, StepReport};
@@ -196,10 +194,10 @@ impl OptimizeArgs {
         Ok(slug(&source))
     }
 
-    /// Everything that can be checked before loading the volume and the model. Returns the
-    /// caption pool and the user's negatives.
-    pub fn validate(&self) -> Result<(CaptionPool, Vec<String>)> {
-        self.settings().validate()?;
+    /// Everything that can be checked before loading the volume and the model, checked once:
+    /// the settings, the names, the caption pool and the user's negatives.
+    pub fn validate(self) -> Result<ValidArgs> {
+        let settings = self.settings().validate()?;
         if let Some(p) = &self.prompt {
             if p.trim().is_empty() {
                 bail!("--prompt is empty: say what the renderings should show");
@@ -226,16 +224,45 @@ impl OptimizeArgs {
         if self.out.exists() && !self.out.is_dir() {
             bail!("{}: --out exists and is not a folder", self.out.display());
         }
-        self.tf_name()?;
+        let name = self.tf_name()?;
         let pool = match &self.negatives_file {
             Some(f) => CaptionPool::from_file(f)?,
             None => CaptionPool::builtin(),
         };
-        let user = captions::user_negatives(&self.negatives)?;
-        if self.negatives_per_step.min(pool.len()) + user.len() == 0 {
-            bail!("no negative prompts: the contrastive loss needs at least one");
-        }
-        Ok((pool, user))
+        // Never empty (the default negative stands in for none), so the contrastive loss
+        // always has a negative here; the loop checks that rule for library callers.
+        let user_negatives = captions::user_negatives(&self.negatives)?;
+        Ok(ValidArgs {
+            args: self,
+            settings,
+            pool,
+            user_negatives,
+            name,
+        })
+    }
+}
+
+/// The flags of one run after [`OptimizeArgs::validate`], the only way to build them: what
+/// `run` and [`execute`] take as given.
+#[derive(Debug)]
+pub struct ValidArgs {
+    args: OptimizeArgs,
+    settings: ValidSettings,
+    pool: CaptionPool,
+    user_negatives: Vec<String>,
+    /// The TF base name ([`OptimizeArgs::tf_name`]).
+    name: String,
+}
+
+impl ValidArgs {
+    /// The flags as given.
+    pub fn args(&self) -> &OptimizeArgs {
+        &self.args
+    }
+
+    /// The optimizer settings, validated.
+    pub fn settings(&self) -> &ValidSettings {
+        &self.settings
     }
 }
 
@@ -285,33 +312,22 @@ pub struct Loaded {
 /// returns the names written. `crate::formats` provides them.
 pub type Exporter<'a> = dyn FnMut(&Path, &str, &ControlPoints) -> Result<Vec<String>> + 'a;
 
-/// The stop flag: SIGINT, SIGTERM or SIGHUP raise it (`crate::signals`), which ends the loop
-/// after the current step with that step's TF; handlers are installed on first use.
-pub fn stop_flag() -> &'static AtomicBool {
-    static INSTALLED: OnceLock<()> = OnceLock::new();
-    INSTALLED.get_or_init(|| {
-        if let Err(e) = crate::signals::install() {
-            eprintln!("warning: Ctrl-C will not stop cleanly: {e}");
-        }
-    });
-    &crate::signals::STOP
-}
-
-/// The whole command once the volume and model are loaded: validate, run Algorithm 1 with a
-/// progress bar and Ctrl-C handling, export the TF (`export`), then write tf.png,
-/// preview.png and report.json. Returns the report.
+/// The whole command once the volume and model are loaded: run Algorithm 1 with a progress
+/// bar and Ctrl-C handling, export the TF (`export`), then write tf.png, preview.png and
+/// report.json. Returns the report.
 pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization>(
-    args: &OptimizeArgs,
+    run: &ValidArgs,
     ctx: &Loaded,
-    renderer: &R,
-    image_encoder: &E,
-    text_encoder: &T,
-    tf: &P,
+    models: &Models<R, E, T, P>,
     export: &mut Exporter,
 ) -> Result<Report> {
-    let (pool, user) = args.validate()?;
-    let name = args.tf_name()?;
-    let settings = args.settings();
+    let ValidArgs {
+        args,
+        settings,
+        pool,
+        user_negatives: user,
+        name,
+    } = run;
     let reference = match &args.reference_image {
         Some(p) => Some(Image::load_png(p)?),
         None => None,
@@ -327,10 +343,10 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
         _ => None,
     };
     let job = Job {
-        settings: &settings,
+        settings,
         positive,
-        user_negatives: &user,
-        pool: &pool,
+        user_negatives: user,
+        pool,
         cache,
         histogram: &ctx.histogram,
         logit_scale: ctx.model.logit_scale,
@@ -338,7 +354,7 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
     };
     // Not cleared here: a signal received while the volume and model loaded must still stop
     // the run (after one step) and be reported by the exit code.
-    let stop = stop_flag();
+    let stop = crate::signals::stop_flag();
     let mut progress = Progress::new(args.progress, settings.steps);
     progress.phase("optimizing (caption embeddings are computed first if not cached)");
     let mut on_step = |log: &StepLog, _total: usize| {
@@ -348,16 +364,8 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
             prompt_probability: log.prompt_probability,
         });
     };
-    let finished = driver::run_job(
-        &job,
-        renderer,
-        image_encoder,
-        text_encoder,
-        tf,
-        stop,
-        &mut on_step,
-    )
-    .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
+    let finished = driver::run_job(&job, models, stop, &mut on_step)
+        .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
     progress.finish();
     if finished.outcome.interrupted {
         eprintln!(
@@ -380,24 +388,9 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
         .with_context(|| format!("{}: cannot create the output folder", args.out.display()))?;
     // The files go out as one set: staged, then moved in with report.json last.
     let set = crate::fs::OutputSet::begin(&args.out)?;
-    let mut report = Report::new(settings);
-    report.prompt = args.prompt.clone();
-    report.reference_image = args
-        .reference_image
-        .as_ref()
-        .map(|p| p.display().to_string());
-    report.negatives = user;
-    report.caption_pool = match &args.negatives_file {
-        Some(f) => f.display().to_string(),
-        None => "builtin".into(),
-    };
-    report.caption_pool_size = pool.len();
-    report.model = ctx.model.clone();
-    report.volume = ctx.volume.clone();
-    report.render = ctx.render.clone();
-    finished.fill_report(&mut report);
+    let mut report = new_report(run, ctx, &finished);
     let t0 = std::time::Instant::now();
-    report.outputs = export(set.dir(), &name, &finished.outcome.control_points)?;
+    report.outputs = export(set.dir(), name, &finished.outcome.control_points)?;
     report.timings.output += t0.elapsed().as_secs_f64();
     driver::write_outputs(
         set.dir(),
@@ -416,6 +409,29 @@ pub fn execute<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
     Ok(report)
 }
 
+/// report.json's content before the outputs are written: the flags, what was loaded and what
+/// the run found.
+fn new_report(run: &ValidArgs, ctx: &Loaded, finished: &Finished) -> Report {
+    let args = &run.args;
+    let mut report = Report::new(run.settings.clone().into_inner());
+    report.prompt = args.prompt.clone();
+    report.reference_image = args
+        .reference_image
+        .as_ref()
+        .map(|p| p.display().to_string());
+    report.negatives = run.user_negatives.clone();
+    report.caption_pool = match &args.negatives_file {
+        Some(f) => f.display().to_string(),
+        None => "builtin".into(),
+    };
+    report.caption_pool_size = run.pool.len();
+    report.model = ctx.model.clone();
+    report.volume = ctx.volume.clone();
+    report.render = ctx.render.clone();
+    finished.fill_report(&mut report);
+    report
+}
+
 /// Entries of the LUT the renderer samples (one per histogram bin).
 const LUT_SIZE: usize = 256;
 
@@ -425,44 +441,19 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     if !Path::new(&args.volume).exists() {
         bail!("{}: volume file not found", args.volume.display());
     }
-    args.validate()
-        .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
-    // Before any work: --out is ours (locked against a second run, which proves it can be
-    // created and written), and what killed runs left there is cleaned up.
-    let _lock = crate::fs::OutputLock::acquire(&args.out)?;
-    for name in crate::fs::clean_stale(&args.out)? {
-        eprintln!("t2tf: cleaned up {name}, left in --out by an interrupted run");
-    }
-    // Installed now, so a SIGTERM while loading still ends with a written result.
-    stop_flag();
-    crate::memory::set_limit(args.max_memory);
-    if let Some(t) = args.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(crate::memory::thread_count(t))
-            .build_global()
-            .context("--threads: cannot start the thread pool")?;
-    }
+    let volume_path = args.volume.clone();
+    let run = args
+        .validate()
+        .with_context(|| format!("t2tf optimize {}", volume_path.display()))?;
+    let args = run.args();
+    let _lock = claim_output_and_process(args)?;
     let volume = args.volume_args.load(&args.volume)?;
-    let files = crate::clip::load::resolve(&args.model.request())?;
-    check_model_size(&files)?;
-    let clip = args.model.load(&files)?;
-    if let Some(prompt) = args.prompt.as_deref() {
-        // CLIP reads at most its context length; a prompt that fills it was cut (the tokenizer
-        // truncates as transformers does). Say so rather than optimize for half a sentence.
-        let context = clip.config().text.max_positions;
-        if clip.tokenize(&[prompt])?[0].len() >= context {
-            eprintln!(
-                "t2tf: warning: --prompt fills CLIP's {context}-token context; words beyond it are ignored"
-            );
-        }
-    }
-    let weights_hash = captions::hash_files(&files.weights)?;
-    let hex: String = weights_hash.iter().map(|b| format!("{b:02x}")).collect();
-    // Cached caption embeddings belong to the weights, the tokenizer and the config together.
-    let cache_key = captions::model_key(
-        &weights_hash,
-        &[files.tokenizer.clone(), files.config.clone()],
-    )?;
+    let LoadedModel {
+        clip,
+        precision,
+        info: model_info,
+        cache_key,
+    } = load_model(args)?;
     let g = volume.geometry;
     let unit = crate::tf::default_unit_distance(&g);
     let options = crate::render::RenderOptions {
@@ -489,13 +480,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             range: volume.range,
             non_finite_voxels: volume.non_finite,
         },
-        model: ModelInfo {
-            id: args.model.model.clone(),
-            // A local folder has no revision.
-            revision: (!Path::new(&args.model.model).is_dir()).then(|| args.model.revision.clone()),
-            weights_sha256: Some(hex),
-            logit_scale: clip.logit_scale() as f64,
-        },
+        model: model_info,
         weights_hash: Some(cache_key.to_vec()),
         render: serde_json::json!({
             "step_voxels": options.step,
@@ -506,7 +491,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             "threads": rayon::current_num_threads(),
             // Which matrix kernel CLIP runs on this CPU (chosen at run time).
             "clip_engine": crate::clip::packed::with_precision(
-                args.model.precision()?,
+                precision,
                 crate::clip::packed::describe,
             ),
         }),
@@ -515,24 +500,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             unit_over_length: unit / g.longest_side(),
         },
     };
-    let settings = args.settings();
-    let first = crate::optimize::View::orbit(&settings, ctx.preview_views)[0].clone();
-    let cam = crate::camera::Camera::orbit(
-        &g,
-        crate::camera::Orbit {
-            yaw: first.yaw,
-            pitch: first.pitch,
-            distance: first.distance,
-            up: renderer.up,
-        },
-    )?
-    .paraview();
-    let view = crate::formats::ScriptView {
-        position: cam.position,
-        focal_point: cam.focal_point,
-        view_up: cam.view_up,
-        view_angle_deg: cam.view_angle,
-    };
+    let view = script_view(run.settings(), ctx.preview_views, &g, renderer.up)?;
     let mut export = |dir: &Path, name: &str, cp: &ControlPoints| -> Result<Vec<String>> {
         // Export the TF the renderer sampled (its LUT), not the raw control points: they
         // differ where points collapsed within one LUT cell; simplification keeps it small.
@@ -547,12 +515,18 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
             .collect())
     };
-    let model = ClipModel(&clip);
+    let clip_model = ClipModel(&clip);
     let tf = PaperTf {
         k: args.control_points,
         lut_size: LUT_SIZE,
     };
-    execute(&args, &ctx, &renderer, &model, &model, &tf, &mut export)?;
+    let models = Models {
+        renderer: &renderer,
+        image_encoder: &clip_model,
+        text_encoder: &clip_model,
+        tf: &tf,
+    };
+    execute(&run, &ctx, &models, &mut export)?;
     if let Some(sig) = crate::signals::received() {
         eprintln!(
             "t2tf: stopped by {}: the TF of the last finished step was written to {}",
@@ -562,6 +536,100 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         std::process::exit(128 + sig);
     }
     Ok(())
+}
+
+/// Before any work: --out is ours (locked against a second run, which proves it can be
+/// created and written), what killed runs left there is cleaned up, the stop handlers are in
+/// place, and the memory budget and thread pool are set. The lock holds while it lives.
+fn claim_output_and_process(args: &OptimizeArgs) -> Result<crate::fs::OutputLock> {
+    let lock = crate::fs::OutputLock::acquire(&args.out)?;
+    for name in crate::fs::clean_stale(&args.out)? {
+        eprintln!("t2tf: cleaned up {name}, left in --out by an interrupted run");
+    }
+    // Installed now, so a SIGTERM while loading still ends with a written result.
+    crate::signals::stop_flag();
+    crate::memory::set_limit(args.max_memory);
+    if let Some(t) = args.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(crate::memory::thread_count(t))
+            .build_global()
+            .context("--threads: cannot start the thread pool")?;
+    }
+    Ok(lock)
+}
+
+/// CLIP as the run uses it, and what report.json and the caption cache say about it.
+struct LoadedModel {
+    clip: crate::clip::Clip,
+    precision: crate::clip::packed::Precision,
+    info: ModelInfo,
+    /// Key of the caption-embedding cache (`captions::model_key`).
+    cache_key: [u8; 32],
+}
+
+/// Resolve and load `--model` at `--precision` (once its weights are known to fit the
+/// memory budget), warn about a prompt longer than CLIP reads, and hash the files.
+fn load_model(args: &OptimizeArgs) -> Result<LoadedModel> {
+    let precision = args.model.precision()?;
+    let model = args.model.resolve(precision)?;
+    let files = &model.files;
+    check_model_size(files)?;
+    let clip = model.load()?;
+    if let Some(prompt) = args.prompt.as_deref() {
+        // CLIP reads at most its context length; a prompt that fills it was cut (the tokenizer
+        // truncates as transformers does). Say so rather than optimize for half a sentence.
+        let context = clip.config().text.max_positions;
+        if clip.tokenize(&[prompt])?[0].len() >= context {
+            eprintln!(
+                "t2tf: warning: --prompt fills CLIP's {context}-token context; words beyond it are ignored"
+            );
+        }
+    }
+    let weights_hash = captions::hash_files(&files.weights)?;
+    let hex: String = weights_hash.iter().map(|b| format!("{b:02x}")).collect();
+    // Cached caption embeddings belong to the weights, the tokenizer and the config together.
+    let cache_key = captions::model_key(
+        &weights_hash,
+        &[files.tokenizer.clone(), files.config.clone()],
+    )?;
+    let info = ModelInfo {
+        id: args.model.model.clone(),
+        revision: model.revision.clone(),
+        weights_sha256: Some(hex),
+        logit_scale: clip.logit_scale() as f64,
+    };
+    Ok(LoadedModel {
+        clip,
+        precision,
+        info,
+        cache_key,
+    })
+}
+
+/// The camera the exported scripts open with: the first of the preview's orbit views.
+fn script_view(
+    settings: &ValidSettings,
+    preview_views: usize,
+    g: &crate::volume::Geometry,
+    up: crate::camera::UpAxis,
+) -> Result<crate::formats::ScriptView> {
+    let first = crate::optimize::View::orbit(settings, preview_views)[0].clone();
+    let cam = crate::camera::Camera::orbit(
+        g,
+        crate::camera::Orbit {
+            yaw: first.yaw,
+            pitch: first.pitch,
+            distance: first.distance,
+            up,
+        },
+    )?
+    .paraview();
+    Ok(crate::formats::ScriptView {
+        position: cam.position,
+        focal_point: cam.focal_point,
+        view_up: cam.view_up,
+        view_angle_deg: cam.view_angle,
+    })
 }
 
 /// The model's f32 weights must fit the memory budget before they are read.
@@ -576,8 +644,14 @@ fn check_model_size(files: &crate::clip::load::ModelFiles) -> Result<()> {
     Ok(())
 }
 
+/// The analytic stand-ins of the optimizer's integration tests, for `execute`'s test below.
+#[cfg(test)]
+#[path = "../../tests/optimize_toy/mod.rs"]
+mod optimize_toy;
+
 #[cfg(test)]
 mod tests {
+    use super::optimize_toy::*;
     use super::*;
     use clap::Parser;
 
@@ -688,6 +762,120 @@ mod tests {
             .unwrap()
             .validate()
             .unwrap();
+    }
+
+    fn loaded() -> Loaded {
+        let mut histogram = vec![100u64; 256];
+        histogram[0] = 50_000;
+        Loaded {
+            histogram,
+            volume: VolumeInfo {
+                path: "toy".into(),
+                dims: [6, 6, 1],
+                spacing: [1.0; 3],
+                range: [0.0, 1.0],
+                non_finite_voxels: 0,
+            },
+            model: ModelInfo {
+                id: "toy".into(),
+                revision: None,
+                weights_sha256: Some("00".into()),
+                logit_scale: 100.0,
+            },
+            weights_hash: Some(b"toy weights".to_vec()),
+            render: serde_json::json!({"step_size": 0.5}),
+            preview_views: 4,
+            tf_curve: Curve::Opacity {
+                unit_over_length: 1.0 / 6.0,
+            },
+        }
+    }
+
+    #[test]
+    fn execute_writes_the_outputs_and_reuses_the_caption_cache() {
+        let dir = tempfile::tempdir().unwrap();
+        // The cache goes under XDG_CACHE_HOME (only this test in this binary reads it).
+        std::env::set_var("XDG_CACHE_HOME", dir.path().join("cache"));
+        let f = Fixture::new();
+        let t = ToyText {
+            known: vec![("a red and yellow thing".into(), f.positive.clone())],
+            calls: 0.into(),
+            texts: 0.into(),
+        };
+        let out = dir.path().join("red-thing");
+        let argv = [
+            "t2tf",
+            "toy.raw",
+            "--prompt",
+            "a red and yellow thing",
+            "--steps",
+            "20",
+            "--views",
+            "2",
+            "--lr",
+            "0.05",
+            "--control-points",
+            "5",
+            "--negatives-per-step",
+            "16",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        let run = Wrap::try_parse_from(argv).unwrap().a.validate().unwrap();
+        let exported = std::cell::RefCell::new(Vec::new());
+        let mut export =
+            |d: &Path, name: &str, cp: &ControlPoints| -> anyhow::Result<Vec<String>> {
+                let file = format!("{name}.json");
+                std::fs::write(d.join(&file), format!("{:?}", cp.sigma))?;
+                exported.borrow_mut().push(cp.clone());
+                Ok(vec![file])
+            };
+        let models = Models {
+            renderer: &f.toy,
+            image_encoder: &f.enc,
+            text_encoder: &t,
+            tf: &TanhTf,
+        };
+        let report = execute(&run, &loaded(), &models, &mut export).unwrap();
+        assert_eq!(report.steps_run, 20);
+        assert_eq!(report.negatives, vec!["a blank image"]);
+        assert_eq!(report.caption_pool, "builtin");
+        assert!(report.caption_pool_size >= 5000);
+        assert_eq!(report.render["step_size"], 0.5);
+        for name in [
+            // Named after the --out folder.
+            "red-thing.json",
+            "tf.png",
+            "preview.png",
+            "report.json",
+        ] {
+            assert!(out.join(name).is_file(), "{name} missing");
+            assert!(
+                report.outputs.iter().any(|o| o == name),
+                "{name} not listed"
+            );
+        }
+        let json: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+        assert_eq!(json["prompt"], "a red and yellow thing");
+        assert_eq!(json["model"]["id"], "toy");
+        assert_eq!(json["settings"]["steps"], 20);
+        let done = exported.borrow().clone();
+        assert_eq!(done.len(), 1);
+        assert_eq!(done[0].len(), 5);
+        assert!(done[0]
+            .sigma
+            .iter()
+            .all(|s| s.is_finite() && (0.0..=255.0).contains(s)));
+        // The whole pool was encoded once, then cached: a second run encodes only 2 texts.
+        let first = t.texts.get();
+        assert!(first >= report.caption_pool_size);
+        let cached = std::fs::read_dir(dir.path().join("cache/t2tf/text-embeddings"))
+            .unwrap()
+            .count();
+        assert_eq!(cached, 1);
+        execute(&run, &loaded(), &models, &mut export).unwrap();
+        assert_eq!(t.texts.get() - first, 2);
     }
 
     #[test]

@@ -3,18 +3,18 @@
 //! owns (`tf.png`, `preview.png`, `report.json`). The TF exports (`NAME.json`, …) belong to
 //! `crate::formats` and are written by the caller.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use super::captions::{self, CacheOutcome, CaptionPool};
 use super::init::Initialization;
-use super::report::{InitInfo, PhaseTimes, Report, Score, StepLog};
+use super::report::{InitInfo, PhaseTimes, Report, ReportError, Score, StepLog};
 use super::{
     initialize, optimize, scores, BoxError, ImageEncoder, OptimizeError, Outcome, Parameterization,
-    Renderer, Settings, Targets, View,
+    Problem, Renderer, Targets, ValidSettings, View,
 };
-use crate::image::Image;
+use crate::image::{Image, ImageError};
 
 /// CLIP's text tower as the driver sees it.
 pub trait TextEncoder {
@@ -38,10 +38,13 @@ pub const TEXT_BATCH: usize = 256;
 /// Everything a run needs besides the models.
 #[derive(Clone, Copy, Debug)]
 pub struct Job<'a> {
-    pub settings: &'a Settings,
+    /// The run's settings, checked once where they were made.
+    pub settings: &'a ValidSettings,
+    /// What the renders should match.
     pub positive: Positive<'a>,
     /// The user's negatives (already defaulted, see `captions::user_negatives`).
     pub user_negatives: &'a [String],
+    /// The caption pool negatives are drawn from.
     pub pool: &'a CaptionPool,
     /// Cache directory and model-weights hash for the pool embeddings; `None`: no cache.
     pub cache: Option<(&'a Path, &'a [u8])>,
@@ -53,10 +56,24 @@ pub struct Job<'a> {
     pub preview_views: usize,
 }
 
+/// The models a run drives: the renderer, CLIP's two towers and the TF parameterization.
+pub struct Models<'a, R, E, T, P> {
+    /// The volume renderer.
+    pub renderer: &'a R,
+    /// CLIP's image tower.
+    pub image_encoder: &'a E,
+    /// CLIP's text tower.
+    pub text_encoder: &'a T,
+    /// The TF parameterization.
+    pub tf: &'a P,
+}
+
 /// The result of [`run_job`].
 #[derive(Clone, Debug)]
 pub struct Finished {
+    /// What the loop returned.
     pub outcome: Outcome,
+    /// What the density initialization found.
     pub init: Initialization,
     /// Positive first (caption "reference image" in image mode), then the user's negatives.
     pub scores: Vec<Score>,
@@ -92,26 +109,88 @@ fn encode_batched<T: TextEncoder>(
 }
 
 /// Run Algorithm 1 for `job`. `progress` sees every step; raising `stop` ends the run after
-/// the current step with the TF of that step (`outcome.interrupted`).
-#[allow(clippy::too_many_arguments)]
+/// the current step with the TF of that step (`outcome.interrupted`). Zero negatives are
+/// the loop's error ([`OptimizeError::NoNegatives`]), raised before the loop's first render.
 pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization>(
     job: &Job,
-    renderer: &R,
-    image_encoder: &E,
-    text_encoder: &T,
-    tf: &P,
+    models: &Models<R, E, T, P>,
     stop: &AtomicBool,
     progress: &mut dyn FnMut(&StepLog, usize),
 ) -> Result<Finished, OptimizeError> {
+    let Models {
+        renderer,
+        image_encoder,
+        tf,
+        ..
+    } = *models;
     let s = job.settings;
-    s.validate()?;
-    if job.pool.len().min(s.negatives_per_step) + job.user_negatives.len() == 0 {
-        return Err(OptimizeError::NoNegatives);
-    }
     let mut times = PhaseTimes::default();
 
-    // Text side: the positive, the user's negatives, the pool (cached).
     let t0 = Instant::now();
+    let Embedded {
+        positive,
+        user,
+        pool,
+        cache,
+    } = embed_targets(job, models)?;
+    times.text = t0.elapsed().as_secs_f64();
+
+    let t0 = Instant::now();
+    let (params, init) = initialize(renderer, tf, job.histogram, s)?;
+    times.init = t0.elapsed().as_secs_f64();
+
+    let targets = Targets {
+        positive: &positive,
+        pool: &pool,
+        user_negatives: &user,
+        logit_scale: job.logit_scale,
+    };
+    let problem = Problem {
+        renderer,
+        encoder: image_encoder,
+        tf,
+        targets,
+        settings: s,
+    };
+    let outcome = optimize(&problem, params, stop, progress)?;
+    let lp = &outcome.times;
+    times.render = lp.render;
+    times.clip_forward = lp.clip_forward;
+    times.clip_backward = lp.clip_backward;
+    times.render_backward = lp.render_backward;
+    times.other = lp.other;
+
+    // Final scores and the preview from the same fixed orbit.
+    let t0 = Instant::now();
+    let (scores, preview) = score_and_preview(job, models, &outcome, &positive, &user)?;
+    times.other += t0.elapsed().as_secs_f64();
+
+    Ok(Finished {
+        outcome,
+        init,
+        scores,
+        times,
+        cache,
+        preview,
+    })
+}
+
+/// The embeddings a run compares its renders against, and how the pool's were obtained.
+struct Embedded {
+    positive: Vec<f32>,
+    user: Vec<Vec<f32>>,
+    pool: Vec<Vec<f32>>,
+    cache: Option<CacheOutcome>,
+}
+
+/// The text side of a run: the positive (prompt or reference image), the user's negatives
+/// and the pool (cached on disk when `job.cache` says where).
+fn embed_targets<R, E: ImageEncoder, T: TextEncoder, P>(
+    job: &Job,
+    models: &Models<R, E, T, P>,
+) -> Result<Embedded, OptimizeError> {
+    let (image_encoder, text_encoder) = (models.image_encoder, models.text_encoder);
+    let s = job.settings;
     let positive = match job.positive {
         Positive::Prompt(p) => {
             if p.trim().is_empty() {
@@ -152,40 +231,27 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
             (encode_batched(text_encoder, job.pool.captions())?, None)
         }
     };
-    times.text = t0.elapsed().as_secs_f64();
+    Ok(Embedded {
+        positive,
+        user,
+        pool,
+        cache,
+    })
+}
 
-    let t0 = Instant::now();
-    let (params, init) = initialize(renderer, tf, job.histogram, s)?;
-    times.init = t0.elapsed().as_secs_f64();
-
-    let targets = Targets {
-        positive: &positive,
-        pool: &pool,
-        user_negatives: &user,
-        logit_scale: job.logit_scale,
-    };
-    let outcome = optimize(
-        renderer,
-        image_encoder,
-        tf,
-        &targets,
-        s,
-        params,
-        stop,
-        progress,
-    )?;
-    let lp = &outcome.times;
-    times.render = lp.render;
-    times.clip_forward = lp.clip_forward;
-    times.clip_backward = lp.clip_backward;
-    times.render_backward = lp.render_backward;
-    times.other = lp.other;
-
-    // Final scores and the preview from the same fixed orbit.
-    let t0 = Instant::now();
+/// The final TF's CLIP scores (positive first, then the user's negatives) and its preview,
+/// from the same `job.preview_views` orbit views.
+fn score_and_preview<R: Renderer, E: ImageEncoder, T, P: Parameterization>(
+    job: &Job,
+    models: &Models<R, E, T, P>,
+    outcome: &Outcome,
+    positive: &[f32],
+    user: &[Vec<f32>],
+) -> Result<(Vec<Score>, Image), OptimizeError> {
+    let (renderer, image_encoder, tf) = (models.renderer, models.image_encoder, models.tf);
     let lut = outcome.control_points.to_lut(tf.lut_size());
-    let views = View::orbit(s, job.preview_views.max(1));
-    let mut classes: Vec<&[f32]> = vec![&positive];
+    let views = View::orbit(job.settings, job.preview_views.max(1));
+    let mut classes: Vec<&[f32]> = vec![positive];
     classes.extend(user.iter().map(Vec::as_slice));
     let mut images = Vec::with_capacity(views.len());
     for v in &views {
@@ -214,17 +280,7 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
                 .map_err(OptimizeError::Renderer)?,
         );
     }
-    let preview = tile(&pictures);
-    times.other += t0.elapsed().as_secs_f64();
-
-    Ok(Finished {
-        outcome,
-        init,
-        scores,
-        times,
-        cache,
-        preview,
-    })
+    Ok((scores, tile(&pictures)))
 }
 
 /// Images side by side in rows of ⌈√n⌉ (see `Image::grid`).
@@ -260,11 +316,12 @@ pub fn write_outputs(
     finished: &Finished,
     histogram: &[u64],
     curve: super::tf_plot::Curve,
-) -> anyhow::Result<()> {
-    use anyhow::Context;
+) -> Result<(), OutputError> {
     let t0 = Instant::now();
-    std::fs::create_dir_all(dir)
-        .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;
+    std::fs::create_dir_all(dir).map_err(|source| OutputError::Folder {
+        path: dir.to_path_buf(),
+        source,
+    })?;
     let cp = &finished.outcome.control_points;
     super::tf_plot::save(&dir.join("tf.png"), cp, histogram, curve)?;
     finished.preview.save_png(&dir.join("preview.png"))?;
@@ -272,5 +329,24 @@ pub fn write_outputs(
         .outputs
         .extend(["tf.png", "preview.png", "report.json"].map(String::from));
     report.timings.output += t0.elapsed().as_secs_f64();
-    report.write(&dir.join("report.json"))
+    Ok(report.write(&dir.join("report.json"))?)
+}
+
+/// Why [`write_outputs`] could not write the run's files.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// The output folder could not be created.
+    #[error("{}: cannot create the output folder", path.display())]
+    Folder {
+        /// The folder.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// tf.png or preview.png.
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    /// report.json.
+    #[error(transparent)]
+    Report(#[from] ReportError),
 }

@@ -7,7 +7,7 @@
 
 use rand::Rng;
 
-use super::OptimizeError;
+use super::{InitError, OptimizeError};
 use crate::tf::ControlPoints;
 
 /// Floor added to the histogram density before inverting, in units of the uniform density
@@ -40,18 +40,13 @@ pub fn random_colours(k: usize, rng: &mut impl Rng) -> Vec<[f64; 3]> {
 pub fn inverse_histogram_weights(histogram: &[u64], x: &[f64]) -> Result<Vec<f64>, OptimizeError> {
     let total: u64 = histogram.iter().sum();
     if histogram.is_empty() || total == 0 {
-        return Err(OptimizeError::Init(
-            "the volume histogram is empty (no finite voxel): densities cannot be initialized"
-                .into(),
-        ));
+        return Err(InitError::EmptyHistogram.into());
     }
     if x.len() < 2
         || x.iter().any(|v| !(0.0..=1.0).contains(v))
         || x.windows(2).any(|w| w[1] < w[0])
     {
-        return Err(OptimizeError::Init(format!(
-            "control points must be at least 2 ascending positions in [0, 1], got {x:?}"
-        )));
+        return Err(InitError::Positions(x.to_vec()).into());
     }
     let bins = histogram.len();
     // Density per unit of normalized value, uniform = 1.
@@ -93,6 +88,7 @@ pub fn inverse_histogram_weights(histogram: &[u64], x: &[f64]) -> Result<Vec<f64
 /// The result of the initialization.
 #[derive(Clone, Debug)]
 pub struct Initialization {
+    /// The initial TF: evenly spaced points, seeded colours, scaled densities.
     pub control_points: ControlPoints,
     /// The common density scale: σ_k = min(255, scale · w_k).
     pub scale: f64,
@@ -122,17 +118,13 @@ pub fn fit_density(
     mut mean_transmittance: impl FnMut(&ControlPoints) -> f64,
 ) -> Result<Initialization, OptimizeError> {
     if !(rho > 0.0 && rho < 1.0) {
-        return Err(OptimizeError::Init(format!(
-            "ρ must be in (0, 1), got {rho}"
-        )));
+        return Err(InitError::Rho(rho).into());
     }
     if weights.len() != x.len()
         || colours.len() != x.len()
         || weights.iter().any(|w| !(w.is_finite() && *w > 0.0))
     {
-        return Err(OptimizeError::Init(
-            "weights and colours must match the control points, weights finite and > 0".into(),
-        ));
+        return Err(InitError::Weights.into());
     }
     let min_w = weights.iter().cloned().fold(f64::INFINITY, f64::min);
     let points = |s: f64| ControlPoints {
@@ -145,9 +137,11 @@ pub fn fit_density(
         evaluations += 1;
         let t = mean_transmittance(&points(s));
         if !(t.is_finite() && (-1e-6..=1.0 + 1e-6).contains(&t)) {
-            return Err(OptimizeError::Init(format!(
-                "mean transmittance of view V0 is {t} at density scale {s}: expected a value in [0, 1]"
-            )));
+            return Err(InitError::Transmittance {
+                transmittance: t,
+                scale: s,
+            }
+            .into());
         }
         Ok(t)
     };

@@ -7,7 +7,7 @@
 //!
 //! Each function returns the loss and the gradient of that loss with respect to its input.
 
-use super::OptimizeError;
+use super::{EmbeddingError, OptimizeError, TransmittanceError};
 use crate::clip::Incomparable;
 
 /// T_N is clamped to [ε, 1 − ε] inside the Beta prior.
@@ -25,12 +25,12 @@ use crate::clip::Incomparable;
 /// answer, not only a safe one: for a, b < 1 the prior decreases towards both ends, so a ray
 /// already past the clamp is where the prior wants it, and a ray that misses the box has no
 /// parameter to move anyway.
-pub const PRIOR_EPS: f64 = 1e-4;
+pub(crate) const PRIOR_EPS: f64 = 1e-4;
 
-/// Result of [`contrastive`].
+/// Result of `contrastive` (the contrastive loss of one image embedding).
 #[derive(Clone, Debug)]
 pub struct Contrastive {
-    /// Cross-entropy −log softmax(logits)[0].
+    /// Cross-entropy −log softmax(logits)\[0\].
     pub loss: f64,
     /// `s · cos(e_I, e_k)` per class, class 0 first.
     pub logits: Vec<f64>,
@@ -50,7 +50,7 @@ pub struct Contrastive {
 /// The softmax uses log-sum-exp with the maximum logit subtracted, so logits of 100 and more
 /// are exact. The gradient goes through the normalization of e_I:
 /// d cos_k / d e_I = (t̂_k − cos_k û) / |e_I|.
-pub fn contrastive(
+pub(crate) fn contrastive(
     image: &[f32],
     classes: &[&[f32]],
     logit_scale: f64,
@@ -59,9 +59,7 @@ pub fn contrastive(
         return Err(OptimizeError::NoNegatives);
     }
     if !(logit_scale.is_finite() && logit_scale > 0.0) {
-        return Err(OptimizeError::Embedding(format!(
-            "CLIP logit scale must be positive and finite, got {logit_scale}"
-        )));
+        return Err(EmbeddingError::LogitScale(logit_scale).into());
     }
     let u = unit(image, "image embedding")?;
     let mut logits = Vec::with_capacity(classes.len());
@@ -69,11 +67,12 @@ pub fn contrastive(
     let mut units = Vec::with_capacity(classes.len());
     for (k, c) in classes.iter().enumerate() {
         if c.len() != image.len() {
-            return Err(OptimizeError::Embedding(format!(
-                "text embedding {k} has {} values but the image embedding has {}",
-                c.len(),
-                image.len()
-            )));
+            return Err(EmbeddingError::ClassLength {
+                class: k,
+                len: c.len(),
+                image_len: image.len(),
+            }
+            .into());
         }
         let t = unit(c, "text embedding")?;
         let cos: f64 = u.iter().zip(&t).map(|(a, b)| a * b).sum();
@@ -110,10 +109,16 @@ pub fn contrastive(
 
 /// Cosine similarity of two embeddings in f64 (`clip::cosine_checked`, errors as in
 /// [`contrastive`]).
-pub fn cosine(a: &[f32], b: &[f32]) -> Result<f64, OptimizeError> {
-    crate::clip::cosine_checked(a, b).map_err(|e| match e {
-        Incomparable::Lengths(..) => OptimizeError::Embedding(e.to_string()),
-        _ => OptimizeError::Embedding(format!("an embedding {e}")),
+pub(crate) fn cosine(a: &[f32], b: &[f32]) -> Result<f64, OptimizeError> {
+    crate::clip::cosine_checked(a, b).map_err(|e| {
+        match e {
+            Incomparable::Lengths(..) => EmbeddingError::Lengths(e),
+            _ => EmbeddingError::Unusable {
+                what: "an embedding",
+                problem: e,
+            },
+        }
+        .into()
     })
 }
 
@@ -125,8 +130,8 @@ fn norm(v: &[f32]) -> f64 {
 }
 
 /// `clip::unit` with the embedding named in the error.
-fn unit(v: &[f32], what: &str) -> Result<Vec<f64>, OptimizeError> {
-    crate::clip::unit(v).map_err(|e| OptimizeError::Embedding(format!("{what} {e}")))
+fn unit(v: &[f32], what: &'static str) -> Result<Vec<f64>, OptimizeError> {
+    crate::clip::unit(v).map_err(|problem| EmbeddingError::Unusable { what, problem }.into())
 }
 
 /// The Beta(a, b) prior on per-pixel transmittance: mean over pixels of
@@ -135,25 +140,19 @@ fn unit(v: &[f32], what: &str) -> Result<Vec<f64>, OptimizeError> {
 /// The normalizing constant ln B(a, b) is left out: it moves no gradient (the reported term
 /// is the negative log density up to that constant, so it can be negative).
 /// Returns (loss, d loss / d T per pixel).
-pub fn beta_prior(t: &[f32], a: f64, b: f64) -> Result<(f64, Vec<f64>), OptimizeError> {
+pub(crate) fn beta_prior(t: &[f32], a: f64, b: f64) -> Result<(f64, Vec<f64>), OptimizeError> {
     if t.is_empty() {
-        return Err(OptimizeError::Transmittance(
-            "the Beta prior needs at least one pixel, got an empty transmittance image".into(),
-        ));
+        return Err(TransmittanceError::Empty.into());
     }
     if !(a.is_finite() && a > 0.0 && b.is_finite() && b > 0.0) {
-        return Err(OptimizeError::Transmittance(format!(
-            "Beta prior parameters must be positive and finite, got a = {a}, b = {b}"
-        )));
+        return Err(TransmittanceError::Parameters { a, b }.into());
     }
     let n = t.len() as f64;
     let mut loss = 0.0;
     let mut grad = Vec::with_capacity(t.len());
     for (i, &ti) in t.iter().enumerate() {
         if ti.is_nan() {
-            return Err(OptimizeError::Transmittance(format!(
-                "transmittance of pixel {i} is NaN"
-            )));
+            return Err(TransmittanceError::NaN(i).into());
         }
         let ti = ti as f64;
         let tc = ti.clamp(PRIOR_EPS, 1.0 - PRIOR_EPS);
@@ -169,7 +168,7 @@ pub fn beta_prior(t: &[f32], a: f64, b: f64) -> Result<(f64, Vec<f64>), Optimize
 }
 
 /// λ1 Σ_k |σ_k| and its gradient λ1 sign(σ_k) (sign(0) = 0, as PyTorch).
-pub fn density_l1(sigma: &[f64], lambda: f64) -> (f64, Vec<f64>) {
+pub(crate) fn density_l1(sigma: &[f64], lambda: f64) -> (f64, Vec<f64>) {
     let loss = lambda * sigma.iter().map(|s| s.abs()).sum::<f64>();
     let grad = sigma
         .iter()
@@ -187,7 +186,7 @@ pub fn density_l1(sigma: &[f64], lambda: f64) -> (f64, Vec<f64>) {
 }
 
 /// λ2 Σ_k Σ_c (c_kc − 0.5)² and its gradient 2 λ2 (c_kc − 0.5).
-pub fn colour_l2(rgb: &[[f64; 3]], lambda: f64) -> (f64, Vec<[f64; 3]>) {
+pub(crate) fn colour_l2(rgb: &[[f64; 3]], lambda: f64) -> (f64, Vec<[f64; 3]>) {
     let loss = lambda
         * rgb
             .iter()

@@ -16,7 +16,7 @@ pub mod adapters;
 pub mod captions;
 pub mod driver;
 mod error;
-pub mod init;
+pub(crate) mod init;
 pub mod loss;
 pub mod recover;
 pub mod report;
@@ -29,10 +29,11 @@ use std::cell::RefCell;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-pub use error::{BoxError, OptimizeError};
+pub use error::{BoxError, EmbeddingError, InitError, OptimizeError, TransmittanceError};
+pub use init::Initialization;
 pub use report::{PhaseTimes, StepLog};
 pub use schedule::{Background, StepPlan, View};
-pub use settings::Settings;
+pub use settings::{Settings, ValidSettings};
 
 use crate::image::Image;
 use crate::tf::{ControlPoints, Lut, LutGrad};
@@ -120,7 +121,7 @@ pub trait Parameterization {
 /// What the images are compared against.
 #[derive(Clone, Copy, Debug)]
 pub struct Targets<'a> {
-    /// The positive class, shape [D]: the prompt's text embedding, or the image embedding of
+    /// The positive class, shape \[D\]: the prompt's text embedding, or the image embedding of
     /// `--reference-image`.
     pub positive: &'a [f32],
     /// Embeddings of the caption pool, indexed by `StepPlan::negatives`.
@@ -141,7 +142,9 @@ impl Targets<'_> {
         c
     }
 
-    /// Zero negatives make the contrastive loss meaningless: say so before any work.
+    /// Zero negatives make the contrastive loss meaningless: say so before any work. The one
+    /// place this rule is checked (the CLI always has the default user negative; the driver
+    /// reaches it through [`optimize`]).
     fn check(&self, settings: &Settings) -> Result<(), OptimizeError> {
         let from_pool = settings.negatives_per_step.min(self.pool.len());
         if from_pool + self.user_negatives.len() == 0 {
@@ -151,19 +154,35 @@ impl Targets<'_> {
     }
 }
 
+/// What a run optimizes and against what: the components and targets every step shares.
+pub struct Problem<'a, R, E, P> {
+    /// The volume renderer.
+    pub renderer: &'a R,
+    /// CLIP's image tower.
+    pub encoder: &'a E,
+    /// The TF parameterization.
+    pub tf: &'a P,
+    /// The embeddings the renders are compared against.
+    pub targets: Targets<'a>,
+    /// The run's settings, checked once where they were made.
+    pub settings: &'a ValidSettings,
+}
+
 /// Loss and gradient of one step at `params`, and the times of its phases (added to `times`).
 /// `StepLog::seconds` and `grad_norm` are filled in; `lr` is the plan's.
-#[allow(clippy::too_many_arguments)]
 pub fn step_gradient<R: Renderer, E: ImageEncoder, P: Parameterization>(
-    renderer: &R,
-    encoder: &E,
-    tf: &P,
-    targets: &Targets,
-    settings: &Settings,
+    problem: &Problem<R, E, P>,
     plan: &StepPlan,
     params: &[f64],
     times: &mut PhaseTimes,
 ) -> Result<(StepLog, Vec<f64>), OptimizeError> {
+    let Problem {
+        renderer,
+        encoder,
+        tf,
+        ref targets,
+        settings,
+    } = *problem;
     let start = Instant::now();
     let mut clock = Instant::now();
     let mut lap = |slot: &mut f64| {
@@ -359,8 +378,11 @@ fn logsumexp(l: &[f64]) -> f64 {
 pub struct Outcome {
     /// Parameters after the last completed step.
     pub params: Vec<f64>,
+    /// The TF of those parameters.
     pub control_points: ControlPoints,
+    /// One log per completed step.
     pub steps: Vec<StepLog>,
+    /// Time per phase of the loop.
     pub times: PhaseTimes,
     /// True when `stop` was raised before all steps ran.
     pub interrupted: bool,
@@ -372,18 +394,13 @@ pub struct Outcome {
 /// step with its log and the total step count. `stop` is checked before each step: when it
 /// is raised (Ctrl-C), the loop returns the TF of the last completed step with
 /// `interrupted = true`. A non-finite gradient or parameter is an error (nothing is skipped).
-#[allow(clippy::too_many_arguments)]
 pub fn optimize<R: Renderer, E: ImageEncoder, P: Parameterization>(
-    renderer: &R,
-    encoder: &E,
-    tf: &P,
-    targets: &Targets,
-    settings: &Settings,
+    problem: &Problem<R, E, P>,
     mut params: Vec<f64>,
     stop: &AtomicBool,
     progress: &mut dyn FnMut(&StepLog, usize),
 ) -> Result<Outcome, OptimizeError> {
-    settings.validate()?;
+    let (tf, targets, settings) = (problem.tf, &problem.targets, problem.settings);
     targets.check(settings)?;
     if let Some(i) = params.iter().position(|p| !p.is_finite()) {
         return Err(OptimizeError::NonFinite {
@@ -402,9 +419,7 @@ pub fn optimize<R: Renderer, E: ImageEncoder, P: Parameterization>(
             break;
         }
         let plan = schedule::plan(settings, targets.pool.len(), step);
-        let (log, grad) = step_gradient(
-            renderer, encoder, tf, targets, settings, &plan, &params, &mut times,
-        )?;
+        let (log, grad) = step_gradient(problem, &plan, &params, &mut times)?;
         if !log.total.is_finite() {
             return Err(OptimizeError::NonFinite {
                 what: "loss",
@@ -471,7 +486,7 @@ const HIT_T: f32 = 0.999;
 /// seed, densities from `histogram` scaled so the mean T_N of [`View::initial`] is ρ; returns
 /// the parameters and what the search found.
 ///
-/// The mean is over the rays of V0 that see the volume (T < [`HIT_T`] with σ = 255
+/// The mean is over the rays of V0 that see the volume (T < `HIT_T` = 0.999 with σ = 255
 /// everywhere), not over the whole frame: at the paper's distances the box fills only part of
 /// a 45° view, and rays that miss it keep T = 1 whatever the TF, so over all rays ρ = 0.05
 /// would be unreachable for most volumes (measured: 0.68 at best for the 41³ nucleon at 3
@@ -480,10 +495,9 @@ pub fn initialize<R: Renderer, P: Parameterization>(
     renderer: &R,
     tf: &P,
     histogram: &[u64],
-    settings: &Settings,
+    settings: &ValidSettings,
 ) -> Result<(Vec<f64>, init::Initialization), OptimizeError> {
     use rand::SeedableRng;
-    settings.validate()?;
     let k = settings.control_points;
     let x: Vec<f64> = (0..k).map(|i| i as f64 / (k - 1) as f64).collect();
     // The colours get their own stream so they do not shift when the schedule changes.
@@ -500,9 +514,7 @@ pub fn initialize<R: Renderer, P: Parameterization>(
         .map_err(OptimizeError::Renderer)?;
     let mask: Vec<bool> = t.iter().map(|&v| v < HIT_T).collect();
     if !mask.contains(&true) {
-        return Err(OptimizeError::Init(
-            "no ray of the initial view sees the volume (every ray misses it or crosses only NaN voxels)".into(),
-        ));
+        return Err(InitError::NoRayHits.into());
     }
     let failure: RefCell<Option<OptimizeError>> = RefCell::new(None);
     let result =

@@ -7,7 +7,7 @@
 //! view (a prompt), here every view has its own target.
 
 use super::sgd::{linear_lr, Sgd};
-use super::{OptimizeError, Parameterization, PointGrad, Renderer, View};
+use super::{EmbeddingError, OptimizeError, Parameterization, PointGrad, Renderer, View};
 use crate::image::Image;
 use crate::tf::LutGrad;
 
@@ -82,21 +82,22 @@ pub fn pixel_loss(
 ) -> impl FnMut(&[Image]) -> Result<LossAndGrad, OptimizeError> + '_ {
     move |images| {
         if images.len() != targets.len() {
-            return Err(OptimizeError::Embedding(format!(
-                "{} renders for {} targets",
-                images.len(),
-                targets.len()
-            )));
+            return Err(EmbeddingError::TargetCount {
+                renders: images.len(),
+                targets: targets.len(),
+            }
+            .into());
         }
         let n = images.iter().map(|im| im.data.len()).sum::<usize>() as f64;
         let mut loss = 0.0;
         let mut grads = Vec::with_capacity(images.len());
         for (x, t) in images.iter().zip(targets) {
             if x.data.len() != t.data.len() {
-                return Err(OptimizeError::Embedding(format!(
-                    "render {}x{} against target {}x{}",
-                    x.width, x.height, t.width, t.height
-                )));
+                return Err(EmbeddingError::TargetSize {
+                    render: (x.width, x.height),
+                    target: (t.width, t.height),
+                }
+                .into());
             }
             grads.push(
                 x.data

@@ -7,12 +7,25 @@ use serde::{Deserialize, Serialize};
 
 use super::settings::Settings;
 
+/// Why `report.json` could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    /// The report did not serialize.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// The file could not be written (`crate::fs`'s error, which names the file).
+    #[error(transparent)]
+    Write(Box<dyn std::error::Error + Send + Sync + 'static>),
+}
+
 /// Loss terms of one step (each already weighted, so `total` is their sum), averaged over views.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct StepLog {
     /// 0-based step index.
     pub step: usize,
+    /// Learning rate of the step.
     pub lr: f64,
+    /// Sum of the terms below.
     pub total: f64,
     /// Contrastive cross-entropy.
     pub clip: f64,
@@ -35,19 +48,28 @@ pub struct StepLog {
 /// Wall time per phase in seconds, summed over the run.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PhaseTimes {
+    /// The density initialization.
     pub init: f64,
+    /// Text (and reference-image) embeddings, the caption pool included.
     pub text: f64,
+    /// Forward renders.
     pub render: f64,
+    /// CLIP's image tower, forward.
     pub clip_forward: f64,
+    /// CLIP's image tower, backward.
     pub clip_backward: f64,
+    /// The renderer's backward.
     pub render_backward: f64,
+    /// Everything else (losses, parameterization, SGD, final scores, preview).
     pub other: f64,
+    /// Writing the output files.
     pub output: f64,
 }
 
 /// CLIP agreement of the final TF with one caption.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Score {
+    /// The caption ("reference image" for an image positive).
     pub caption: String,
     /// Mean cosine similarity over the evaluation views.
     pub cosine: f64,
@@ -66,33 +88,44 @@ pub struct ModelInfo {
     /// SHA-256 of the weight files, shard after shard (hex): the key of the caption-embedding
     /// cache.
     pub weights_sha256: Option<String>,
+    /// CLIP's logit scale (exp of the stored parameter).
     pub logit_scale: f64,
 }
 
 /// The volume used.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct VolumeInfo {
+    /// The file as given.
     pub path: String,
+    /// Points along x, y, z.
     pub dims: [usize; 3],
+    /// Point spacing along x, y, z.
     pub spacing: [f64; 3],
     /// Finite data range.
     pub range: [f64; 2],
+    /// Voxels that are NaN or infinite (left out of the range and histogram).
     pub non_finite_voxels: usize,
 }
 
 /// Result of the density initialization.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct InitInfo {
+    /// The common density scale found.
     pub scale: f64,
+    /// Mean T_N of view V0 at that scale.
     pub mean_transmittance: f64,
+    /// Renders the search took.
     pub evaluations: usize,
+    /// Whether ρ was reached (false: even the densest TF leaves more light through).
     pub reached: bool,
 }
 
 /// The whole report.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Report {
+    /// "t2tf".
     pub tool: String,
+    /// The crate version that wrote the report.
     pub version: String,
     /// The text prompt (absent in reference-image mode).
     pub prompt: Option<String>,
@@ -102,19 +135,27 @@ pub struct Report {
     pub negatives: Vec<String>,
     /// "builtin" or the `--negatives-file` path.
     pub caption_pool: String,
+    /// Captions in the pool.
     pub caption_pool_size: usize,
+    /// The CLIP model.
     pub model: ModelInfo,
+    /// The volume.
     pub volume: VolumeInfo,
+    /// The optimizer's settings.
     pub settings: Settings,
     /// Renderer settings as the CLI passed them (step size, level, threads, image size).
     pub render: serde_json::Value,
+    /// What the density initialization found.
     pub initialization: InitInfo,
+    /// One log per step run.
     pub steps: Vec<StepLog>,
     /// Steps actually run (< settings.steps after Ctrl-C).
     pub steps_run: usize,
+    /// True when a stop signal ended the run early.
     pub interrupted: bool,
     /// Prompt first, then the user's negatives, on the evaluation views.
     pub final_scores: Vec<Score>,
+    /// Wall time per phase.
     pub timings: PhaseTimes,
     /// Files written (names inside the output folder).
     pub outputs: Vec<String>,
@@ -134,10 +175,10 @@ impl Report {
     }
 
     /// Write pretty strict JSON atomically (serde_json writes non-finite floats as null).
-    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
+    pub fn write(&self, path: &Path) -> Result<(), ReportError> {
         let mut bytes = serde_json::to_vec_pretty(self)?;
         bytes.push(b'\n');
-        crate::formats::atomic_write_bytes(path, &bytes)
+        crate::fs::atomic_write_bytes(path, &bytes).map_err(|e| ReportError::Write(e.into()))
     }
 }
 

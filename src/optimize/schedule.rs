@@ -24,6 +24,7 @@ pub struct View {
     /// Distance from the volume centre in bounding radii (multiply by
     /// `Geometry::bounding_radius()` for world units).
     pub distance: f64,
+    /// What the rays that leave the volume show.
     pub background: Background,
     /// Seed for any randomness of the renderer in this view (e.g. per-ray sample jitter;
     /// forward and backward of the view must use the same one).
@@ -65,6 +66,7 @@ pub struct StepPlan {
     pub step: usize,
     /// Learning rate of this step (linear annealing).
     pub lr: f64,
+    /// The views rendered this step.
     pub views: Vec<View>,
     /// Indices into the caption pool (distinct).
     pub negatives: Vec<usize>,

@@ -2,6 +2,10 @@
 //!
 //! The constants in [`defaults`] are the single source: `Settings::default()` and the clap
 //! flags of `t2tf optimize` both read them, so `--help` prints what the code uses.
+//!
+//! [`Settings`] is what a caller fills in; [`ValidSettings`] is what the driver and the loop
+//! take. Only [`Settings::validate`] builds the latter, so the checks run once, where the
+//! settings are made, and nothing downstream repeats them.
 
 use serde::{Deserialize, Serialize};
 
@@ -34,39 +38,76 @@ pub mod defaults {
     /// Negatives drawn from the caption pool per step (paper: 128).
     pub const NEGATIVES_PER_STEP: usize = 128;
     /// Steps with a constant gray background before background augmentation (paper: 25).
-    pub const GRAY_STEPS: usize = 25;
+    pub(crate) const GRAY_STEPS: usize = 25;
     /// Target mean transmittance of view V0 after initialization (paper: ρ = 0.05).
-    pub const RHO: f64 = 0.05;
+    pub(crate) const RHO: f64 = 0.05;
     /// Seed of every random choice (views, backgrounds, negatives, initial colours).
     pub const SEED: u64 = 0;
     /// Pitch limit of random views, ±π/14 (paper; defined with the camera).
-    pub const PITCH_LIMIT: f64 = crate::camera::PITCH_RANGE;
+    pub(crate) const PITCH_LIMIT: f64 = crate::camera::PITCH_RANGE;
     /// Camera distance range in bounding radii (paper: 2 to 4; defined with the camera).
-    pub const DISTANCE: [f64; 2] = crate::camera::DISTANCE_RANGE;
+    pub(crate) const DISTANCE: [f64; 2] = crate::camera::DISTANCE_RANGE;
 }
 
-/// All numeric settings of one optimization run (what `report.json` records).
+/// All numeric settings of one optimization run (what `report.json` records), unchecked;
+/// [`Settings::validate`] turns them into the [`ValidSettings`] a run takes.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Settings {
+    /// SGD steps (`--steps`; 0: the result is the initialization).
     pub steps: usize,
+    /// Random views per step, gradients averaged (`--views`).
     pub views: usize,
+    /// Initial learning rate, annealed linearly to 0 (`--lr`).
     pub lr: f64,
+    /// SGD momentum in [0, 1) (`--momentum`).
     pub momentum: f64,
+    /// Weight of the Beta prior on T_N (`--prior-weight`).
     pub prior_weight: f64,
-    /// Beta(a, b) parameters.
+    /// Beta(a, b) parameter a (`--prior-ab`).
     pub prior_a: f64,
+    /// Beta(a, b) parameter b (`--prior-ab`).
     pub prior_b: f64,
+    /// First step (0-based) with the prior on (`--prior-start`).
     pub prior_start: usize,
+    /// λ1: L1 weight on control-point densities (`--l1`).
     pub l1: f64,
+    /// λ2: L2 weight of colours towards 0.5 (`--l2`).
     pub l2: f64,
+    /// Control points of the TF (`--control-points`, at least 2).
     pub control_points: usize,
+    /// Negatives drawn from the caption pool per step (`--negatives-per-step`).
     pub negatives_per_step: usize,
+    /// Steps with a constant gray background before background augmentation.
     pub gray_steps: usize,
+    /// Target mean transmittance of view V0 after initialization, in (0, 1).
     pub rho: f64,
+    /// Seed of every random choice (`--seed`).
     pub seed: u64,
+    /// Pitch limit of random views in radians, in [0, π/2).
     pub pitch_limit: f64,
     /// [min, max] camera distance in bounding radii.
     pub distance: [f64; 2],
+}
+
+/// [`Settings`] that passed [`Settings::validate`], the only way to build one: the driver
+/// and the loop take them as given. Reads as `Settings` through `Deref`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(transparent)]
+pub struct ValidSettings(Settings);
+
+impl std::ops::Deref for ValidSettings {
+    type Target = Settings;
+
+    fn deref(&self) -> &Settings {
+        &self.0
+    }
+}
+
+impl ValidSettings {
+    /// The settings themselves (for `report.json`, or to change one and validate again).
+    pub fn into_inner(self) -> Settings {
+        self.0
+    }
 }
 
 impl Default for Settings {
@@ -97,7 +138,7 @@ impl Default for Settings {
 impl Settings {
     /// Check every setting; the error names the flag. `steps = 0` is valid (the result is
     /// the initialization).
-    pub fn validate(&self) -> Result<(), OptimizeError> {
+    pub fn validate(&self) -> Result<ValidSettings, OptimizeError> {
         let bad =
             |name: &'static str, message: String| Err(OptimizeError::Setting { name, message });
         let finite_nonneg = |v: f64| v.is_finite() && v >= 0.0;
@@ -154,7 +195,7 @@ impl Settings {
                 format!("range must be 0 < min ≤ max, got [{d0}, {d1}]"),
             );
         }
-        Ok(())
+        Ok(ValidSettings(self.clone()))
     }
 }
 

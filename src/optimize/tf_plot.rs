@@ -14,8 +14,8 @@ use crate::image::Image;
 use crate::tf::ControlPoints;
 
 /// Default size of tf.png.
-pub const WIDTH: usize = 512;
-pub const HEIGHT: usize = 256;
+pub(crate) const WIDTH: usize = 512;
+pub(crate) const HEIGHT: usize = 256;
 /// Height of the colour strip and of the gap above it.
 const STRIP: usize = 32;
 const GAP: usize = 4;
@@ -31,7 +31,10 @@ pub enum Curve {
     /// σ / 255 (the optimizer's own quantity).
     Density,
     /// Opacity 1 − exp(−σ · r) with r = u / L (unit distance over the box's longest side).
-    Opacity { unit_over_length: f64 },
+    Opacity {
+        /// ParaView's scalar opacity unit distance u over the box's longest side L.
+        unit_over_length: f64,
+    },
 }
 
 impl Curve {
@@ -51,7 +54,7 @@ impl Curve {
 
 /// Draw `cp` over `histogram` (counts of equal bins over [0, 1]) into a `width × height` image.
 /// Needs width ≥ 2 and height > STRIP + GAP + 2; smaller sizes are raised to that.
-pub fn draw(
+pub(crate) fn draw(
     cp: &ControlPoints,
     histogram: &[u64],
     curve: Curve,
@@ -133,7 +136,7 @@ pub fn save(
     cp: &ControlPoints,
     histogram: &[u64],
     curve: Curve,
-) -> anyhow::Result<()> {
+) -> Result<(), crate::image::ImageError> {
     draw(cp, histogram, curve, WIDTH, HEIGHT).save_png(path)
 }
 
