@@ -532,12 +532,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
 /// Section 5: the built-in caption pool embedded from scratch with each setup's model, as
 /// `t2tf optimize` does on first use of a model (tokenizing included), once in one call and
-/// once in the 256-caption calls of `optimize::driver::TEXT_BATCH`. One rep each: seconds long.
+/// once in 256-caption calls (what `t2tf optimize` did before it made one call). One rep each: seconds long.
 fn pool_first_use(run: &[Setup], cfg: &ClipConfig) -> Result<(), Box<dyn std::error::Error>> {
     let pool = t2tf::optimize::captions::CaptionPool::builtin();
     let refs: Vec<&str> = pool.captions().iter().map(String::as_str).collect();
     let tok_path = Path::new("../shared/data/clip/tokenizer.json");
-    let batch = t2tf::optimize::driver::TEXT_BATCH;
+    let batch = 256;
     println!(
         "\ncaption pool first use: {} captions (tokenize + embed; wall, and CPU s / threads):",
         refs.len()

@@ -51,7 +51,7 @@ use t2tf::image::Image;
 use t2tf::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer};
 use t2tf::optimize::captions::{self, CaptionPool};
 use t2tf::optimize::{
-    initialize, optimize, Background, PhaseTimes, Renderer, Settings, Targets, View,
+    initialize, optimize, Background, PhaseTimes, Problem, Renderer, Settings, Targets, View,
 };
 use t2tf::render::RenderOptions;
 use t2tf::tf::{default_unit_distance, sigma_to_opacity, ControlPoints};
@@ -467,7 +467,7 @@ fn main() -> anyhow::Result<()> {
             .map_err(|e| anyhow::anyhow!("held-out render: {e}"))
     };
     let run = |row: &Row| -> anyhow::Result<Result1> {
-        let settings = row.settings();
+        let settings = row.settings().validate()?;
         let renderer = VolumeRenderer {
             volume: &volume,
             options: row.options(),
@@ -500,16 +500,14 @@ fn main() -> anyhow::Result<()> {
                 );
             }
         };
-        let outcome = optimize(
-            &renderer,
-            &model,
-            &tf,
-            &targets,
-            &settings,
-            params,
-            &stop,
-            &mut progress,
-        )?;
+        let problem = Problem {
+            renderer: &renderer,
+            encoder: &model,
+            tf: &tf,
+            targets,
+            settings: &settings,
+        };
+        let outcome = optimize(&problem, params, &stop, &mut progress)?;
         let wall = t0.elapsed().as_secs_f64();
         let cpu = cpu_seconds() - c0;
         let cp = &outcome.control_points;

@@ -117,7 +117,7 @@ fn main() -> Result<()> {
         seed: 3,
         ..Settings::default()
     };
-    let (p0, _) = initialize(&r, &tf, &volume.histogram, &settings)?;
+    let (p0, _) = initialize(&r, &tf, &volume.histogram, &settings.validate()?)?;
     let t0 = Instant::now();
     // lr 30, the recovery test's measured best on the nucleon.
     let (p, losses) = descend(

@@ -588,10 +588,19 @@ fn load_model(args: &OptimizeArgs) -> Result<LoadedModel> {
     let weights_hash = captions::hash_files(&files.weights)?;
     let hex: String = weights_hash.iter().map(|b| format!("{b:02x}")).collect();
     // Cached caption embeddings belong to the weights, the tokenizer and the config together.
-    let cache_key = captions::model_key(
+    let mut cache_key = captions::model_key(
         &weights_hash,
         &[files.tokenizer.clone(), files.config.clone()],
     )?;
+    if precision != crate::clip::packed::Precision::F32 {
+        // Embeddings computed in bf16 differ from f32 ones: their own cache entry, so a later
+        // f32 run never reuses them (f32 keeps the key it always had).
+        use sha2::Digest;
+        let mut h = sha2::Sha256::new();
+        h.update(cache_key);
+        h.update(format!(" precision={}", precision.name()));
+        cache_key = h.finalize().into();
+    }
     let info = ModelInfo {
         id: args.model.model.clone(),
         revision: model.revision.clone(),

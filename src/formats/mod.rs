@@ -16,9 +16,7 @@ mod preset;
 mod visit_ct;
 mod visit_script;
 
-// Kept for image.rs, optimize/report.rs and optimize/captions.rs, which still import the
-// writers from here; they belong to `crate::fs`.
-pub(crate) use crate::fs::{atomic_write, atomic_write_bytes};
+use crate::fs::atomic_write_bytes;
 use error::read_text;
 pub use error::FormatError;
 pub use export_tf::{load_tf, ExportTf};

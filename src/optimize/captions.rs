@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use rand::Rng;
 use sha2::{Digest, Sha256};
 
-use super::OptimizeError;
+use super::{CaptionError, OptimizeError};
 
 /// The project's caption pool, one caption per line.
 pub const BUILTIN_CAPTIONS: &str = include_str!("../../data/captions.txt");
@@ -48,22 +48,18 @@ impl CaptionPool {
     /// Read a caption file (`--negatives-file`). An unreadable, non-UTF-8 or empty file is an
     /// error naming the file.
     pub fn from_file(path: &Path) -> Result<CaptionPool, OptimizeError> {
-        let bytes = std::fs::read(path).map_err(|e| {
-            OptimizeError::Captions(format!("{}: cannot read caption file: {e}", path.display()))
+        let path_buf = || path.to_path_buf();
+        let bytes = std::fs::read(path).map_err(|error| CaptionError::Read {
+            path: path_buf(),
+            error,
         })?;
-        let text = String::from_utf8(bytes).map_err(|e| {
-            OptimizeError::Captions(format!(
-                "{}: not UTF-8 text (invalid byte at offset {})",
-                path.display(),
-                e.utf8_error().valid_up_to()
-            ))
+        let text = String::from_utf8(bytes).map_err(|e| CaptionError::NotUtf8 {
+            path: path_buf(),
+            offset: e.utf8_error().valid_up_to(),
         })?;
         let pool = CaptionPool::parse(&text);
         if pool.is_empty() {
-            return Err(OptimizeError::Captions(format!(
-                "{}: holds no captions (one per line expected)",
-                path.display()
-            )));
+            return Err(CaptionError::Empty { path: path_buf() }.into());
         }
         Ok(pool)
     }
@@ -141,8 +137,9 @@ pub fn hash_files(paths: &[PathBuf]) -> Result<[u8; 32], OptimizeError> {
     let mut h = Sha256::new();
     let mut buf = vec![0u8; 1 << 20];
     for path in paths {
-        let err = |e: std::io::Error| {
-            OptimizeError::Captions(format!("{}: cannot read to hash it: {e}", path.display()))
+        let err = |error: std::io::Error| CaptionError::Hash {
+            path: path.clone(),
+            error,
         };
         let mut f = std::fs::File::open(path).map_err(err)?;
         loop {

@@ -32,9 +32,6 @@ pub enum Positive<'a> {
     Image(&'a Image),
 }
 
-/// Captions are encoded in batches of this many (bounds the text tower's activations).
-pub const TEXT_BATCH: usize = 256;
-
 /// Everything a run needs besides the models.
 #[derive(Clone, Copy, Debug)]
 pub struct Job<'a> {
@@ -85,25 +82,24 @@ pub struct Finished {
     pub preview: Image,
 }
 
-fn encode_batched<T: TextEncoder>(
+/// All captions in one call: the text tower shares their common beginnings (a prefix tree,
+/// `clip::prefix`) and bounds its own activations, so one call is the fastest (6,000 pool
+/// captions: 12.4 s of CPU per thread against 13.4 s in 256-caption calls, bench_clip --pool).
+fn encode_all<T: TextEncoder>(
     text: &T,
     captions: &[String],
 ) -> Result<Vec<Vec<f32>>, OptimizeError> {
-    let mut out = Vec::with_capacity(captions.len());
-    for chunk in captions.chunks(TEXT_BATCH) {
-        let refs: Vec<&str> = chunk.iter().map(String::as_str).collect();
-        let e = text.encode_text(&refs).map_err(OptimizeError::Encoder)?;
-        if e.len() != refs.len() {
-            return Err(OptimizeError::Encoder(
-                format!(
-                    "text encoder returned {} embeddings for {} texts",
-                    e.len(),
-                    refs.len()
-                )
-                .into(),
-            ));
-        }
-        out.extend(e);
+    let refs: Vec<&str> = captions.iter().map(String::as_str).collect();
+    let out = text.encode_text(&refs).map_err(OptimizeError::Encoder)?;
+    if out.len() != refs.len() {
+        return Err(OptimizeError::Encoder(
+            format!(
+                "text encoder returned {} embeddings for {} texts",
+                out.len(),
+                refs.len()
+            )
+            .into(),
+        ));
     }
     Ok(out)
 }
@@ -199,7 +195,7 @@ fn embed_targets<R, E: ImageEncoder, T: TextEncoder, P>(
                     message: "is empty: say what the renderings should show".into(),
                 });
             }
-            encode_batched(text_encoder, &[p.to_owned()])?.remove(0)
+            encode_all(text_encoder, &[p.to_owned()])?.remove(0)
         }
         Positive::Image(im) => {
             let prepared = image_encoder.prepare(im);
@@ -214,7 +210,7 @@ fn embed_targets<R, E: ImageEncoder, T: TextEncoder, P>(
             e.remove(0)
         }
     };
-    let user = encode_batched(text_encoder, job.user_negatives)?;
+    let user = encode_all(text_encoder, job.user_negatives)?;
     let (pool, cache) = if s.negatives_per_step == 0 || job.pool.is_empty() {
         (Vec::new(), None)
     } else {
@@ -224,11 +220,11 @@ fn embed_targets<R, E: ImageEncoder, T: TextEncoder, P>(
         };
         if job.cache.is_some() {
             let (e, o) = captions::cached_embeddings(dir, hash, job.pool.captions(), |c| {
-                encode_batched(text_encoder, c)
+                encode_all(text_encoder, c)
             })?;
             (e, Some(o))
         } else {
-            (encode_batched(text_encoder, job.pool.captions())?, None)
+            (encode_all(text_encoder, job.pool.captions())?, None)
         }
     };
     Ok(Embedded {

@@ -40,8 +40,8 @@ pub enum OptimizeError {
     #[error("initialization: {0}")]
     Init(InitError),
     /// A caption list or cache file problem (the message names the file).
-    #[error("{0}")]
-    Captions(String),
+    #[error(transparent)]
+    Captions(#[from] CaptionError),
     /// The renderer failed.
     #[error("renderer: {0}")]
     Renderer(BoxError),
@@ -149,4 +149,41 @@ pub enum InitError {
     /// No ray of the initial view meets the volume.
     #[error("no ray of the initial view sees the volume (every ray misses it or crosses only NaN voxels)")]
     NoRayHits,
+}
+
+/// A caption file (`--negatives-file`) or a weights file hashed for the caption cache could not
+/// be used. Each message names the file. (The io error is a field named `error`, not `source`,
+/// so a chain printer does not print it twice.)
+#[derive(Debug, thiserror::Error)]
+pub enum CaptionError {
+    /// The caption file could not be read.
+    #[error("{}: cannot read caption file: {error}", path.display())]
+    Read {
+        /// The caption file.
+        path: std::path::PathBuf,
+        /// Why reading failed.
+        error: std::io::Error,
+    },
+    /// The caption file is not UTF-8.
+    #[error("{}: not UTF-8 text (invalid byte at offset {offset})", path.display())]
+    NotUtf8 {
+        /// The caption file.
+        path: std::path::PathBuf,
+        /// Offset of the first invalid byte.
+        offset: usize,
+    },
+    /// The caption file holds no captions.
+    #[error("{}: holds no captions (one per line expected)", path.display())]
+    Empty {
+        /// The caption file.
+        path: std::path::PathBuf,
+    },
+    /// A file to hash for the cache key could not be read.
+    #[error("{}: cannot read to hash it: {error}", path.display())]
+    Hash {
+        /// The file being hashed.
+        path: std::path::PathBuf,
+        /// Why reading failed.
+        error: std::io::Error,
+    },
 }

@@ -8,7 +8,7 @@
 //! Each function returns the loss and the gradient of that loss with respect to its input.
 
 use super::{EmbeddingError, OptimizeError, TransmittanceError};
-use crate::clip::Incomparable;
+use crate::clip::{Incomparable, LogitsError};
 
 /// T_N is clamped to [ε, 1 − ε] inside the Beta prior.
 ///
@@ -58,47 +58,37 @@ pub(crate) fn contrastive(
     if classes.len() < 2 {
         return Err(OptimizeError::NoNegatives);
     }
-    if !(logit_scale.is_finite() && logit_scale > 0.0) {
-        return Err(EmbeddingError::LogitScale(logit_scale).into());
-    }
-    let u = unit(image, "image embedding")?;
-    let mut logits = Vec::with_capacity(classes.len());
-    let mut cosines = Vec::with_capacity(classes.len());
-    let mut units = Vec::with_capacity(classes.len());
-    for (k, c) in classes.iter().enumerate() {
-        if c.len() != image.len() {
-            return Err(EmbeddingError::ClassLength {
-                class: k,
-                len: c.len(),
-                image_len: image.len(),
-            }
-            .into());
-        }
-        let t = unit(c, "text embedding")?;
-        let cos: f64 = u.iter().zip(&t).map(|(a, b)| a * b).sum();
-        cosines.push(cos);
-        logits.push(logit_scale * cos);
-        units.push(t);
-    }
-    let m = logits.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-    let lse = m + logits.iter().map(|l| (l - m).exp()).sum::<f64>().ln();
-    let loss = lse - logits[0];
-
-    // d loss / d u = s Σ_k (p_k − [k = 0]) t̂_k ; then project out û and divide by |e_I|.
-    let norm = norm(image);
-    let mut w = vec![0.0; image.len()];
-    for (k, t) in units.iter().enumerate() {
-        let g = (logits[k] - lse).exp() - if k == 0 { 1.0 } else { 0.0 };
-        for (wi, ti) in w.iter_mut().zip(t) {
-            *wi += logit_scale * g * ti;
-        }
-    }
-    let wu: f64 = w.iter().zip(&u).map(|(a, b)| a * b).sum();
-    let d_image = w
+    // The similarity and its gradient belong to the model (`clip::Head`); the loss only adds
+    // the softmax cross-entropy on top.
+    let head =
+        crate::clip::Head::new(logit_scale).map_err(|_| EmbeddingError::LogitScale(logit_scale))?;
+    let l = head.logits(image, classes).map_err(|e| match e {
+        LogitsError::Image(problem) => EmbeddingError::Unusable {
+            what: "image embedding",
+            problem,
+        },
+        LogitsError::Class(problem) => EmbeddingError::Unusable {
+            what: "text embedding",
+            problem,
+        },
+        LogitsError::Length { index, len, image } => EmbeddingError::ClassLength {
+            class: index,
+            len,
+            image_len: image,
+        },
+    })?;
+    let m = l.logits.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let lse = m + l.logits.iter().map(|x| (x - m).exp()).sum::<f64>().ln();
+    let loss = lse - l.logits[0];
+    // d loss / d logit_k = p_k − [k = 0].
+    let d_logits: Vec<f64> = l
+        .logits
         .iter()
-        .zip(&u)
-        .map(|(wi, ui)| (wi - wu * ui) / norm)
+        .enumerate()
+        .map(|(k, x)| (x - lse).exp() - if k == 0 { 1.0 } else { 0.0 })
         .collect();
+    let d_image = head.backward(&l, &d_logits);
+    let (logits, cosines) = (l.logits, l.cosines);
     Ok(Contrastive {
         loss,
         logits,
@@ -120,18 +110,6 @@ pub(crate) fn cosine(a: &[f32], b: &[f32]) -> Result<f64, OptimizeError> {
         }
         .into()
     })
-}
-
-fn norm(v: &[f32]) -> f64 {
-    v.iter()
-        .map(|&x| (x as f64) * (x as f64))
-        .sum::<f64>()
-        .sqrt()
-}
-
-/// `clip::unit` with the embedding named in the error.
-fn unit(v: &[f32], what: &'static str) -> Result<Vec<f64>, OptimizeError> {
-    crate::clip::unit(v).map_err(|problem| EmbeddingError::Unusable { what, problem }.into())
 }
 
 /// The Beta(a, b) prior on per-pixel transmittance: mean over pixels of

@@ -29,7 +29,9 @@ use std::cell::RefCell;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-pub use error::{BoxError, EmbeddingError, InitError, OptimizeError, TransmittanceError};
+pub use error::{
+    BoxError, CaptionError, EmbeddingError, InitError, OptimizeError, TransmittanceError,
+};
 pub use init::Initialization;
 pub use report::{PhaseTimes, StepLog};
 pub use schedule::{Background, StepPlan, View};
