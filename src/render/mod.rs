@@ -1,6 +1,6 @@
 //! Differentiable emission-absorption volume renderer: forward and analytic backward.
 //!
-//! Per ray, front to back (DESIGN.md "Conventions"): trilinear samples of the normalized
+//! Per ray, front to back (docs/DESIGN.md "Conventions"): trilinear samples of the normalized
 //! scalar (a NaN corner makes a sample empty), the LUT interpolated linearly after the scalar,
 //! αₙ = 1 − exp(−σₙ δₙ / L), and
 //!
@@ -32,34 +32,25 @@
 //! gradient matters (the TF parameterization's σ = 255·(tanh p + 1)/2 is never exactly 0).
 //!
 //! **Memory and the inner loop** (BENCHMARKS.md, "Renderer"). Sampling is bound by memory, not
-//! arithmetic: rays read the level's bricked copy (`volume::bricked`: 9³ points per brick with
-//! aprons, 8 or 16 bits for integer volumes, huge pages), so a 256³ `uint8` volume is 23 MiB
+//! arithmetic: rays read the level's bricked copy (`cpu::bricked`, made when the [`Backend`]
+//! prepares the level: 9³ points per brick with aprons, 8 or 16 bits for integer volumes, huge
+//! pages), so a 256³ `uint8` volume is 23 MiB
 //! instead of 64 MiB of f32. The block walk merges consecutive non-uniform bricks into one
 //! sample range, which is interpolated and classified 8 samples at a time (AVX2 gathers where
-//! the CPU has them, `simd.rs`, bit-identical to the scalar code) before the serial
+//! the CPU has them, `cpu/simd.rs`, bit-identical to the scalar code) before the serial
 //! compositing.
 //!
 //! Rays run in parallel over 16 × 16 tiles (rayon); LUT gradients are summed per tile and the
 //! tiles reduced in a fixed order, so the result does not depend on the thread count.
 
-mod fastmath;
-mod march;
-mod simd;
-mod skip;
-
-use glam::DVec3;
-use rayon::prelude::*;
+pub mod cpu;
 
 use crate::camera::Camera;
 use crate::image::Image;
 use crate::tf::{Lut, LutGrad};
 use crate::volume::Volume;
 
-use march::{march, BoxFrame, Grid, MarchParams, Ray};
-use skip::Blocks;
-
-/// Tile side in pixels (parallel work unit and gradient reduction unit).
-const TILE: usize = 16;
+pub use cpu::CpuBackend;
 
 /// Default step in voxels of the rendered level (see BENCHMARKS.md, "Renderer").
 pub const DEFAULT_STEP: f32 = 1.0;
@@ -80,28 +71,57 @@ pub const FINAL_LEVEL: usize = 0;
 /// most T·|c − B| ≤ 1e-3 per channel, a quarter of an 8-bit level (≥ 60 dB PSNR).
 pub const DEFAULT_EARLY_TERMINATION: f32 = 1e-3;
 
+/// Why a view could not be rendered or differentiated.
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
+    /// `step` is not finite or below 1/64 voxel.
     #[error("step size {0} voxels is not allowed: it must be finite and at least 1/64")]
     Step(f32),
+    /// The level asked for is past the volume's coarsest.
     #[error("mip level {level} does not exist: this volume has levels 0..={max}")]
-    Level { level: usize, max: usize },
+    Level {
+        /// The level asked for.
+        level: usize,
+        /// The coarsest level there is.
+        max: usize,
+    },
+    /// `early_termination` is outside [0, 1).
     #[error("early-termination threshold {0} must lie in [0, 1)")]
     EarlyTermination(f32),
+    /// `empty_sigma` is negative or not finite.
     #[error("empty-space threshold {0} must be finite and at least 0")]
     EmptySigma(f32),
+    /// The LUT has fewer than 2 or more than 2²⁴ entries.
     #[error("lookup table has {0} entries; 2 to 2^24 are needed")]
     LutSize(usize),
+    /// A LUT entry is not finite, or its σ is negative.
     #[error("lookup table entry {index} is {entry:?}: σ must be finite and ≥ 0, colours finite")]
-    LutEntry { index: usize, entry: [f32; 4] },
+    LutEntry {
+        /// Which entry.
+        index: usize,
+        /// Its (σ, r, g, b).
+        entry: [f32; 4],
+    },
+    /// The image has no pixel.
     #[error("background is {got_w}×{got_h} but must be at least 1×1 (the image size)")]
-    EmptyImage { got_w: usize, got_h: usize },
+    EmptyImage {
+        /// Width found.
+        got_w: usize,
+        /// Height found.
+        got_h: usize,
+    },
+    /// A gradient (or the forward's result) does not have the image's size.
     #[error("{what} has {got} values; {expected} expected for a {w}×{h} image")]
     GradientSize {
+        /// Which input.
         what: &'static str,
+        /// Values found.
         got: usize,
+        /// Values expected.
         expected: usize,
+        /// Image width.
         w: usize,
+        /// Image height.
         h: usize,
     },
 }
@@ -183,53 +203,8 @@ pub fn choose_level(volume: &Volume, camera: &Camera, height: usize) -> usize {
     best
 }
 
-/// Everything one view's rays share, validated.
-struct View<'a> {
-    params: MarchParams<'a>,
-    rays: crate::camera::RayFrame,
-    frame: BoxFrame,
-    jitter_seed: Option<u64>,
-    width: usize,
-    height: usize,
-    level: usize,
-}
-
-impl<'a> View<'a> {
-    fn ray(&self, px: usize, py: usize) -> Option<Ray> {
-        let jitter = match self.jitter_seed {
-            None => 0.5,
-            Some(seed) => unit_hash(seed, (py * self.width + px) as u64),
-        };
-        self.frame.clip(self.rays.dir(px, py), jitter)
-    }
-
-    fn tiles(&self) -> Vec<(usize, usize)> {
-        let mut t = Vec::new();
-        for ty in (0..self.height).step_by(TILE) {
-            for tx in (0..self.width).step_by(TILE) {
-                t.push((tx, ty));
-            }
-        }
-        t
-    }
-
-    fn tile_pixels(&self, (tx, ty): (usize, usize)) -> impl Iterator<Item = (usize, usize)> + '_ {
-        let (x1, y1) = ((tx + TILE).min(self.width), (ty + TILE).min(self.height));
-        (ty..y1).flat_map(move |py| (tx..x1).map(move |px| (px, py)))
-    }
-}
-
-/// splitmix64 of (seed, index) mapped to [0, 1).
-fn unit_hash(seed: u64, index: u64) -> f32 {
-    let mut z = seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    // 24 random bits: exactly representable, strictly below 1.
-    (z >> 40) as f32 / (1u64 << 24) as f32
-}
-
-fn validate(lut: &Lut, opts: &RenderOptions) -> Result<(), RenderError> {
+/// Check the LUT and the options every backend relies on.
+pub(crate) fn validate(lut: &Lut, opts: &RenderOptions) -> Result<(), RenderError> {
     if !(opts.step.is_finite() && opts.step >= 1.0 / 64.0) {
         return Err(RenderError::Step(opts.step));
     }
@@ -250,15 +225,15 @@ fn validate(lut: &Lut, opts: &RenderOptions) -> Result<(), RenderError> {
     Ok(())
 }
 
-/// Validate, choose the level and build its block tables.
-fn prepare(
+/// Validate a view of `width` × `height` rays and pick its mip level: `opts.level`, or
+/// [`choose_level`] when that is `None`. What a caller of a [`Backend`] asks it to prepare.
+pub fn level_for(
     volume: &Volume,
     lut: &Lut,
     camera: &Camera,
-    width: usize,
-    height: usize,
+    (width, height): (usize, usize),
     opts: &RenderOptions,
-) -> Result<(usize, [Blocks; 2]), RenderError> {
+) -> Result<usize, RenderError> {
     validate(lut, opts)?;
     if width == 0 || height == 0 {
         return Err(RenderError::EmptyImage {
@@ -266,61 +241,82 @@ fn prepare(
             got_h: height,
         });
     }
-    let level = match opts.level {
-        Some(l) if l >= volume.levels.len() => {
-            return Err(RenderError::Level {
-                level: l,
-                max: volume.levels.len() - 1,
-            })
-        }
-        Some(l) => l,
-        None => choose_level(volume, camera, height),
-    };
-    let blocks = skip::blocks(
-        &volume.levels[level],
-        lut,
-        opts.skip_empty,
-        opts.empty_sigma,
-        true,
-    );
-    Ok((level, blocks))
-}
-
-/// Set up a view on `level` with its `blocks` (from [`prepare`]).
-fn view<'a>(
-    volume: &'a Volume,
-    lut: &'a Lut,
-    camera: &Camera,
-    (width, height): (usize, usize),
-    opts: &RenderOptions,
-    (level_index, blocks): &'a (usize, [Blocks; 2]),
-) -> View<'a> {
-    let level = &volume.levels[*level_index];
-    let voxel = level.spacing.iter().copied().fold(f64::INFINITY, f64::min);
-    View {
-        params: MarchParams {
-            grid: Grid::new(level, blocks),
-            lut,
-            inv_l: (1.0 / volume.geometry.longest_side()) as f32,
-            stop_below: opts.early_termination,
-            simd: simd::available(),
-        },
-        rays: camera.rays(width, height),
-        frame: BoxFrame::new(
-            camera.position,
-            DVec3::from_array(volume.geometry.origin),
-            DVec3::from_array(level.spacing),
-            level.dims,
-            opts.step as f64 * voxel,
-        ),
-        jitter_seed: opts.jitter_seed,
-        width,
-        height,
-        level: *level_index,
+    match opts.level {
+        Some(l) if l >= volume.levels.len() => Err(RenderError::Level {
+            level: l,
+            max: volume.levels.len() - 1,
+        }),
+        Some(l) => Ok(l),
+        None => Ok(choose_level(volume, camera, height)),
     }
 }
 
-/// Render `volume` with `lut` from `camera` over `background` (whose size is the image size).
+/// One view for a [`Backend`]: where from, over what, how, and at what size the rays are cast.
+#[derive(Clone, Copy, Debug)]
+pub struct Shot<'a> {
+    /// The camera.
+    pub camera: &'a Camera,
+    /// What the volume is composited over; its size is the output's size.
+    pub background: &'a Image,
+    /// Step, jitter, early termination, skipping (`level` is the prepared level's).
+    pub options: &'a RenderOptions,
+    /// Rays per side, (width, height). Below the background's size the volume's colour and
+    /// transmittance are cast at this size, upsampled bilinearly and composited over the
+    /// full-size background there (so sharp backgrounds stay sharp): the work shrinks with the
+    /// square of the ratio. At or above it, rays are cast at the background's size.
+    pub cast: (usize, usize),
+}
+
+impl Shot<'_> {
+    /// Whether the rays are cast below the output size (and the result upsampled).
+    pub fn upsampled(&self) -> bool {
+        let (w, h) = (self.background.width, self.background.height);
+        self.cast.0 < w || self.cast.1 < h
+    }
+}
+
+/// Where a renderer plugs in (ARCHITECTURE.md, "Backends"). A backend first *prepares* one mip
+/// level of a volume — copies it into the layout and memory it samples from (the CPU backend:
+/// bricks with aprons in 8/16/32 bits; a GPU backend would upload a 3D texture and the brick
+/// ranges) — and then renders views of the prepared level and differentiates them. The
+/// optimizer only uses this trait; which level to prepare comes from [`level_for`].
+///
+/// Contract: `forward` returns the image at the background's size and T_N per pixel;
+/// `backward` returns ∂L/∂LUT for the same shot and LUT given ∂L/∂image and ∂L/∂T_N at that
+/// size, using the `Tape` its `forward` returned. Results may not depend on the thread count.
+pub trait Backend: Send + Sync {
+    /// A level ready to render.
+    type Prepared: Send + Sync;
+    /// What `backward` needs from the `forward` of the same shot.
+    type Tape: Send + Sync;
+
+    /// Make level `level` of `volume` ready to render (may be cached by the backend).
+    fn prepare(&self, volume: &Volume, level: usize) -> Result<Self::Prepared, RenderError>;
+
+    /// Render one shot of a prepared level.
+    fn forward(
+        &self,
+        prepared: &Self::Prepared,
+        lut: &Lut,
+        shot: &Shot,
+    ) -> Result<(Rendered, Self::Tape), RenderError>;
+
+    /// ∂L/∂LUT of a shot rendered by `forward` (which returned `tape`), given ∂L/∂image
+    /// (H·W·3, row-major from the top) and ∂L/∂T_N (H·W, or empty for zero) at the
+    /// background's size.
+    fn backward(
+        &self,
+        prepared: &Self::Prepared,
+        lut: &Lut,
+        shot: &Shot,
+        tape: &Self::Tape,
+        d_image: &[f32],
+        d_transmittance: &[f32],
+    ) -> Result<LutGrad, RenderError>;
+}
+
+/// Render `volume` with `lut` from `camera` over `background` (whose size is the image size),
+/// on the CPU backend.
 pub fn forward(
     volume: &Volume,
     lut: &Lut,
@@ -329,48 +325,9 @@ pub fn forward(
     opts: &RenderOptions,
 ) -> Result<Rendered, RenderError> {
     let size = (background.width, background.height);
-    let prepared = prepare(volume, lut, camera, size.0, size.1, opts)?;
-    let v = view(volume, lut, camera, size, opts, &prepared);
-    let tiles = v.tiles();
-    // Per tile: (pixel, rgb, T) triples and the sample count.
-    type TileOut = (Vec<(usize, [f32; 3], f32)>, u64);
-    let done: Vec<TileOut> = tiles
-        .par_iter()
-        .map(|&tile| {
-            let mut out = Vec::with_capacity(TILE * TILE);
-            let mut samples = 0u64;
-            for (px, py) in v.tile_pixels(tile) {
-                let p = py * v.width + px;
-                let bg = background.pixel(px, py);
-                let (acc, t) = match v.ray(px, py) {
-                    Some(ray) => {
-                        let m = march(&v.params, &ray, |_| {});
-                        samples += m.samples as u64;
-                        (m.acc, m.transmittance)
-                    }
-                    None => ([0.0; 3], 1.0),
-                };
-                out.push((p, std::array::from_fn(|c| acc[c] + t * bg[c]), t));
-            }
-            (out, samples)
-        })
-        .collect();
-    let mut image = Image::new(v.width, v.height);
-    let mut transmittance = vec![1.0; v.width * v.height];
-    let mut samples = 0;
-    for (pixels, s) in done {
-        samples += s;
-        for (p, rgb, t) in pixels {
-            image.data[3 * p..3 * p + 3].copy_from_slice(&rgb);
-            transmittance[p] = t;
-        }
-    }
-    Ok(Rendered {
-        image,
-        transmittance,
-        level: v.level,
-        samples,
-    })
+    let level = level_for(volume, lut, camera, size, opts)?;
+    let prepared = CpuBackend.prepare(volume, level)?;
+    cpu::forward(&prepared, lut, camera, background, opts)
 }
 
 /// ∂L/∂LUT given ∂L/∂I (`d_image`, H·W·3, row-major from the top) and ∂L/∂T_N
@@ -385,15 +342,11 @@ pub fn backward(
     d_image: &[f32],
     d_transmittance: &[f32],
 ) -> Result<LutGrad, RenderError> {
-    backward_impl(
-        volume,
-        lut,
-        camera,
-        Final::Background(background),
-        opts,
-        d_image,
-        d_transmittance,
-    )
+    let fin = cpu::Final::Background(background);
+    fin.check(d_image, d_transmittance)?;
+    let level = level_for(volume, lut, camera, fin.size(), opts)?;
+    let prepared = CpuBackend.prepare(volume, level)?;
+    cpu::backward(&prepared, lut, camera, fin, opts, d_image, d_transmittance)
 }
 
 /// Like [`backward`], with the image and transmittance of the forward of the same view,
@@ -407,132 +360,11 @@ pub fn backward_from(
     d_image: &[f32],
     d_transmittance: &[f32],
 ) -> Result<LutGrad, RenderError> {
-    backward_impl(
-        volume,
-        lut,
-        camera,
-        Final::Rendered(rendered),
-        opts,
-        d_image,
-        d_transmittance,
-    )
-}
-
-/// Where the backward gets each pixel's final colour and transmittance.
-#[derive(Clone, Copy)]
-enum Final<'a> {
-    Background(&'a Image),
-    Rendered(&'a Rendered),
-}
-
-impl Final<'_> {
-    fn size(&self) -> (usize, usize) {
-        match self {
-            Final::Background(b) => (b.width, b.height),
-            Final::Rendered(r) => (r.image.width, r.image.height),
-        }
-    }
-}
-
-fn backward_impl(
-    volume: &Volume,
-    lut: &Lut,
-    camera: &Camera,
-    fin: Final,
-    opts: &RenderOptions,
-    d_image: &[f32],
-    d_transmittance: &[f32],
-) -> Result<LutGrad, RenderError> {
-    let (w, h) = fin.size();
-    let size_err = |what, got, expected| RenderError::GradientSize {
-        what,
-        got,
-        expected,
-        w,
-        h,
-    };
-    if d_image.len() != w * h * 3 {
-        return Err(size_err("d_image", d_image.len(), w * h * 3));
-    }
-    if !(d_transmittance.is_empty() || d_transmittance.len() == w * h) {
-        return Err(size_err("d_transmittance", d_transmittance.len(), w * h));
-    }
-    if let Final::Rendered(r) = fin {
-        if r.transmittance.len() != w * h || r.image.data.len() != w * h * 3 {
-            return Err(size_err(
-                "rendered transmittance",
-                r.transmittance.len(),
-                w * h,
-            ));
-        }
-    }
-    let prepared = prepare(volume, lut, camera, w, h, opts)?;
-    let v = view(volume, lut, camera, (w, h), opts, &prepared);
-    let n = lut.entries.len();
-    let tiles = v.tiles();
-    let grads: Vec<Vec<[f64; 4]>> = tiles
-        .par_iter()
-        .map(|&tile| {
-            let mut grad = vec![[0.0f64; 4]; n];
-            for (px, py) in v.tile_pixels(tile) {
-                let p = py * w + px;
-                let g = [d_image[3 * p], d_image[3 * p + 1], d_image[3 * p + 2]];
-                let g_t = d_transmittance.get(p).copied().unwrap_or(0.0);
-                if g == [0.0; 3] && g_t == 0.0 {
-                    continue;
-                }
-                let Some(ray) = v.ray(px, py) else { continue };
-                let (image, t_final) = match fin {
-                    Final::Rendered(r) => (r.image.pixel(px, py), r.transmittance[p]),
-                    Final::Background(bg) => {
-                        let m = march(&v.params, &ray, |_| {});
-                        let b = bg.pixel(px, py);
-                        let rgb = std::array::from_fn(|c| m.acc[c] + m.transmittance * b[c]);
-                        (rgb, m.transmittance)
-                    }
-                };
-                let tail = g_t * t_final;
-                march(&v.params, &ray, |s| {
-                    accumulate(&mut grad, s, g, image, tail)
-                });
-            }
-            grad
-        })
-        .collect();
-    // Fixed-order reduction: independent of how rayon scheduled the tiles.
-    let mut total = LutGrad::zeros(n);
-    for g in grads {
-        for (a, b) in total.entries.iter_mut().zip(&g) {
-            for c in 0..4 {
-                a[c] += b[c];
-            }
-        }
-    }
-    Ok(total)
-}
-
-/// One sample's part of ∂L/∂LUT (module docs: "Backward"), for a pixel with ∂L/∂I = `g`,
-/// final colour `image` and `tail` = ∂L/∂T_N · T_N. A function of its own, always inlined:
-/// as a closure body LLVM called it once per sample.
-#[inline(always)]
-fn accumulate(grad: &mut [[f64; 4]], s: &march::Sample, g: [f32; 3], image: [f32; 3], tail: f32) {
-    let weight = s.t_before - s.t_after;
-    let mut d_sigma = -tail;
-    let mut d_rgb = [0.0f32; 3];
-    for c in 0..3 {
-        d_sigma += g[c] * (s.t_after * s.rgb[c] - (image[c] - s.acc[c]));
-        d_rgb[c] = weight * g[c];
-    }
-    let d_sigma = (d_sigma * s.delta_norm * s.count) as f64;
-    let (w1, w0) = (s.lut_weight as f64, 1.0 - s.lut_weight as f64);
-    let (e0, e1) = grad.split_at_mut(s.lut_index + 1);
-    let (e0, e1) = (&mut e0[s.lut_index], &mut e1[0]);
-    e0[0] += w0 * d_sigma;
-    e1[0] += w1 * d_sigma;
-    for c in 0..3 {
-        e0[c + 1] += w0 * d_rgb[c] as f64;
-        e1[c + 1] += w1 * d_rgb[c] as f64;
-    }
+    let fin = cpu::Final::Rendered(rendered);
+    fin.check(d_image, d_transmittance)?;
+    let level = level_for(volume, lut, camera, fin.size(), opts)?;
+    let prepared = CpuBackend.prepare(volume, level)?;
+    cpu::backward(&prepared, lut, camera, fin, opts, d_image, d_transmittance)
 }
 
 /// Render one view per camera and tile them into a sheet of ⌈√n⌉ columns; cells without a

@@ -3,10 +3,9 @@
 //! Readers (`raw`, `vti`, `legacy`) decode a file into a [`TypedBuffer`] (the file's own scalar
 //! type and byte order, untouched) plus [`Geometry`]; [`Volume::from_buffer`] then makes the one
 //! f32 copy the rest of the program uses: values normalized to [0, 1] by the finite min/max
-//! (DESIGN.md, "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty),
+//! (docs/DESIGN.md, "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty),
 //! the histogram, and the mip pyramid with per-brick value ranges for empty-space skipping.
 
-mod bricked;
 mod buffer;
 mod legacy;
 mod pyramid;
@@ -16,8 +15,8 @@ mod small_int;
 mod vti;
 mod vti_blocks;
 
-pub use bricked::{BrickValues, BrickedData, Narrow, BRICK_POINTS, BRICK_VALUES};
 pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
+pub(crate) use pyramid::Narrow;
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
 pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
 
@@ -65,7 +64,7 @@ impl Geometry {
         std::array::from_fn(|a| (self.dims[a].saturating_sub(1)) as f64 * self.spacing[a])
     }
 
-    /// The box's longest side `L`: one unit of normalized length (DESIGN.md density units).
+    /// The box's longest side `L`: one unit of normalized length (docs/DESIGN.md density units).
     /// A degenerate box (every side zero) counts as 1 so densities stay finite.
     pub fn longest_side(&self) -> f64 {
         let l = self.extent().into_iter().fold(0.0, f64::max);
@@ -152,7 +151,7 @@ pub struct Volume {
 }
 
 impl Volume {
-    /// Normalize a decoded buffer into a volume. `origin` names the data in errors.
+    /// Normalize a decoded buffer into a volume. `name` names the data in errors.
     pub fn from_buffer(
         name: &Path,
         geometry: Geometry,
@@ -218,7 +217,7 @@ impl Volume {
         };
 
         // Integer data spanning at most 65535 steps normalizes to k / span exactly: the
-        // renderer's bricked copy can store k in 8 or 16 bits (volume::bricked).
+        // renderer's bricked copy can store k in 8 or 16 bits (render::cpu::bricked).
         let span = norm_range[1] - norm_range[0];
         let integer = !matches!(buffer.scalar_type(), ScalarType::F32 | ScalarType::F64);
         let narrow = if integer && span.fract() == 0.0 && (1.0..=65535.0).contains(&span) {
@@ -241,7 +240,7 @@ impl Volume {
 
     /// Full-resolution normalized samples, x fastest (NaN = empty).
     pub fn data(&self) -> &[f32] {
-        &self.levels[0].data
+        self.levels[0].data()
     }
 
     pub fn dims(&self) -> [usize; 3] {

@@ -10,9 +10,8 @@
 //! covers every point its cells touch, so any trilinear sample inside the brick lies within
 //! [min, max] and a TF that is zero on that interval makes the whole brick empty.
 
-use std::sync::OnceLock;
+use std::sync::Arc;
 
-use super::bricked::{BrickedData, Narrow};
 use super::Geometry;
 
 /// Cells per brick side.
@@ -28,13 +27,14 @@ pub struct Level {
     pub dims: [usize; 3],
     /// World spacing at this level (origin is the volume's).
     pub spacing: [f64; 3],
-    /// Normalized samples, x fastest; NaN = empty.
-    pub data: Vec<f32>,
+    /// Normalized samples, x fastest; NaN = empty. Shared and never changed after the level
+    /// is built: a renderer backend may keep a copy in its own layout for as long as this
+    /// allocation lives (it tells the levels apart by it, `render::cpu`).
+    data: Arc<Vec<f32>>,
+    /// Per-brick value ranges, for empty-space skipping.
     pub bricks: BrickGrid,
-    /// How the bricked copy may store the values in fewer bits.
+    /// How exactly the values can be stored in fewer bits than f32.
     narrow: Narrow,
-    /// The same samples brick by brick for the renderer, built on first use.
-    bricked: OnceLock<BrickedData>,
 }
 
 impl Level {
@@ -43,29 +43,52 @@ impl Level {
             dims,
             spacing,
             bricks: BrickGrid::build(dims, &data),
-            data,
+            data: Arc::new(data),
             narrow,
-            bricked: OnceLock::new(),
         }
     }
 
-    /// Memory held now (the bricked copy counts once it has been built).
+    /// Normalized samples, x fastest; NaN = empty.
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+
+    /// The samples' allocation: what a renderer's cache of this level is keyed by.
+    pub(crate) fn shared_data(&self) -> &Arc<Vec<f32>> {
+        &self.data
+    }
+
+    /// How the values may be stored in fewer bits (see [`Narrow`]).
+    pub(crate) fn narrow(&self) -> Narrow {
+        self.narrow
+    }
+
+    /// Memory held by the samples and the brick ranges (a renderer's copies not included).
     pub fn memory_bytes(&self) -> usize {
         4 * (self.data.len() + self.bricks.min.len() + self.bricks.max.len())
             + self.bricks.uniform.len()
-            + self.bricked.get().map_or(0, BrickedData::memory_bytes)
     }
 
-    /// The samples regrouped per brick with aprons (see `bricked.rs`); built on first call.
-    pub fn bricked(&self) -> &BrickedData {
-        self.bricked
-            .get_or_init(|| BrickedData::build(self.dims, &self.data, &self.bricks, self.narrow))
-    }
-
+    /// Index of point (i, j, k) in [`Level::data`].
+    #[cfg(test)]
     #[inline]
-    pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
+    fn index(&self, i: usize, j: usize, k: usize) -> usize {
         i + self.dims[0] * (j + self.dims[1] * k)
     }
+}
+
+/// How a level's values may be stored in fewer bits than f32 (a property of the data: the
+/// renderer's bricked copy uses it, `render::cpu::bricked`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Narrow {
+    /// Level 0 of an integer volume: its normalized values should be k / D for integers
+    /// k ≤ D (checked where used; a value that is not keeps the level in f32).
+    Exact(u32),
+    /// A filtered mip level, an approximation already: may be rounded to 16 bits (error ≤
+    /// 2⁻¹⁷ of the range, 1/512 of a 256-entry LUT's cell), unless it holds NaN.
+    Round16,
+    /// f32 (float volumes' level 0).
+    No,
 }
 
 /// Min/max of the normalized value per brick of `BRICK_CELLS`³ cells.
@@ -75,6 +98,7 @@ pub struct BrickGrid {
     pub counts: [usize; 3],
     /// Per brick, x fastest. An all-NaN brick has min = +inf, max = -inf.
     pub min: Vec<f32>,
+    /// Per brick, x fastest: the largest value (−inf for an all-NaN brick).
     pub max: Vec<f32>,
     /// Per brick: every point it touches is finite and equal (min == max, no NaN), so every
     /// sample inside it has that value and the renderer can step across it in one go.
@@ -82,7 +106,8 @@ pub struct BrickGrid {
 }
 
 impl BrickGrid {
-    pub(super) fn build(dims: [usize; 3], data: &[f32]) -> BrickGrid {
+    /// The ranges of a level with `dims` points holding `data` (x fastest).
+    pub(crate) fn build(dims: [usize; 3], data: &[f32]) -> BrickGrid {
         let cells = dims.map(|d| d.saturating_sub(1).max(1));
         let counts = cells.map(|c| c.div_ceil(BRICK_CELLS));
         let total = counts.iter().product();
@@ -124,8 +149,9 @@ impl BrickGrid {
         }
     }
 
+    /// Index of brick (bi, bj, bk) in the per-brick vectors.
     #[inline]
-    pub fn index(&self, bi: usize, bj: usize, bk: usize) -> usize {
+    pub(crate) fn index(&self, bi: usize, bj: usize, bk: usize) -> usize {
         bi + self.counts[0] * (bj + self.counts[1] * bk)
     }
 }
@@ -149,7 +175,7 @@ pub(super) fn build(geometry: Geometry, data: Vec<f32>, narrow: Narrow) -> Vec<L
         });
         // Borrow the previous level instead of cloning it: a clone of level 0 would be a
         // second full-size f32 copy at the peak.
-        let mut cur = std::borrow::Cow::Borrowed(prev.data.as_slice());
+        let mut cur = std::borrow::Cow::Borrowed(prev.data());
         let mut cur_dims = prev.dims;
         for axis in 0..3 {
             if dims[axis] != cur_dims[axis] {
@@ -251,7 +277,7 @@ mod tests {
                 let ext0 = (dims[a] - 1) as f64 * geom(dims).spacing[a];
                 assert!((ext - ext0).abs() < 1e-9, "{:?}", l.dims);
             }
-            assert!(l.data.iter().all(|v| (0.0..=1.0).contains(v)));
+            assert!(l.data().iter().all(|v| (0.0..=1.0).contains(v)));
         }
         assert_eq!(levels[1].dims, [17, 10, 5]);
     }
@@ -267,7 +293,7 @@ mod tests {
         assert_eq!(l1.dims[0], 9);
         for i in 1..8 {
             // Interior points of a linear ramp are reproduced exactly by a symmetric tent.
-            assert!((l1.data[l1.index(i, 1, 1)] - i as f32 / 8.0).abs() < 1e-6);
+            assert!((l1.data()[l1.index(i, 1, 1)] - i as f32 / 8.0).abs() < 1e-6);
         }
     }
 
