@@ -17,8 +17,11 @@ pub const PREVIEW_SIZE: usize = 256;
 
 /// The differentiable renderer on one volume, at CLIP's image size.
 pub struct VolumeRenderer<'a> {
+    /// The volume rendered.
     pub volume: &'a Volume,
+    /// Render options of the loop (step, level, skipping).
     pub options: RenderOptions,
+    /// Which world axis is up in the views.
     pub up: UpAxis,
     /// Square image side (CLIP's `image_size()`).
     pub size: usize,
@@ -167,7 +170,9 @@ impl TextEncoder for ClipModel<'_> {
 
 /// The paper's parameterization (`TfParams`) with `k` control points, LUT of `lut_size`.
 pub struct PaperTf {
+    /// Control points.
     pub k: usize,
+    /// Entries of the LUT the control points are sampled into.
     pub lut_size: usize,
 }
 

@@ -12,6 +12,7 @@ mod pyramid;
 mod raw;
 mod read;
 mod small_int;
+mod summary;
 mod vti;
 mod vti_blocks;
 
@@ -19,6 +20,7 @@ pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
 pub(crate) use pyramid::Narrow;
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
 pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
+pub use summary::{summarize, Summary};
 
 use std::path::{Path, PathBuf};
 
@@ -28,7 +30,9 @@ pub const HISTOGRAM_BINS: usize = 256;
 /// Where a volume came from, with what a ParaView or VisIt script needs to open the same file.
 #[derive(Clone, Debug, PartialEq)]
 pub struct VolumeSource {
+    /// The file.
     pub path: PathBuf,
+    /// Its format and reader settings.
     pub format: SourceFormat,
 }
 
@@ -37,24 +41,36 @@ pub struct VolumeSource {
 pub enum SourceFormat {
     /// Headerless raw array, x fastest.
     Raw {
+        /// The values' type.
         scalar_type: ScalarType,
+        /// The values' byte order.
         byte_order: ByteOrder,
     },
     /// VTK XML ImageData; `array` is the point-data array that was read.
-    Vti { array: String },
+    Vti {
+        /// The array's name.
+        array: String,
+    },
     /// Legacy VTK STRUCTURED_POINTS; `array` is the scalars' name.
-    LegacyVtk { array: String },
+    LegacyVtk {
+        /// The scalars' name.
+        array: String,
+    },
 }
 
 /// Grid geometry in VTK ImageData terms: point (i, j, k) sits at `origin + (i, j, k) * spacing`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Geometry {
+    /// Points per axis.
     pub dims: [usize; 3],
+    /// World distance between neighbouring points, per axis.
     pub spacing: [f64; 3],
+    /// World position of point (0, 0, 0).
     pub origin: [f64; 3],
 }
 
 impl Geometry {
+    /// Number of points.
     pub fn voxel_count(&self) -> usize {
         self.dims.iter().product()
     }
@@ -75,6 +91,7 @@ impl Geometry {
         }
     }
 
+    /// World position of the box centre.
     pub fn center(&self) -> [f64; 3] {
         let e = self.extent();
         std::array::from_fn(|a| self.origin[a] + 0.5 * e[a])
@@ -96,12 +113,19 @@ impl Geometry {
 #[derive(Debug, thiserror::Error)]
 pub enum VolumeError {
     #[error("{path}: {message}")]
-    File { path: PathBuf, message: String },
+    File {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it (one line).
+        message: String,
+    },
     /// The file could not be read. The io error is part of the message rather than a
     /// `source`, so the CLI's `{:#}` cause chain prints it once, on one line.
     #[error("{path}: {error}")]
     Io {
+        /// The file.
         path: PathBuf,
+        /// What the operating system said.
         error: std::io::Error,
     },
 }
@@ -132,6 +156,7 @@ impl VolumeError {
 /// A scalar volume ready to render: normalized samples, statistics and the mip pyramid.
 #[derive(Clone, Debug)]
 pub struct Volume {
+    /// Points per axis, spacing and origin.
     pub geometry: Geometry,
     /// The scalar type of the file the values came from.
     pub scalar_type: ScalarType,
@@ -157,39 +182,7 @@ impl Volume {
         geometry: Geometry,
         buffer: &TypedBuffer,
     ) -> Result<Volume, VolumeError> {
-        let n = geometry.voxel_count();
-        if geometry.dims.contains(&0) {
-            return Err(VolumeError::file(
-                name,
-                format!("dimensions {:?} contain a zero", geometry.dims),
-            ));
-        }
-        if buffer.len() != n {
-            return Err(VolumeError::file(
-                name,
-                format!(
-                    "holds {} values but dimensions {}x{}x{} need {n}",
-                    buffer.len(),
-                    geometry.dims[0],
-                    geometry.dims[1],
-                    geometry.dims[2]
-                ),
-            ));
-        }
-        for a in 0..3 {
-            let s = geometry.spacing[a];
-            if !(s.is_finite() && s > 0.0 && geometry.origin[a].is_finite()) {
-                return Err(VolumeError::file(
-                    name,
-                    format!(
-                        "spacing {:?} and origin {:?} must be finite, spacing positive",
-                        geometry.spacing, geometry.origin
-                    ),
-                ));
-            }
-        }
-
-        check_box(name, &geometry)?;
+        check_geometry(name, &geometry, buffer.len())?;
         // The f32 copy, its mip levels (1/7 more) and the renderer's bricked copy (aprons
         // make it up to 1.42× the f32 data): 12 bytes per point is a safe bound.
         crate::memory::check(
@@ -243,25 +236,30 @@ impl Volume {
         self.levels[0].data()
     }
 
+    /// Points per axis of level 0.
     pub fn dims(&self) -> [usize; 3] {
         self.geometry.dims
     }
 
     /// Map a normalized value in [0, 1] back to data units.
     pub fn denormalize(&self, t: f64) -> f64 {
-        let [lo, hi] = self.norm_range;
-        let width = hi - lo;
-        if width.is_finite() {
-            lo + t * width
-        } else {
-            // f64 data spanning more than f64's range: interpolate without the width.
-            lo * (1.0 - t) + hi * t
-        }
+        denormalize(self.norm_range, t)
     }
 
     /// Bytes held by the normalized data and the pyramid.
     pub fn memory_bytes(&self) -> usize {
         self.levels.iter().map(Level::memory_bytes).sum()
+    }
+}
+
+/// `t` in [0, 1] in data units for the normalization range `norm_range`.
+fn denormalize([lo, hi]: [f64; 2], t: f64) -> f64 {
+    let width = hi - lo;
+    if width.is_finite() {
+        lo + t * width
+    } else {
+        // f64 data spanning more than f64's range: interpolate without the width.
+        lo * (1.0 - t) + hi * t
     }
 }
 
@@ -272,6 +270,41 @@ struct Normalized {
     non_finite: usize,
     histogram: Vec<u64>,
     data: Vec<f32>,
+}
+
+/// What every volume (and every summary) must satisfy: no empty axis, `values` values for the
+/// dims, finite positive spacing and finite origin, and a box single precision can hold.
+fn check_geometry(name: &Path, geometry: &Geometry, values: usize) -> Result<(), VolumeError> {
+    let n = geometry.voxel_count();
+    if geometry.dims.contains(&0) {
+        return Err(VolumeError::file(
+            name,
+            format!("dimensions {:?} contain a zero", geometry.dims),
+        ));
+    }
+    if values != n {
+        return Err(VolumeError::file(
+            name,
+            format!(
+                "holds {} values but dimensions {}x{}x{} need {n}",
+                values, geometry.dims[0], geometry.dims[1], geometry.dims[2]
+            ),
+        ));
+    }
+    for a in 0..3 {
+        let s = geometry.spacing[a];
+        if !(s.is_finite() && s > 0.0 && geometry.origin[a].is_finite()) {
+            return Err(VolumeError::file(
+                name,
+                format!(
+                    "spacing {:?} and origin {:?} must be finite, spacing positive",
+                    geometry.spacing, geometry.origin
+                ),
+            ));
+        }
+    }
+
+    check_box(name, geometry)
 }
 
 /// The renderer works in f32 world coordinates: the box (origin to far corner) must be finite
