@@ -505,7 +505,7 @@ fn march_body<T: Voxel, F: FnMut(&Sample)>(
 mod tests {
     use super::super::CpuBackend;
     use super::*;
-    use crate::render::Backend;
+    use crate::render::backend::Backend;
     use crate::tf::Lut;
     use crate::volume::{Geometry, TypedBuffer, Volume};
     use std::path::Path;

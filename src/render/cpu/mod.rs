@@ -4,8 +4,9 @@
 //! `simd.rs`) in parallel 16 × 16 tiles. Shots cast below the output size are upsampled here
 //! (and the gradient taken through the upsampling's transpose).
 //!
-//! Imports run one way: `render` (the [`Backend`] trait) ← `render::cpu`; `sample` is used by
-//! `march` and `simd`, `simd` by `march`, and none of them imports the others back.
+//! Imports run one way: `render::backend` (the [`Backend`] trait) ← `render::cpu` ← the
+//! `render` facade; inside, `sample` is used by `march` and `simd`, `simd` by `march`, and
+//! none of them imports the others back.
 //!
 //! **Prepared levels are cached** per level allocation (`volume::Level` shares its samples in
 //! an `Arc` that never changes): preparing the same level again — every view of an
@@ -24,7 +25,7 @@ use std::sync::{Arc, Mutex, OnceLock, Weak};
 use glam::DVec3;
 use rayon::prelude::*;
 
-use super::{validate, Backend, RenderError, RenderOptions, Rendered, Shot};
+use super::backend::{validate, Backend, RenderError, RenderOptions, Rendered, Shot};
 use crate::camera::Camera;
 use crate::image::{resize_bilinear, resize_bilinear_adjoint, Image};
 use crate::tf::{Lut, LutGrad};

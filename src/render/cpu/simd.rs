@@ -38,7 +38,7 @@ pub(crate) fn interpolate_classify<T: Voxel>(
         // SAFETY: `simd` is only true where `available()` said the CPU has AVX2 and the
         // grid's indices fit 32-bit lanes (`View` sets it from `available()` and
         // `Grid::gathers_fit`; tests from there too); `p.grid` holds `Grid`'s invariants
-        // and a `Lut` has at least two entries (`render::validate`).
+        // and a `Lut` has at least two entries (`render::backend::validate`).
         unsafe { avx2::interpolate_classify(p, d, ray, n, delta_norm, out) };
         return;
     }
@@ -243,7 +243,7 @@ mod tests {
     use super::super::sample::Grid;
     use super::super::{skip, CpuBackend};
     use super::*;
-    use crate::render::Backend;
+    use crate::render::backend::Backend;
     use crate::tf::Lut;
     use crate::volume::{Geometry, ScalarType, TypedBuffer, Volume};
     use glam::DVec3;
