@@ -16,11 +16,13 @@ use serde::{Deserialize, Serialize};
 use crate::image::Image;
 
 #[derive(Debug, thiserror::Error)]
+/// Why a background could not be made.
 pub enum BackgroundError {
     #[error(
         "unknown background `{0}`: expected gray, gray:LEVEL (0..1), white, black, \
          checkerboard, noise, fourier or random"
     )]
+    /// The name is not one of the known backgrounds.
     Name(String),
 }
 
@@ -29,13 +31,25 @@ pub enum BackgroundError {
 #[serde(tag = "kind", rename_all = "lowercase")]
 pub enum Background {
     /// Constant gray of this level in [0, 1].
-    Gray { level: f64 },
+    Gray {
+        /// Gray level in [0, 1].
+        level: f64,
+    },
     /// Checkerboard with colours, size and phase from `seed`.
-    Checkerboard { seed: u64 },
+    Checkerboard {
+        /// Seed of the colours, size and phase.
+        seed: u64,
+    },
     /// Noise image from `seed`.
-    Noise { seed: u64 },
+    Noise {
+        /// Seed of the noise.
+        seed: u64,
+    },
     /// Random Fourier features from `seed`.
-    Fourier { seed: u64 },
+    Fourier {
+        /// Seed of the features.
+        seed: u64,
+    },
 }
 
 impl Background {

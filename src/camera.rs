@@ -24,16 +24,23 @@ pub const VIEW_ANGLE_DEG: f64 = 45.0;
 
 /// The paper's random-view ranges (Appendix A).
 pub const PITCH_RANGE: f64 = PI / 14.0;
+/// The camera distances of the paper's random views, in bounding radii.
 pub const DISTANCE_RANGE: [f64; 2] = [2.0, 4.0];
 
 #[derive(Debug, thiserror::Error)]
+/// Why a camera could not be made.
 pub enum CameraError {
     #[error("unknown up axis `{0}`: expected x, y, z, -x, -y or -z")]
+    /// The up axis is not one of x, y, z, -x, -y, -z.
     UpAxis(String),
     #[error("camera {what} {value} is not allowed: {why}")]
+    /// A camera parameter is out of range.
     Param {
+        /// Which parameter.
         what: &'static str,
+        /// Its value.
         value: f64,
+        /// What it must be.
         why: &'static str,
     },
 }
@@ -43,12 +50,18 @@ pub enum CameraError {
 /// `cthead`, shows the head upright with `-z`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum UpAxis {
+    /// +x is up.
     X,
+    /// +y is up.
     Y,
     #[default]
+    /// +z is up.
     Z,
+    /// −x is up.
     NegX,
+    /// −y is up.
     NegY,
+    /// −z is up.
     NegZ,
 }
 
@@ -97,9 +110,13 @@ impl fmt::Display for UpAxis {
 /// Orbit parameters: angles in radians, distance in bounding radii.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Orbit {
+    /// Angle around the up axis, radians.
     pub yaw: f64,
+    /// Angle above the horizontal plane, radians.
     pub pitch: f64,
+    /// Distance from the box centre, in bounding radii.
     pub distance: f64,
+    /// Which world axis is up.
     pub up: UpAxis,
 }
 
@@ -119,8 +136,11 @@ impl Orbit {
 /// direction.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
+    /// The eye, in world coordinates.
     pub position: DVec3,
+    /// The point looked at.
     pub focal_point: DVec3,
+    /// The up direction of the image.
     pub view_up: DVec3,
     /// Vertical field of view, degrees.
     pub view_angle_deg: f64,
@@ -129,15 +149,20 @@ pub struct Camera {
 /// ParaView's four camera properties (what a pvpython script sets).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ParaViewCamera {
+    /// The eye, in world coordinates.
     pub position: [f64; 3],
+    /// The point looked at.
     pub focal_point: [f64; 3],
+    /// The up direction of the image.
     pub view_up: [f64; 3],
+    /// Vertical view angle, degrees.
     pub view_angle: f64,
 }
 
 /// Per-image ray set-up: a pixel's ray is `origin + t * dir(px, py)`, `t` in world units.
 #[derive(Clone, Copy, Debug)]
 pub struct RayFrame {
+    /// The eye, in world coordinates.
     pub origin: DVec3,
     forward: DVec3,
     right: DVec3,
@@ -220,6 +245,7 @@ impl Camera {
             .collect()
     }
 
+    /// The same camera in ParaView's terms.
     pub fn paraview(&self) -> ParaViewCamera {
         ParaViewCamera {
             position: self.position.to_array(),

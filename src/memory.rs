@@ -20,9 +20,13 @@ static LIMIT: AtomicU64 = AtomicU64::new(0);
     human(*.asked as u128), human(*.available as u128)
 )]
 pub struct MemoryError {
+    /// What needed the memory.
     pub what: String,
+    /// Bytes asked for.
     pub asked: u64,
+    /// Bytes available.
     pub available: u64,
+    /// What the user can do about it.
     pub hint: String,
 }
 

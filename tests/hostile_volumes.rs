@@ -69,3 +69,56 @@ fn spacings_that_single_precision_cannot_hold_are_refused() {
         assert!(e.contains("single precision"), "{s}: {e}");
     }
 }
+
+/// Issue #15: `t2tf info` on a 512³ uint8 file (128 MiB) under an address-space limit of
+/// 384 MiB, below the 512 MiB of its f32 copy alone: the file is streamed, nothing the size
+/// of the volume is allocated, and the statistics are those of the whole file.
+#[test]
+fn info_streams_a_volume_larger_than_its_address_space_allows() {
+    use std::io::Write;
+    use std::os::unix::process::CommandExt;
+    const N: usize = 512;
+    const LIMIT: u64 = 384 << 20;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(format!("big_{N}x{N}x{N}_uint8.raw"));
+    let mut file = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+    // Value (x + y + z) mod 256: every value occurs, 0 and 255 included.
+    let mut slice = vec![0u8; N * N];
+    for z in 0..N {
+        for (i, v) in slice.iter_mut().enumerate() {
+            *v = ((i % N + i / N + z) % 256) as u8;
+        }
+        file.write_all(&slice).unwrap();
+    }
+    file.into_inner().unwrap().sync_all().unwrap();
+
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_t2tf"));
+    cmd.arg("info").arg(&path).arg("--json");
+    // SAFETY: setrlimit is async-signal-safe and touches no memory of the parent.
+    unsafe {
+        cmd.pre_exec(|| {
+            let lim = libc::rlimit {
+                rlim_cur: LIMIT,
+                rlim_max: LIMIT,
+            };
+            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let out = cmd.output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "t2tf info failed: {stderr}");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["dims"], serde_json::json!([N, N, N]));
+    assert_eq!(report["range"], serde_json::json!([0.0, 255.0]));
+    let counts: u64 = report["histogram"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["count"].as_u64().unwrap())
+        .sum();
+    assert_eq!(counts, (N * N * N) as u64);
+    assert_eq!(report["pyramid"][1], serde_json::json!([256, 256, 256]));
+}

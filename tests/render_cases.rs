@@ -6,9 +6,10 @@ use render_util::*;
 use t2tf::background;
 use t2tf::camera::{Camera, UpAxis};
 use t2tf::image::Image;
-use t2tf::render::{self, RenderOptions};
+use t2tf::render::cpu::BrickValues;
+use t2tf::render::{self, Backend, CpuBackend, RenderOptions};
 use t2tf::tf::Lut;
-use t2tf::volume::{BrickValues, Volume};
+use t2tf::volume::Volume;
 
 fn flat_lut(n: usize, sigma: f32, rgb: [f32; 3]) -> Lut {
     Lut {
@@ -44,18 +45,18 @@ fn assert_finite_everywhere(v: &Volume, lut: &Lut, cam: &Camera, what: &str) -> 
     first.unwrap()
 }
 
-/// A uint8 volume is rendered from its 8-bit copy (volume::bricked), a float one from f32:
+/// A uint8 volume is rendered from its 8-bit copy (render::cpu::bricked), a float one from f32:
 /// the same values give the same images and gradients, to f32 rounding.
 #[test]
 fn narrow_storage_renders_like_f32() {
     let narrow = crop_u8_typed("neghip_64x64x64_uint8.raw", [64; 3], [0; 3], [64; 3]);
     let wide = crop_u8("neghip_64x64x64_uint8.raw", [64; 3], [0; 3], [64; 3]);
     assert!(matches!(
-        narrow.levels[0].bricked().values(),
+        CpuBackend.prepare(&narrow, 0).unwrap().values(),
         BrickValues::U8(_)
     ));
     assert!(matches!(
-        wide.levels[0].bricked().values(),
+        CpuBackend.prepare(&wide, 0).unwrap().values(),
         BrickValues::F32(_)
     ));
     let lut = random_lut(64, 0.0, 80.0, 3);
@@ -130,7 +131,7 @@ fn nan_voxels_are_empty() {
 
 #[test]
 fn one_and_two_voxel_thick_volumes() {
-    // One point thick: a slab one spacing thick around the points (render::march's BoxFrame),
+    // One point thick: a slab one spacing thick around the points (render::cpu::march's BoxFrame),
     // so a 9 × 9 × 1 image shows, much as the same slice doubled into a two-point-thick volume
     // (whose box is also one spacing thick; only the bounding radius, and so the camera
     // distance, differs by 0.4 %).

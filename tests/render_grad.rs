@@ -16,9 +16,10 @@ use render_util::*;
 use t2tf::background;
 use t2tf::camera::Camera;
 use t2tf::image::Image;
-use t2tf::render::{self, RenderOptions};
+use t2tf::render::cpu::BrickValues;
+use t2tf::render::{self, Backend, CpuBackend, RenderOptions};
 use t2tf::tf::{ControlPoints, Lut};
-use t2tf::volume::{BrickValues, Volume};
+use t2tf::volume::Volume;
 
 const H: f32 = 0.05;
 
@@ -133,7 +134,7 @@ fn saturated_view() {
 
 #[test]
 fn one_point_thick_slab() {
-    // 1 × 9 × 8 points: rendered as a slab one spacing thick (render::march's BoxFrame), seen
+    // 1 × 9 × 8 points: rendered as a slab one spacing thick (render::cpu::march's BoxFrame), seen
     // obliquely so that rays cross the slab's two faces and its rim.
     let vals: Vec<f64> = (0..72).map(|i| ((i * 37) % 29) as f64).collect();
     let v = volume_from([1, 9, 8], [1.5, 1.0, 1.0], vals);
@@ -204,9 +205,12 @@ fn real_volume_crop_with_skipping() {
 #[test]
 fn real_volume_crop_stored_in_8_bits() {
     // The same crop as above kept as uint8: the renderer interpolates its 8-bit copy
-    // (volume::bricked) — through AVX2 gathers where the CPU has them.
+    // (render::cpu::bricked) — through AVX2 gathers where the CPU has them.
     let v = crop_u8_typed("neghip_64x64x64_uint8.raw", [64; 3], [20, 22, 24], [16; 3]);
-    assert!(matches!(v.levels[0].bricked().values(), BrickValues::U8(_)));
+    assert!(matches!(
+        CpuBackend.prepare(&v, 0).unwrap().values(),
+        BrickValues::U8(_)
+    ));
     let c = case(&v, orbit(&v, 2.0, -0.2, 2.4), 12, 10, smooth_opts(), 6);
     c.check(&random_lut(12, 2.0, 50.0, 9), "neghip crop, u8");
 }

@@ -9,7 +9,7 @@ use serde_json::json;
 
 use super::VolumeArgs;
 use crate::units::human_bytes;
-use crate::volume::{ByteOrder, SourceFormat, Volume, HISTOGRAM_BINS};
+use crate::volume::{self, ByteOrder, SourceFormat, Summary, HISTOGRAM_BINS};
 
 /// Width of the longest histogram bar, in characters.
 const BAR_WIDTH: usize = 40;
@@ -37,7 +37,10 @@ pub struct InfoArgs {
 
 pub fn run(args: InfoArgs) -> Result<()> {
     let start = Instant::now();
-    let volume = args.read.load(&args.volume)?;
+    // Statistics only: no f32 copy and no pyramid, and a .raw file is streamed, so a volume
+    // larger than memory can be inspected (volume::summarize).
+    let volume = volume::summarize(&args.volume, &args.read.read_options())?;
+    args.read.warn_thin(&args.volume, volume.geometry.dims);
     let seconds = start.elapsed().as_secs_f64();
     let file_bytes = std::fs::metadata(&args.volume)
         .map(|m| m.len())
@@ -61,7 +64,7 @@ struct Row {
 
 /// Merge the volume's 256 normalized bins into `rows` rows (as even as integer division
 /// allows), labelled in data units.
-fn histogram_rows(v: &Volume, rows: usize) -> Vec<Row> {
+fn histogram_rows(v: &Summary, rows: usize) -> Vec<Row> {
     let rows = rows.clamp(1, HISTOGRAM_BINS);
     (0..rows)
         .map(|r| {
@@ -75,8 +78,8 @@ fn histogram_rows(v: &Volume, rows: usize) -> Vec<Row> {
         .collect()
 }
 
-fn format_name(v: &Volume) -> String {
-    match v.source.as_ref().map(|s| &s.format) {
+fn format_name(v: &Summary) -> String {
+    match Some(&v.source.format) {
         Some(SourceFormat::Raw { byte_order, .. }) => format!(
             "raw, {}-endian",
             match byte_order {
@@ -114,12 +117,12 @@ fn triple(v: [f64; 3]) -> String {
     format!("{} {} {}", num(v[0]), num(v[1]), num(v[2]))
 }
 
-fn text_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f64) -> String {
+fn text_report(a: &InfoArgs, v: &Summary, file_bytes: u64, rows: &[Row], secs: f64) -> String {
     let g = &v.geometry;
     let [x, y, z] = g.dims;
     let n = g.voxel_count();
-    let level0 = v.levels[0].memory_bytes() as u64;
-    let pyramid = v.memory_bytes() as u64 - level0;
+    let level0 = v.level0_bytes as u64;
+    let pyramid = v.pyramid_bytes as u64;
     let mut s = String::new();
     let _ = writeln!(s, "file        {}", a.volume.display());
     let _ = writeln!(s, "format      {}", format_name(v));
@@ -145,7 +148,7 @@ fn text_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f6
     let dims: Vec<String> = v
         .levels
         .iter()
-        .map(|l| format!("{}x{}x{}", l.dims[0], l.dims[1], l.dims[2]))
+        .map(|l| format!("{}x{}x{}", l[0], l[1], l[2]))
         .collect();
     let _ = writeln!(
         s,
@@ -201,10 +204,10 @@ fn text_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f6
     s
 }
 
-fn json_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f64) -> String {
+fn json_report(a: &InfoArgs, v: &Summary, file_bytes: u64, rows: &[Row], secs: f64) -> String {
     let g = &v.geometry;
-    let level0 = v.levels[0].memory_bytes();
-    let (format, array, byte_order) = match v.source.as_ref().map(|s| &s.format) {
+    let level0 = v.level0_bytes;
+    let (format, array, byte_order) = match Some(&v.source.format) {
         Some(SourceFormat::Raw { byte_order, .. }) => (
             "raw",
             None,
@@ -232,9 +235,9 @@ fn json_report(a: &InfoArgs, v: &Volume, file_bytes: u64, rows: &[Row], secs: f6
             "file_bytes": file_bytes,
             "value_bytes": g.voxel_count() * v.scalar_type.size(),
             "f32_bytes": level0,
-            "pyramid_bytes": v.memory_bytes() - level0,
+            "pyramid_bytes": v.pyramid_bytes,
         },
-        "pyramid": v.levels.iter().map(|l| l.dims).collect::<Vec<_>>(),
+        "pyramid": v.levels,
         "read_seconds": secs,
         "histogram": rows.iter().map(|r| json!({"lo": r.lo, "hi": r.hi, "count": r.count}))
             .collect::<Vec<_>>(),

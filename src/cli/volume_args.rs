@@ -29,6 +29,7 @@ pub struct VolumeArgs {
 }
 
 impl VolumeArgs {
+    /// The reader settings these flags give.
     pub fn read_options(&self) -> ReadOptions {
         ReadOptions {
             dims: self.dims,
@@ -42,9 +43,15 @@ impl VolumeArgs {
     /// Read and normalize the volume at `path` with these flags.
     pub fn load(&self, path: &Path) -> anyhow::Result<Volume> {
         let v = volume::load(path, &self.read_options())?;
+        self.warn_thin(path, v.geometry.dims);
+        Ok(v)
+    }
+
+    /// Warn when an axis has one point.
+    pub fn warn_thin(&self, path: &Path, dims: [usize; 3]) {
         let thin: Vec<&str> = ["x", "y", "z"]
             .into_iter()
-            .zip(v.geometry.dims)
+            .zip(dims)
             .filter(|&(_, n)| n == 1)
             .map(|(axis, _)| axis)
             .collect();
@@ -56,7 +63,6 @@ impl VolumeArgs {
                 thin.join(" and ")
             );
         }
-        Ok(v)
     }
 }
 

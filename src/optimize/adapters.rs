@@ -1,10 +1,11 @@
-//! The optimizer's traits on the real components: the renderer (`crate::render`), CLIP
-//! (`crate::clip`) and the paper's TF parameterization (`crate::tf::TfParams`).
+//! The optimizer's traits on the real components: the renderer (through the
+//! `crate::render::Backend` trait), CLIP (`crate::clip`) and the paper's TF parameterization
+//! (`crate::tf::TfParams`).
 
 use crate::camera::{Camera, Orbit, UpAxis};
 use crate::clip::{Clip, ImageCache};
-use crate::image::{resize_bilinear, resize_bilinear_adjoint, Image};
-use crate::render::{self, RenderOptions, Rendered};
+use crate::image::Image;
+use crate::render::{self, Backend, RenderOptions, Shot};
 use crate::tf::{ControlPoints, Lut, LutGrad, TfParams};
 use crate::volume::Volume;
 
@@ -16,19 +17,35 @@ pub const PREVIEW_SIZE: usize = 256;
 
 /// The differentiable renderer on one volume, at CLIP's image size.
 pub struct VolumeRenderer<'a> {
+    /// The volume rendered.
     pub volume: &'a Volume,
+    /// Render options of the loop (step, level, skipping).
     pub options: RenderOptions,
+    /// Which world axis is up in the views.
     pub up: UpAxis,
     /// Square image side (CLIP's `image_size()`).
     pub size: usize,
     /// Side the rays are cast at. Below `size`, the volume's colour and transmittance are
     /// rendered at this size, upsampled bilinearly, and composited over the full-size
     /// background there (so CLIP still sees sharp checkerboards and noise): the renderer's
-    /// work shrinks with the square of the ratio.
+    /// work shrinks with the square of the ratio (`render::Shot::cast`).
     pub render_size: usize,
     /// Jitter sample positions per view (seeded by `View::seed`).
     pub jitter: bool,
 }
+
+/// The renderer the optimizer uses: the one backend there is today (ARCHITECTURE.md,
+/// "Backends"). Everything below goes through the `render::Backend` trait.
+const BACKEND: render::CpuBackend = render::CpuBackend;
+
+/// The forward's tape: the camera, the background, the prepared level, and the backend's own
+/// tape.
+type Tape<B> = (
+    Camera,
+    Image,
+    <B as Backend>::Prepared,
+    <B as Backend>::Tape,
+);
 
 impl VolumeRenderer<'_> {
     fn camera(&self, view: &View) -> Result<Camera, BoxError> {
@@ -48,51 +65,62 @@ impl VolumeRenderer<'_> {
         }
     }
 
-    fn background(&self, view: &View) -> Image {
-        self.background_sized(view, self.size)
+    /// Rays per side: `render_size` below CLIP's size, else CLIP's size.
+    fn cast(&self) -> (usize, usize) {
+        let s = self.render_size.min(self.size);
+        (s, s)
     }
 
-    fn background_sized(&self, view: &View, size: usize) -> Image {
-        view.background.draw(size, size)
+    /// The view's camera and background, and the prepared level it is rendered from.
+    fn setup<B: Backend>(
+        &self,
+        backend: &B,
+        lut: &Lut,
+        view: &View,
+        opts: &RenderOptions,
+    ) -> Result<(Camera, Image, B::Prepared), BoxError> {
+        let camera = self.camera(view)?;
+        let bg = view.background.draw(self.size, self.size);
+        let level = render::level_for(self.volume, lut, &camera, self.cast(), opts)?;
+        let prepared = backend.prepare(self.volume, level)?;
+        Ok((camera, bg, prepared))
     }
 }
 
 impl Renderer for VolumeRenderer<'_> {
-    /// The camera, the forward's result at `render_size`, and — when that is below `size` —
-    /// the full-size background it was composited over.
-    type Tape = (Camera, Rendered, Option<Image>);
+    /// The camera, the background, the prepared level and what the backend's backward needs.
+    type Tape = Tape<render::CpuBackend>;
 
     fn render(&self, lut: &Lut, view: &View) -> Result<(Image, Vec<f32>, Self::Tape), BoxError> {
-        let camera = self.camera(view)?;
-        let bg = self.background(view);
         let opts = self.options(view);
-        if self.render_size >= self.size {
-            let r = render::forward(self.volume, lut, &camera, &bg, &opts)?;
-            return Ok((r.image.clone(), r.transmittance.clone(), (camera, r, None)));
-        }
-        // Colour over black is the accumulated colour alone: I = up(acc) + up(T) · B.
-        let (s, n) = (self.render_size, self.size);
-        let r = render::forward(self.volume, lut, &camera, &Image::new(s, s), &opts)?;
-        let acc = resize_bilinear(&r.image.data, (s, s), 3, (n, n));
-        let t = resize_bilinear(&r.transmittance, (s, s), 1, (n, n));
-        let mut image = Image::new(n, n);
-        for (p, px) in image.data.chunks_exact_mut(3).enumerate() {
-            for c in 0..3 {
-                px[c] = acc[3 * p + c] + t[p] * bg.data[3 * p + c];
-            }
-        }
-        Ok((image, t, (camera, r, Some(bg))))
+        let (camera, bg, prepared) = self.setup(&BACKEND, lut, view, &opts)?;
+        let shot = Shot {
+            camera: &camera,
+            background: &bg,
+            options: &opts,
+            cast: self.cast(),
+        };
+        let (r, tape) = BACKEND.forward(&prepared, lut, &shot)?;
+        Ok((r.image, r.transmittance, (camera, bg, prepared, tape)))
     }
 
     /// preview.png views at least `PREVIEW_SIZE` pixels wide, whatever CLIP's input size.
     fn render_preview(&self, lut: &Lut, view: &View) -> Result<Image, BoxError> {
         let size = self.size.max(PREVIEW_SIZE);
         let camera = self.camera(view)?;
-        let bg = self.background_sized(view, size);
+        let bg = view.background.draw(size, size);
         // A picture for people: final quality (BENCHMARKS.md, render defaults), not the loop's
         // cheaper settings.
         let opts = RenderOptions::final_quality();
-        Ok(render::forward(self.volume, lut, &camera, &bg, &opts)?.image)
+        let level = render::level_for(self.volume, lut, &camera, (size, size), &opts)?;
+        let prepared = BACKEND.prepare(self.volume, level)?;
+        let shot = Shot {
+            camera: &camera,
+            background: &bg,
+            options: &opts,
+            cast: (size, size),
+        };
+        Ok(BACKEND.forward(&prepared, lut, &shot)?.0.image)
     }
 
     fn backward(
@@ -103,41 +131,15 @@ impl Renderer for VolumeRenderer<'_> {
         d_image: &[f32],
         d_transmittance: &[f32],
     ) -> Result<LutGrad, BoxError> {
-        let (camera, rendered, bg) = tape;
+        let (camera, bg, prepared, tape) = tape;
         let opts = self.options(view);
-        let Some(bg) = bg else {
-            return Ok(render::backward_from(
-                self.volume,
-                lut,
-                camera,
-                rendered,
-                &opts,
-                d_image,
-                d_transmittance,
-            )?);
-        };
-        // Through I = up(acc) + up(T) · B: ∂/∂up(acc) = ∂/∂I, ∂/∂up(T) = ∂/∂T + Σ_c ∂/∂I_c B_c,
-        // then the upsampling's transpose.
-        let (s, n) = (self.render_size, self.size);
-        let d_t: Vec<f32> = (0..n * n)
-            .map(|p| {
-                let from_image: f32 = (0..3)
-                    .map(|c| d_image[3 * p + c] * bg.data[3 * p + c])
-                    .sum();
-                d_transmittance.get(p).copied().unwrap_or(0.0) + from_image
-            })
-            .collect();
-        let d_acc_s = resize_bilinear_adjoint(d_image, (n, n), 3, (s, s));
-        let d_t_s = resize_bilinear_adjoint(&d_t, (n, n), 1, (s, s));
-        Ok(render::backward_from(
-            self.volume,
-            lut,
+        let shot = Shot {
             camera,
-            rendered,
-            &opts,
-            &d_acc_s,
-            &d_t_s,
-        )?)
+            background: bg,
+            options: &opts,
+            cast: self.cast(),
+        };
+        Ok(BACKEND.backward(prepared, lut, &shot, tape, d_image, d_transmittance)?)
     }
 }
 
@@ -168,7 +170,9 @@ impl TextEncoder for ClipModel<'_> {
 
 /// The paper's parameterization (`TfParams`) with `k` control points, LUT of `lut_size`.
 pub struct PaperTf {
+    /// Control points.
     pub k: usize,
+    /// Entries of the LUT the control points are sampled into.
     pub lut_size: usize,
 }
 

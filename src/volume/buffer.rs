@@ -9,19 +9,30 @@ use std::str::FromStr;
 /// The scalar types VTK and the Open SciVis naming use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum ScalarType {
+    /// Unsigned 8-bit.
     U8,
+    /// Signed 8-bit.
     I8,
+    /// Unsigned 16-bit.
     U16,
+    /// Signed 16-bit.
     I16,
+    /// Unsigned 32-bit.
     U32,
+    /// Signed 32-bit.
     I32,
+    /// Unsigned 64-bit.
     U64,
+    /// Signed 64-bit.
     I64,
+    /// 32-bit float.
     F32,
+    /// 64-bit float.
     F64,
 }
 
 impl ScalarType {
+    /// Every scalar type.
     pub const ALL: [ScalarType; 10] = [
         ScalarType::U8,
         ScalarType::I8,
@@ -50,6 +61,7 @@ impl ScalarType {
         })
     }
 
+    /// Bytes per value.
     pub fn size(self) -> usize {
         match self {
             ScalarType::U8 | ScalarType::I8 => 1,
@@ -142,9 +154,12 @@ impl FromStr for ScalarType {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+/// Byte order of stored values.
 pub enum ByteOrder {
     #[default]
+    /// Least significant byte first.
     Little,
+    /// Most significant byte first.
     Big,
 }
 
@@ -220,10 +235,12 @@ impl TypedBuffer {
         self.declared
     }
 
+    /// Number of values.
     pub fn len(&self) -> usize {
         self.bytes.len() / self.storage.size()
     }
 
+    /// Whether there is no value.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }

@@ -103,240 +103,363 @@ fn legacy_type(name: &str) -> Option<ScalarType> {
 pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, VolumeError> {
     let err = |m: String| VolumeError::file(path, m);
     let mut c = Cursor { bytes, pos: 0 };
+    let ascii = header(&mut c).map_err(err)?;
+    let mut p = Parser {
+        c,
+        ascii,
+        want,
+        dims: None,
+        spacing: [1.0; 3],
+        origin: [0.0; 3],
+        dataset_seen: false,
+        section: Section::Dataset,
+        count: 0,
+        names: Vec::new(),
+        cell_names: Vec::new(),
+        chosen: None,
+        fallback: None,
+    };
+    while let Some(line) = p.c.line() {
+        if p.keyword(line).map_err(err)? == Flow::Done {
+            break;
+        }
+    }
+    p.finish().map_err(err)
+}
 
+/// The first three lines: the version line, the title, and ASCII or BINARY (`true` for ASCII).
+fn header(c: &mut Cursor<'_>) -> Result<bool, String> {
     let first = c.raw_line().unwrap_or("");
     if !first.starts_with("# vtk DataFile Version") {
-        return Err(err(
+        return Err(
             "not a legacy VTK file: the first line is not '# vtk DataFile Version x.x'".into(),
-        ));
+        );
     }
     let _title = c.raw_line();
-    let ascii = match c.line().map(str::to_ascii_uppercase).as_deref() {
-        Some("ASCII") => true,
-        Some("BINARY") => false,
-        other => {
-            return Err(err(format!(
-                "line 3 must be ASCII or BINARY, found '{}'",
-                other.unwrap_or("end of file")
-            )))
-        }
-    };
+    match c.line().map(str::to_ascii_uppercase).as_deref() {
+        Some("ASCII") => Ok(true),
+        Some("BINARY") => Ok(false),
+        other => Err(format!(
+            "line 3 must be ASCII or BINARY, found '{}'",
+            other.unwrap_or("end of file")
+        )),
+    }
+}
 
-    let mut dims: Option<[usize; 3]> = None;
-    let mut spacing = [1.0f64; 3];
-    let mut origin = [0.0f64; 3];
-    let mut dataset_seen = false;
-    let mut section = Section::Dataset;
-    let mut count = 0usize; // tuples in the current section
-    let mut names: Vec<String> = Vec::new();
-    let mut cell_names: Vec<String> = Vec::new();
-    let mut chosen: Option<Found> = None;
-    // Without --array: the first SCALARS/COLOR_SCALARS (VTK's active scalars) wins; a FIELD
-    // array is kept as the fallback.
-    let mut fallback: Option<Found> = None;
+/// Whether to read on after a keyword section.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Flow {
+    More,
+    /// The array to render has been found.
+    Done,
+}
 
-    while let Some(line) = c.line() {
-        let mut words = line.split_ascii_whitespace();
+/// What the keyword sections have told so far.
+struct Parser<'a, 'w> {
+    c: Cursor<'a>,
+    ascii: bool,
+    want: Option<&'w str>,
+    dims: Option<[usize; 3]>,
+    spacing: [f64; 3],
+    origin: [f64; 3],
+    dataset_seen: bool,
+    section: Section,
+    /// Tuples in the current section.
+    count: usize,
+    names: Vec<String>,
+    cell_names: Vec<String>,
+    chosen: Option<Found>,
+    /// Without --array: the first SCALARS/COLOR_SCALARS (VTK's active scalars) wins; a FIELD
+    /// array is kept as the fallback.
+    fallback: Option<Found>,
+}
+
+/// One keyword line split into its fields, with the parsers every section uses.
+struct Line<'l> {
+    text: &'l str,
+    key: String,
+    args: Vec<&'l str>,
+}
+
+impl<'l> Line<'l> {
+    fn new(text: &'l str) -> Line<'l> {
+        let mut words = text.split_ascii_whitespace();
         let key = words.next().unwrap_or("").to_ascii_uppercase();
-        let args: Vec<&str> = words.collect();
-        let arg = |i: usize| -> Result<&str, VolumeError> {
-            args.get(i)
-                .copied()
-                .ok_or_else(|| err(format!("'{line}' is missing a field")))
-        };
-        let num = |i: usize| -> Result<usize, VolumeError> {
-            let a = arg(i)?;
-            a.parse()
-                .map_err(|_| err(format!("'{a}' in '{line}' is not a count")))
-        };
-        let vec3 = || -> Result<[f64; 3], VolumeError> {
-            let mut v = [0.0; 3];
-            for (a, slot) in v.iter_mut().enumerate() {
-                let s = arg(a)?;
-                *slot = s
-                    .parse()
-                    .map_err(|_| err(format!("'{s}' in '{line}' is not a number")))?;
-            }
-            Ok(v)
-        };
-        match key.as_str() {
-            "DATASET" => {
-                let kind = arg(0)?.to_ascii_uppercase();
-                if kind != "STRUCTURED_POINTS" {
-                    return Err(err(format!(
-                        "DATASET {kind} is not supported: only STRUCTURED_POINTS (image data)"
-                    )));
-                }
-                dataset_seen = true;
-            }
+        Line {
+            text,
+            key,
+            args: words.collect(),
+        }
+    }
+
+    fn arg(&self, i: usize) -> Result<&'l str, String> {
+        self.args
+            .get(i)
+            .copied()
+            .ok_or_else(|| format!("'{}' is missing a field", self.text))
+    }
+
+    fn num(&self, i: usize) -> Result<usize, String> {
+        let a = self.arg(i)?;
+        a.parse()
+            .map_err(|_| format!("'{a}' in '{}' is not a count", self.text))
+    }
+
+    fn vec3(&self) -> Result<[f64; 3], String> {
+        let mut v = [0.0; 3];
+        for (a, slot) in v.iter_mut().enumerate() {
+            let s = self.arg(a)?;
+            *slot = s
+                .parse()
+                .map_err(|_| format!("'{s}' in '{}' is not a number", self.text))?;
+        }
+        Ok(v)
+    }
+}
+
+impl Parser<'_, '_> {
+    /// Handle one keyword line and the data that follows it.
+    fn keyword(&mut self, text: &str) -> Result<Flow, String> {
+        let l = Line::new(text);
+        match l.key.as_str() {
+            "DATASET" => self.dataset(&l)?,
             "DIMENSIONS" => {
-                let d = [num(0)?, num(1)?, num(2)?];
+                let d = [l.num(0)?, l.num(1)?, l.num(2)?];
                 if d.contains(&0) {
-                    return Err(err(format!("'{line}' contains a zero")));
+                    return Err(format!("'{}' contains a zero", l.text));
                 }
-                dims = Some(d);
+                self.dims = Some(d);
             }
-            "SPACING" | "ASPECT_RATIO" => spacing = vec3()?,
-            "ORIGIN" => origin = vec3()?,
-            "POINT_DATA" | "CELL_DATA" => {
-                let d = dims.ok_or_else(|| err(format!("{key} comes before DIMENSIONS")))?;
-                count = num(0)?;
-                section = if key == "POINT_DATA" {
-                    let n = d
-                        .iter()
-                        .try_fold(1usize, |a, &x| a.checked_mul(x))
-                        .ok_or_else(|| err(format!("DIMENSIONS {d:?} are too large")))?;
-                    if count != n {
-                        return Err(err(format!(
-                            "POINT_DATA {count} does not match DIMENSIONS {}x{}x{} ({n} points)",
-                            d[0], d[1], d[2]
-                        )));
-                    }
-                    Section::Point
-                } else {
-                    Section::Cell
-                };
-            }
-            "SCALARS" | "COLOR_SCALARS" => {
-                let name = arg(0)?.to_string();
-                let color = key == "COLOR_SCALARS";
-                let (ty, ncomp) = if color {
-                    (Some(ScalarType::U8), num(1)?)
-                } else {
-                    (
-                        legacy_type(arg(1)?),
-                        if args.len() > 2 { num(2)? } else { 1 },
-                    )
-                };
-                // The optional LOOKUP_TABLE line belongs to SCALARS.
-                if !color {
-                    let save = c.pos;
-                    match c.line() {
-                        Some(l) if l.to_ascii_uppercase().starts_with("LOOKUP_TABLE") => {}
-                        _ => c.pos = save,
-                    }
-                }
-                let values = read_array(&mut c, ascii, ty, count, ncomp, color)
-                    .map_err(|m| err(format!("{key} {name}: {m}")))?;
-                if section == Section::Point {
-                    let f = found(&name, arg(1).unwrap_or("?"), ncomp, values);
-                    names.push(name.clone());
-                    if pick(want, &name, true, &mut chosen, &mut fallback, f) {
-                        break;
-                    }
-                } else if section == Section::Cell {
-                    cell_names.push(name);
-                }
-            }
-            "FIELD" => {
-                let n_arrays = num(1)?;
-                for _ in 0..n_arrays {
-                    let head = c
-                        .line()
-                        .ok_or_else(|| err("FIELD ends before its arrays".into()))?;
-                    let f: Vec<&str> = head.split_ascii_whitespace().collect();
-                    if f.first() == Some(&"NULL_ARRAY") {
-                        continue;
-                    }
-                    if f.len() < 4 {
-                        return Err(err(format!(
-                            "FIELD array line '{head}' needs 'name ncomp ntuples type'"
-                        )));
-                    }
-                    let parse = |s: &str| {
-                        s.parse::<usize>()
-                            .map_err(|_| err(format!("'{s}' in '{head}' is not a count")))
-                    };
-                    let (ncomp, ntuples) = (parse(f[1])?, parse(f[2])?);
-                    let values =
-                        read_array(&mut c, ascii, legacy_type(f[3]), ntuples, ncomp, false)
-                            .map_err(|m| err(format!("FIELD array {}: {m}", f[0])))?;
-                    if section == Section::Point && ntuples == count {
-                        let fnd = found(f[0], f[3], ncomp, values);
-                        names.push(f[0].to_string());
-                        if pick(want, f[0], false, &mut chosen, &mut fallback, fnd) {
-                            break;
-                        }
-                    } else if section == Section::Cell {
-                        cell_names.push(f[0].to_string());
-                    }
-                }
-                if chosen.is_some() {
-                    break;
-                }
-            }
+            "SPACING" | "ASPECT_RATIO" => self.spacing = l.vec3()?,
+            "ORIGIN" => self.origin = l.vec3()?,
+            "POINT_DATA" | "CELL_DATA" => self.data_section(&l)?,
+            "SCALARS" | "COLOR_SCALARS" => return self.scalars(&l),
+            "FIELD" => return self.field(&l),
             "VECTORS" | "NORMALS" | "TENSORS" | "TENSORS6" | "TEXTURE_COORDINATES" => {
-                let (ncomp, ty) = match key.as_str() {
-                    "TEXTURE_COORDINATES" => (num(1)?, arg(2)?),
-                    "TENSORS" => (9, arg(1)?),
-                    "TENSORS6" => (6, arg(1)?),
-                    _ => (3, arg(1)?),
-                };
-                let name = arg(0)?.to_string();
-                read_array(&mut c, ascii, legacy_type(ty), count, ncomp, false)
-                    .map_err(|m| err(format!("{key} {name}: {m}")))?;
-                if section == Section::Point {
-                    if want == Some(name.as_str()) {
-                        return Err(err(format!(
-                            "array '{name}' is {key} with {ncomp} components: only \
-                             single-component scalars can be rendered"
-                        )));
-                    }
-                    names.push(name);
-                } else if section == Section::Cell {
-                    cell_names.push(name);
-                }
+                self.other_attribute(&l)?
             }
             "LOOKUP_TABLE" => {
                 // A colour table of `size` RGBA entries (floats in ASCII, bytes in BINARY).
-                let size = num(1)?;
-                read_array(&mut c, ascii, Some(ScalarType::U8), size, 4, true)
-                    .map_err(|m| err(format!("LOOKUP_TABLE: {m}")))?;
+                let size = l.num(1)?;
+                read_array(&mut self.c, self.ascii, Some(ScalarType::U8), size, 4, true)
+                    .map_err(|m| format!("LOOKUP_TABLE: {m}"))?;
             }
             "METADATA" => {
                 // Version 5.1 metadata blocks end at a blank line.
-                while let Some(l) = c.raw_line() {
+                while let Some(l) = self.c.raw_line() {
                     if l.is_empty() {
                         break;
                     }
                 }
             }
             _ => {
-                return Err(err(format!(
+                return Err(format!(
                     "unexpected line '{}' (near byte {})",
-                    truncate(line),
-                    c.pos
-                )))
+                    truncate(text),
+                    self.c.pos
+                ))
             }
         }
+        Ok(Flow::More)
     }
 
-    if !dataset_seen {
-        return Err(err("no 'DATASET STRUCTURED_POINTS' line".into()));
+    /// `DATASET kind`: only image data.
+    fn dataset(&mut self, l: &Line) -> Result<(), String> {
+        let kind = l.arg(0)?.to_ascii_uppercase();
+        if kind != "STRUCTURED_POINTS" {
+            return Err(format!(
+                "DATASET {kind} is not supported: only STRUCTURED_POINTS (image data)"
+            ));
+        }
+        self.dataset_seen = true;
+        Ok(())
     }
-    let dims = dims.ok_or_else(|| err("no DIMENSIONS line".into()))?;
-    let f = chosen.or(fallback).ok_or_else(|| match want {
-        Some(w) if cell_names.iter().any(|c| c == w) => err(format!(
-            "array '{w}' is cell data; only point data can be volume rendered"
-        )),
-        Some(w) => err(format!(
-            "no point-data array named '{w}' (point-data arrays: {})",
-            list(&names)
-        )),
-        None => err("no point data (POINT_DATA with SCALARS) to render".into()),
-    })?;
-    let buffer = f
-        .values
-        .map_err(|m| err(format!("array '{}': {m}", f.name)))?;
-    Ok(Decoded {
-        geometry: Geometry {
-            dims,
-            spacing,
-            origin,
-        },
-        buffer,
-        format: SourceFormat::LegacyVtk { array: f.name },
-    })
+
+    /// `POINT_DATA n` / `CELL_DATA n`: the section the next arrays belong to.
+    fn data_section(&mut self, l: &Line) -> Result<(), String> {
+        let key = &l.key;
+        let d = self
+            .dims
+            .ok_or_else(|| format!("{key} comes before DIMENSIONS"))?;
+        self.count = l.num(0)?;
+        let count = self.count;
+        self.section = if key == "POINT_DATA" {
+            let n = d
+                .iter()
+                .try_fold(1usize, |a, &x| a.checked_mul(x))
+                .ok_or_else(|| format!("DIMENSIONS {d:?} are too large"))?;
+            if count != n {
+                return Err(format!(
+                    "POINT_DATA {count} does not match DIMENSIONS {}x{}x{} ({n} points)",
+                    d[0], d[1], d[2]
+                ));
+            }
+            Section::Point
+        } else {
+            Section::Cell
+        };
+        Ok(())
+    }
+
+    /// `SCALARS name type [ncomp]` (+ `LOOKUP_TABLE`) or `COLOR_SCALARS name ncomp`.
+    fn scalars(&mut self, l: &Line) -> Result<Flow, String> {
+        let key = &l.key;
+        let name = l.arg(0)?.to_string();
+        let color = key == "COLOR_SCALARS";
+        let (ty, ncomp) = if color {
+            (Some(ScalarType::U8), l.num(1)?)
+        } else {
+            (
+                legacy_type(l.arg(1)?),
+                if l.args.len() > 2 { l.num(2)? } else { 1 },
+            )
+        };
+        // The optional LOOKUP_TABLE line belongs to SCALARS.
+        if !color {
+            let save = self.c.pos;
+            match self.c.line() {
+                Some(t) if t.to_ascii_uppercase().starts_with("LOOKUP_TABLE") => {}
+                _ => self.c.pos = save,
+            }
+        }
+        let values = read_array(&mut self.c, self.ascii, ty, self.count, ncomp, color)
+            .map_err(|m| format!("{key} {name}: {m}"))?;
+        if self.section == Section::Point {
+            let f = found(&name, l.arg(1).unwrap_or("?"), ncomp, values);
+            self.names.push(name.clone());
+            if pick(
+                self.want,
+                &name,
+                true,
+                &mut self.chosen,
+                &mut self.fallback,
+                f,
+            ) {
+                return Ok(Flow::Done);
+            }
+        } else if self.section == Section::Cell {
+            self.cell_names.push(name);
+        }
+        Ok(Flow::More)
+    }
+
+    /// `FIELD name n` and its n arrays (`name ncomp ntuples type`, or `NULL_ARRAY`).
+    fn field(&mut self, l: &Line) -> Result<Flow, String> {
+        let n_arrays = l.num(1)?;
+        for _ in 0..n_arrays {
+            let head = self
+                .c
+                .line()
+                .ok_or_else(|| "FIELD ends before its arrays".to_string())?;
+            let f: Vec<&str> = head.split_ascii_whitespace().collect();
+            if f.first() == Some(&"NULL_ARRAY") {
+                continue;
+            }
+            if f.len() < 4 {
+                return Err(format!(
+                    "FIELD array line '{head}' needs 'name ncomp ntuples type'"
+                ));
+            }
+            let parse = |s: &str| {
+                s.parse::<usize>()
+                    .map_err(|_| format!("'{s}' in '{head}' is not a count"))
+            };
+            let (ncomp, ntuples) = (parse(f[1])?, parse(f[2])?);
+            let values = read_array(
+                &mut self.c,
+                self.ascii,
+                legacy_type(f[3]),
+                ntuples,
+                ncomp,
+                false,
+            )
+            .map_err(|m| format!("FIELD array {}: {m}", f[0]))?;
+            if self.section == Section::Point && ntuples == self.count {
+                let fnd = found(f[0], f[3], ncomp, values);
+                self.names.push(f[0].to_string());
+                if pick(
+                    self.want,
+                    f[0],
+                    false,
+                    &mut self.chosen,
+                    &mut self.fallback,
+                    fnd,
+                ) {
+                    return Ok(Flow::Done);
+                }
+            } else if self.section == Section::Cell {
+                self.cell_names.push(f[0].to_string());
+            }
+        }
+        Ok(if self.chosen.is_some() {
+            Flow::Done
+        } else {
+            Flow::More
+        })
+    }
+
+    /// VECTORS, NORMALS, TENSORS(6), TEXTURE_COORDINATES: read to be skipped (or to say why
+    /// the array asked for cannot be rendered).
+    fn other_attribute(&mut self, l: &Line) -> Result<(), String> {
+        let key = &l.key;
+        let (ncomp, ty) = match key.as_str() {
+            "TEXTURE_COORDINATES" => (l.num(1)?, l.arg(2)?),
+            "TENSORS" => (9, l.arg(1)?),
+            "TENSORS6" => (6, l.arg(1)?),
+            _ => (3, l.arg(1)?),
+        };
+        let name = l.arg(0)?.to_string();
+        read_array(
+            &mut self.c,
+            self.ascii,
+            legacy_type(ty),
+            self.count,
+            ncomp,
+            false,
+        )
+        .map_err(|m| format!("{key} {name}: {m}"))?;
+        if self.section == Section::Point {
+            if self.want == Some(name.as_str()) {
+                return Err(format!(
+                    "array '{name}' is {key} with {ncomp} components: only \
+                     single-component scalars can be rendered"
+                ));
+            }
+            self.names.push(name);
+        } else if self.section == Section::Cell {
+            self.cell_names.push(name);
+        }
+        Ok(())
+    }
+
+    /// The geometry and the chosen array, once the file has been read.
+    fn finish(self) -> Result<Decoded, String> {
+        if !self.dataset_seen {
+            return Err("no 'DATASET STRUCTURED_POINTS' line".into());
+        }
+        let dims = self.dims.ok_or_else(|| "no DIMENSIONS line".to_string())?;
+        let (want, names, cell_names) = (self.want, &self.names, &self.cell_names);
+        let f = self.chosen.or(self.fallback).ok_or_else(|| match want {
+            Some(w) if cell_names.iter().any(|c| c == w) => {
+                format!("array '{w}' is cell data; only point data can be volume rendered")
+            }
+            Some(w) => format!(
+                "no point-data array named '{w}' (point-data arrays: {})",
+                list(names)
+            ),
+            None => "no point data (POINT_DATA with SCALARS) to render".into(),
+        })?;
+        let buffer = f.values.map_err(|m| format!("array '{}': {m}", f.name))?;
+        Ok(Decoded {
+            geometry: Geometry {
+                dims,
+                spacing: self.spacing,
+                origin: self.origin,
+            },
+            buffer,
+            format: SourceFormat::LegacyVtk { array: f.name },
+        })
+    }
 }
 
 /// Wrap a read array, turning a multi-component or unreadable one into a deferred error (it

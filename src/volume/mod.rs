@@ -3,23 +3,24 @@
 //! Readers (`raw`, `vti`, `legacy`) decode a file into a [`TypedBuffer`] (the file's own scalar
 //! type and byte order, untouched) plus [`Geometry`]; [`Volume::from_buffer`] then makes the one
 //! f32 copy the rest of the program uses: values normalized to [0, 1] by the finite min/max
-//! (DESIGN.md, "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty),
+//! (docs/DESIGN.md, "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty),
 //! the histogram, and the mip pyramid with per-brick value ranges for empty-space skipping.
 
-mod bricked;
 mod buffer;
 mod legacy;
 mod pyramid;
 mod raw;
 mod read;
 mod small_int;
+mod summary;
 mod vti;
 mod vti_blocks;
 
-pub use bricked::{BrickValues, BrickedData, Narrow, BRICK_POINTS, BRICK_VALUES};
 pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
+pub(crate) use pyramid::Narrow;
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
 pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
+pub use summary::{summarize, Summary};
 
 use std::path::{Path, PathBuf};
 
@@ -29,7 +30,9 @@ pub const HISTOGRAM_BINS: usize = 256;
 /// Where a volume came from, with what a ParaView or VisIt script needs to open the same file.
 #[derive(Clone, Debug, PartialEq)]
 pub struct VolumeSource {
+    /// The file.
     pub path: PathBuf,
+    /// Its format and reader settings.
     pub format: SourceFormat,
 }
 
@@ -38,24 +41,36 @@ pub struct VolumeSource {
 pub enum SourceFormat {
     /// Headerless raw array, x fastest.
     Raw {
+        /// The values' type.
         scalar_type: ScalarType,
+        /// The values' byte order.
         byte_order: ByteOrder,
     },
     /// VTK XML ImageData; `array` is the point-data array that was read.
-    Vti { array: String },
+    Vti {
+        /// The array's name.
+        array: String,
+    },
     /// Legacy VTK STRUCTURED_POINTS; `array` is the scalars' name.
-    LegacyVtk { array: String },
+    LegacyVtk {
+        /// The scalars' name.
+        array: String,
+    },
 }
 
 /// Grid geometry in VTK ImageData terms: point (i, j, k) sits at `origin + (i, j, k) * spacing`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Geometry {
+    /// Points per axis.
     pub dims: [usize; 3],
+    /// World distance between neighbouring points, per axis.
     pub spacing: [f64; 3],
+    /// World position of point (0, 0, 0).
     pub origin: [f64; 3],
 }
 
 impl Geometry {
+    /// Number of points.
     pub fn voxel_count(&self) -> usize {
         self.dims.iter().product()
     }
@@ -65,7 +80,7 @@ impl Geometry {
         std::array::from_fn(|a| (self.dims[a].saturating_sub(1)) as f64 * self.spacing[a])
     }
 
-    /// The box's longest side `L`: one unit of normalized length (DESIGN.md density units).
+    /// The box's longest side `L`: one unit of normalized length (docs/DESIGN.md density units).
     /// A degenerate box (every side zero) counts as 1 so densities stay finite.
     pub fn longest_side(&self) -> f64 {
         let l = self.extent().into_iter().fold(0.0, f64::max);
@@ -76,6 +91,7 @@ impl Geometry {
         }
     }
 
+    /// World position of the box centre.
     pub fn center(&self) -> [f64; 3] {
         let e = self.extent();
         std::array::from_fn(|a| self.origin[a] + 0.5 * e[a])
@@ -97,12 +113,19 @@ impl Geometry {
 #[derive(Debug, thiserror::Error)]
 pub enum VolumeError {
     #[error("{path}: {message}")]
-    File { path: PathBuf, message: String },
+    File {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it (one line).
+        message: String,
+    },
     /// The file could not be read. The io error is part of the message rather than a
     /// `source`, so the CLI's `{:#}` cause chain prints it once, on one line.
     #[error("{path}: {error}")]
     Io {
+        /// The file.
         path: PathBuf,
+        /// What the operating system said.
         error: std::io::Error,
     },
 }
@@ -133,6 +156,7 @@ impl VolumeError {
 /// A scalar volume ready to render: normalized samples, statistics and the mip pyramid.
 #[derive(Clone, Debug)]
 pub struct Volume {
+    /// Points per axis, spacing and origin.
     pub geometry: Geometry,
     /// The scalar type of the file the values came from.
     pub scalar_type: ScalarType,
@@ -152,45 +176,13 @@ pub struct Volume {
 }
 
 impl Volume {
-    /// Normalize a decoded buffer into a volume. `origin` names the data in errors.
+    /// Normalize a decoded buffer into a volume. `name` names the data in errors.
     pub fn from_buffer(
         name: &Path,
         geometry: Geometry,
         buffer: &TypedBuffer,
     ) -> Result<Volume, VolumeError> {
-        let n = geometry.voxel_count();
-        if geometry.dims.contains(&0) {
-            return Err(VolumeError::file(
-                name,
-                format!("dimensions {:?} contain a zero", geometry.dims),
-            ));
-        }
-        if buffer.len() != n {
-            return Err(VolumeError::file(
-                name,
-                format!(
-                    "holds {} values but dimensions {}x{}x{} need {n}",
-                    buffer.len(),
-                    geometry.dims[0],
-                    geometry.dims[1],
-                    geometry.dims[2]
-                ),
-            ));
-        }
-        for a in 0..3 {
-            let s = geometry.spacing[a];
-            if !(s.is_finite() && s > 0.0 && geometry.origin[a].is_finite()) {
-                return Err(VolumeError::file(
-                    name,
-                    format!(
-                        "spacing {:?} and origin {:?} must be finite, spacing positive",
-                        geometry.spacing, geometry.origin
-                    ),
-                ));
-            }
-        }
-
-        check_box(name, &geometry)?;
+        check_geometry(name, &geometry, buffer.len())?;
         // The f32 copy, its mip levels (1/7 more) and the renderer's bricked copy (aprons
         // make it up to 1.42× the f32 data): 12 bytes per point is a safe bound.
         crate::memory::check(
@@ -218,7 +210,7 @@ impl Volume {
         };
 
         // Integer data spanning at most 65535 steps normalizes to k / span exactly: the
-        // renderer's bricked copy can store k in 8 or 16 bits (volume::bricked).
+        // renderer's bricked copy can store k in 8 or 16 bits (render::cpu::bricked).
         let span = norm_range[1] - norm_range[0];
         let integer = !matches!(buffer.scalar_type(), ScalarType::F32 | ScalarType::F64);
         let narrow = if integer && span.fract() == 0.0 && (1.0..=65535.0).contains(&span) {
@@ -241,28 +233,33 @@ impl Volume {
 
     /// Full-resolution normalized samples, x fastest (NaN = empty).
     pub fn data(&self) -> &[f32] {
-        &self.levels[0].data
+        self.levels[0].data()
     }
 
+    /// Points per axis of level 0.
     pub fn dims(&self) -> [usize; 3] {
         self.geometry.dims
     }
 
     /// Map a normalized value in [0, 1] back to data units.
     pub fn denormalize(&self, t: f64) -> f64 {
-        let [lo, hi] = self.norm_range;
-        let width = hi - lo;
-        if width.is_finite() {
-            lo + t * width
-        } else {
-            // f64 data spanning more than f64's range: interpolate without the width.
-            lo * (1.0 - t) + hi * t
-        }
+        denormalize(self.norm_range, t)
     }
 
     /// Bytes held by the normalized data and the pyramid.
     pub fn memory_bytes(&self) -> usize {
         self.levels.iter().map(Level::memory_bytes).sum()
+    }
+}
+
+/// `t` in [0, 1] in data units for the normalization range `norm_range`.
+fn denormalize([lo, hi]: [f64; 2], t: f64) -> f64 {
+    let width = hi - lo;
+    if width.is_finite() {
+        lo + t * width
+    } else {
+        // f64 data spanning more than f64's range: interpolate without the width.
+        lo * (1.0 - t) + hi * t
     }
 }
 
@@ -273,6 +270,41 @@ struct Normalized {
     non_finite: usize,
     histogram: Vec<u64>,
     data: Vec<f32>,
+}
+
+/// What every volume (and every summary) must satisfy: no empty axis, `values` values for the
+/// dims, finite positive spacing and finite origin, and a box single precision can hold.
+fn check_geometry(name: &Path, geometry: &Geometry, values: usize) -> Result<(), VolumeError> {
+    let n = geometry.voxel_count();
+    if geometry.dims.contains(&0) {
+        return Err(VolumeError::file(
+            name,
+            format!("dimensions {:?} contain a zero", geometry.dims),
+        ));
+    }
+    if values != n {
+        return Err(VolumeError::file(
+            name,
+            format!(
+                "holds {} values but dimensions {}x{}x{} need {n}",
+                values, geometry.dims[0], geometry.dims[1], geometry.dims[2]
+            ),
+        ));
+    }
+    for a in 0..3 {
+        let s = geometry.spacing[a];
+        if !(s.is_finite() && s > 0.0 && geometry.origin[a].is_finite()) {
+            return Err(VolumeError::file(
+                name,
+                format!(
+                    "spacing {:?} and origin {:?} must be finite, spacing positive",
+                    geometry.spacing, geometry.origin
+                ),
+            ));
+        }
+    }
+
+    check_box(name, geometry)
 }
 
 /// The renderer works in f32 world coordinates: the box (origin to far corner) must be finite

@@ -34,7 +34,10 @@ pub fn parse_name(stem: &str) -> Result<Option<([usize; 3], ScalarType)>, String
 }
 
 /// Dims and scalar type from the flags, else the file name.
-fn layout(path: &Path, opts: &ReadOptions) -> Result<([usize; 3], ScalarType), VolumeError> {
+pub(super) fn layout(
+    path: &Path,
+    opts: &ReadOptions,
+) -> Result<([usize; 3], ScalarType), VolumeError> {
     let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
     let named = match parse_name(stem) {
         Ok(n) => n,

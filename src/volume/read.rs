@@ -28,8 +28,11 @@ pub struct ReadOptions {
 /// ParaView/VisIt script reopens it.
 #[derive(Clone, Debug)]
 pub struct Decoded {
+    /// Points per axis, spacing and origin.
     pub geometry: Geometry,
+    /// The values in the file's own type and byte order.
     pub buffer: TypedBuffer,
+    /// How a ParaView or VisIt script reopens the file.
     pub format: SourceFormat,
 }
 
@@ -54,19 +57,7 @@ enum Kind {
 
 /// Read the file at `path` into its typed values and geometry, without normalizing.
 pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
-    let meta = std::fs::metadata(path).map_err(|e| match e.kind() {
-        std::io::ErrorKind::NotFound => VolumeError::file(path, "no such file"),
-        _ => VolumeError::Io {
-            path: path.to_path_buf(),
-            error: e,
-        },
-    })?;
-    if meta.is_dir() {
-        return Err(VolumeError::file(
-            path,
-            "is a directory, not a volume file (.raw, .vti or .vtk)",
-        ));
-    }
+    let meta = file_metadata(path)?;
     // Name, flags and (for .raw) the size are checked before a possibly large file is read.
     if reader_for(path, opts)? == Kind::Raw {
         raw::check_size(path, opts, meta.len())?;
@@ -83,6 +74,29 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
         error: e,
     })?;
     decode_bytes(path, bytes, opts)
+}
+
+/// The file's metadata; an error when it is missing or a directory.
+pub(super) fn file_metadata(path: &Path) -> Result<std::fs::Metadata, VolumeError> {
+    let meta = std::fs::metadata(path).map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => VolumeError::file(path, "no such file"),
+        _ => VolumeError::Io {
+            path: path.to_path_buf(),
+            error: e,
+        },
+    })?;
+    if meta.is_dir() {
+        return Err(VolumeError::file(
+            path,
+            "is a directory, not a volume file (.raw, .vti or .vtk)",
+        ));
+    }
+    Ok(meta)
+}
+
+/// Whether `path` is read as headerless raw data (after checking the flags fit its reader).
+pub(super) fn is_raw(path: &Path, opts: &ReadOptions) -> Result<bool, VolumeError> {
+    Ok(reader_for(path, opts)? == Kind::Raw)
 }
 
 /// Decode the contents of a file named `path` (the name picks the reader, the `.raw` dims and

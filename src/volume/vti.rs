@@ -91,180 +91,229 @@ struct Header<'a> {
     cell_names: Vec<String>,
 }
 
+/// The XML part's declarations, gathered element by element ([`HeaderParser`]).
 fn parse_header(xml: &str) -> Result<Header<'_>, String> {
     let mut reader = Reader::from_str(xml);
-    let mut layout = Layout {
-        order: ByteOrder::Little,
-        header_size: 4,
-        compressor: Compressor::None,
+    let mut p = HeaderParser {
+        layout: Layout {
+            order: ByteOrder::Little,
+            header_size: 4,
+            compressor: Compressor::None,
+        },
+        saw_root: false,
+        whole_extent: None,
+        piece_extents: Vec::new(),
+        pieces: 0,
+        origin: [0.0; 3],
+        spacing: [1.0; 3],
+        active: None,
+        in_point: false,
+        cell_names: Vec::new(),
+        in_cell: false,
+        arrays: Vec::new(),
+        open_array: None,
     };
-    let mut saw_root = false;
-    let mut whole_extent: Option<[i64; 6]> = None;
-    let mut piece_extents: Vec<[i64; 6]> = Vec::new();
-    let mut pieces = 0usize;
-    let mut origin = [0.0f64; 3];
-    let mut spacing = [1.0f64; 3];
-    let mut active: Option<String> = None;
-    let mut in_point = false;
-    let mut cell_names: Vec<String> = Vec::new();
-    let mut in_cell = false;
-    let mut arrays: Vec<ArrayDecl<'_>> = Vec::new();
-    // Index into `arrays` of the DataArray whose text is being collected.
-    let mut open_array: Option<usize> = None;
-
     loop {
         let event = reader
             .read_event()
             .map_err(|e| format!("malformed XML near byte {}: {e}", reader.error_position()))?;
         match event {
-            Event::Start(ref e) | Event::Empty(ref e) => {
-                let is_start = matches!(event, Event::Start(_));
-                let a = |key: &str| attr(e, key);
-                match e.name().as_ref() {
-                    "VTKFile" => {
-                        saw_root = true;
-                        let ty = a("type")?.unwrap_or_default();
-                        if ty != "ImageData" {
-                            return Err(format!(
-                                "is a VTK XML '{ty}' file, not ImageData (only image data can \
-                                 be volume rendered)"
-                            ));
-                        }
-                        layout.order = match a("byte_order")?.as_deref() {
-                            None | Some("LittleEndian") => ByteOrder::Little,
-                            Some("BigEndian") => ByteOrder::Big,
-                            Some(o) => return Err(format!("unknown byte_order '{o}'")),
-                        };
-                        layout.header_size = match a("header_type")?.as_deref() {
-                            None | Some("UInt32") => 4,
-                            Some("UInt64") => 8,
-                            Some(h) => return Err(format!("unknown header_type '{h}'")),
-                        };
-                        layout.compressor = match a("compressor")?.as_deref() {
-                            None | Some("") => Compressor::None,
-                            Some("vtkZLibDataCompressor") => Compressor::Zlib,
-                            Some("vtkLZ4DataCompressor") => Compressor::Lz4,
-                            Some("vtkLZMADataCompressor") => Compressor::Lzma,
-                            Some(c) => return Err(format!("unknown compressor '{c}'")),
-                        };
-                    }
-                    "ImageData" => {
-                        if let Some(w) = a("WholeExtent")? {
-                            whole_extent = Some(numbers::<i64, 6>(&w, "WholeExtent")?);
-                        }
-                        if let Some(o) = a("Origin")? {
-                            origin = numbers::<f64, 3>(&o, "Origin")?;
-                        }
-                        if let Some(s) = a("Spacing")? {
-                            spacing = numbers::<f64, 3>(&s, "Spacing")?;
-                        }
-                        if let Some(d) = a("Direction")? {
-                            let d = numbers::<f64, 9>(&d, "Direction")?;
-                            let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
-                            if d.iter().zip(identity).any(|(x, y)| (x - y).abs() > 1e-9) {
-                                return Err(format!(
-                                    "Direction {d:?} is not the identity: rotated image data \
-                                     is not supported"
-                                ));
-                            }
-                        }
-                    }
-                    "Piece" => {
-                        pieces += 1;
-                        if let Some(x) = a("Extent")? {
-                            piece_extents.push(numbers::<i64, 6>(&x, "Piece Extent")?);
-                        }
-                    }
-                    "PointData" => {
-                        active = a("Scalars")?;
-                        in_point = is_start;
-                    }
-                    "CellData" => in_cell = is_start,
-                    // Arrays of pieces after the first are not read (see the piece check below).
-                    "DataArray" if in_point && pieces <= 1 => {
-                        let name = a("Name")?.unwrap_or_else(|| format!("array{}", arrays.len()));
-                        let type_name = a("type")?
-                            .ok_or_else(|| format!("DataArray '{name}' has no type attribute"))?;
-                        let components = match a("NumberOfComponents")? {
-                            None => 1,
-                            Some(c) => c.trim().parse().map_err(|_| {
-                                format!(
-                                    "DataArray '{name}': NumberOfComponents '{c}' is not a count"
-                                )
-                            })?,
-                        };
-                        let format = a("format")?.unwrap_or_else(|| "ascii".into());
-                        let offset = match a("offset")? {
-                            None => None,
-                            Some(o) => Some(o.trim().parse().map_err(|_| {
-                                format!("DataArray '{name}': offset '{o}' is not a count")
-                            })?),
-                        };
-                        if is_start {
-                            open_array = Some(arrays.len());
-                        }
-                        arrays.push(ArrayDecl {
-                            name,
-                            type_name,
-                            components,
-                            format,
-                            offset,
-                            text: Cow::Borrowed(""),
-                        });
-                    }
-                    "DataArray" if in_cell => {
-                        cell_names.push(a("Name")?.unwrap_or_default());
-                    }
-                    _ => {}
-                }
-            }
-            Event::Text(t) => {
-                if let Some(i) = open_array {
-                    let chunk = t.into_inner();
-                    let text = &mut arrays[i].text;
-                    if text.is_empty() {
-                        *text = chunk;
-                    } else {
-                        text.to_mut().push_str(&chunk);
-                    }
-                }
-            }
+            Event::Start(ref e) => p.element(e, true)?,
+            Event::Empty(ref e) => p.element(e, false)?,
+            Event::Text(t) => p.text(t.into_inner()),
             Event::End(ref e) => match e.name().as_ref() {
-                "DataArray" => open_array = None,
-                "PointData" => in_point = false,
-                "CellData" => in_cell = false,
+                "DataArray" => p.open_array = None,
+                "PointData" => p.in_point = false,
+                "CellData" => p.in_cell = false,
                 _ => {}
             },
             Event::Eof => break,
             _ => {}
         }
     }
-    if !saw_root {
-        return Err("not a VTK XML file: no <VTKFile> element".into());
+    p.finish()
+}
+
+/// What the elements read so far declare.
+struct HeaderParser<'a> {
+    layout: Layout,
+    saw_root: bool,
+    whole_extent: Option<[i64; 6]>,
+    piece_extents: Vec<[i64; 6]>,
+    pieces: usize,
+    origin: [f64; 3],
+    spacing: [f64; 3],
+    active: Option<String>,
+    in_point: bool,
+    cell_names: Vec<String>,
+    in_cell: bool,
+    arrays: Vec<ArrayDecl<'a>>,
+    /// Index into `arrays` of the DataArray whose text is being collected.
+    open_array: Option<usize>,
+}
+
+impl<'a> HeaderParser<'a> {
+    /// An opening (`is_start`) or empty element.
+    fn element(&mut self, e: &BytesStart<'_>, is_start: bool) -> Result<(), String> {
+        match e.name().as_ref() {
+            "VTKFile" => self.root(e)?,
+            "ImageData" => self.image_data(e)?,
+            "Piece" => {
+                self.pieces += 1;
+                if let Some(x) = attr(e, "Extent")? {
+                    self.piece_extents
+                        .push(numbers::<i64, 6>(&x, "Piece Extent")?);
+                }
+            }
+            "PointData" => {
+                self.active = attr(e, "Scalars")?;
+                self.in_point = is_start;
+            }
+            "CellData" => self.in_cell = is_start,
+            // Arrays of pieces after the first are not read (see the piece check in `finish`).
+            "DataArray" if self.in_point && self.pieces <= 1 => self.data_array(e, is_start)?,
+            "DataArray" if self.in_cell => {
+                self.cell_names.push(attr(e, "Name")?.unwrap_or_default());
+            }
+            _ => {}
+        }
+        Ok(())
     }
-    // VTK's writer asked for N pieces of a non-streaming source writes N copies of the whole
-    // extent: any one of them is the data. Pieces that tile the extent are not supported.
-    if piece_extents.windows(2).any(|w| w[0] != w[1]) {
-        return Err(format!(
-            "has {} pieces with different extents: only single-piece image data is supported \
-             (merge the pieces in ParaView and save again)",
-            piece_extents.len()
-        ));
+
+    /// `<VTKFile>`: the file type and how binary data is laid out.
+    fn root(&mut self, e: &BytesStart<'_>) -> Result<(), String> {
+        let a = |key: &str| attr(e, key);
+        self.saw_root = true;
+        let ty = a("type")?.unwrap_or_default();
+        if ty != "ImageData" {
+            return Err(format!(
+                "is a VTK XML '{ty}' file, not ImageData (only image data can \
+                 be volume rendered)"
+            ));
+        }
+        self.layout.order = match a("byte_order")?.as_deref() {
+            None | Some("LittleEndian") => ByteOrder::Little,
+            Some("BigEndian") => ByteOrder::Big,
+            Some(o) => return Err(format!("unknown byte_order '{o}'")),
+        };
+        self.layout.header_size = match a("header_type")?.as_deref() {
+            None | Some("UInt32") => 4,
+            Some("UInt64") => 8,
+            Some(h) => return Err(format!("unknown header_type '{h}'")),
+        };
+        self.layout.compressor = match a("compressor")?.as_deref() {
+            None | Some("") => Compressor::None,
+            Some("vtkZLibDataCompressor") => Compressor::Zlib,
+            Some("vtkLZ4DataCompressor") => Compressor::Lz4,
+            Some("vtkLZMADataCompressor") => Compressor::Lzma,
+            Some(c) => return Err(format!("unknown compressor '{c}'")),
+        };
+        Ok(())
     }
-    let extent = piece_extents
-        .first()
-        .copied()
-        .or(whole_extent)
-        .ok_or("no Extent on <Piece> or WholeExtent on <ImageData>")?;
-    Ok(Header {
-        layout,
-        extent,
-        origin,
-        spacing,
-        active,
-        arrays,
-        cell_names,
-    })
+
+    /// `<ImageData>`: extent, origin, spacing; a direction other than the identity is refused.
+    fn image_data(&mut self, e: &BytesStart<'_>) -> Result<(), String> {
+        let a = |key: &str| attr(e, key);
+        if let Some(w) = a("WholeExtent")? {
+            self.whole_extent = Some(numbers::<i64, 6>(&w, "WholeExtent")?);
+        }
+        if let Some(o) = a("Origin")? {
+            self.origin = numbers::<f64, 3>(&o, "Origin")?;
+        }
+        if let Some(s) = a("Spacing")? {
+            self.spacing = numbers::<f64, 3>(&s, "Spacing")?;
+        }
+        if let Some(d) = a("Direction")? {
+            let d = numbers::<f64, 9>(&d, "Direction")?;
+            let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+            if d.iter().zip(identity).any(|(x, y)| (x - y).abs() > 1e-9) {
+                return Err(format!(
+                    "Direction {d:?} is not the identity: rotated image data \
+                     is not supported"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// A point-data `<DataArray>` of the first piece.
+    fn data_array(&mut self, e: &BytesStart<'_>, is_start: bool) -> Result<(), String> {
+        let a = |key: &str| attr(e, key);
+        let name = a("Name")?.unwrap_or_else(|| format!("array{}", self.arrays.len()));
+        let type_name =
+            a("type")?.ok_or_else(|| format!("DataArray '{name}' has no type attribute"))?;
+        let components = match a("NumberOfComponents")? {
+            None => 1,
+            Some(c) => c.trim().parse().map_err(|_| {
+                format!("DataArray '{name}': NumberOfComponents '{c}' is not a count")
+            })?,
+        };
+        let format = a("format")?.unwrap_or_else(|| "ascii".into());
+        let offset = match a("offset")? {
+            None => None,
+            Some(o) => Some(
+                o.trim()
+                    .parse()
+                    .map_err(|_| format!("DataArray '{name}': offset '{o}' is not a count"))?,
+            ),
+        };
+        if is_start {
+            self.open_array = Some(self.arrays.len());
+        }
+        self.arrays.push(ArrayDecl {
+            name,
+            type_name,
+            components,
+            format,
+            offset,
+            text: Cow::Borrowed(""),
+        });
+        Ok(())
+    }
+
+    /// Text inside the open DataArray, if any.
+    fn text(&mut self, chunk: Cow<'a, str>) {
+        if let Some(i) = self.open_array {
+            let text = &mut self.arrays[i].text;
+            if text.is_empty() {
+                *text = chunk;
+            } else {
+                text.to_mut().push_str(&chunk);
+            }
+        }
+    }
+
+    /// The header, once the XML has been read.
+    fn finish(self) -> Result<Header<'a>, String> {
+        if !self.saw_root {
+            return Err("not a VTK XML file: no <VTKFile> element".into());
+        }
+        // VTK's writer asked for N pieces of a non-streaming source writes N copies of the
+        // whole extent: any one of them is the data. Pieces that tile the extent are not
+        // supported.
+        if self.piece_extents.windows(2).any(|w| w[0] != w[1]) {
+            return Err(format!(
+                "has {} pieces with different extents: only single-piece image data is \
+                 supported (merge the pieces in ParaView and save again)",
+                self.piece_extents.len()
+            ));
+        }
+        let extent = self
+            .piece_extents
+            .first()
+            .copied()
+            .or(self.whole_extent)
+            .ok_or("no Extent on <Piece> or WholeExtent on <ImageData>")?;
+        Ok(Header {
+            layout: self.layout,
+            extent,
+            origin: self.origin,
+            spacing: self.spacing,
+            active: self.active,
+            arrays: self.arrays,
+            cell_names: self.cell_names,
+        })
+    }
 }
 
 /// Points per axis and the world position of the extent's first point.

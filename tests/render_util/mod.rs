@@ -57,7 +57,7 @@ pub fn crop_u8(name: &str, dims: [usize; 3], lo: [usize; 3], size: [usize; 3]) -
     volume_from(size, [1.0; 3], vals.into_iter().map(f64::from).collect())
 }
 
-/// The same sub-box, kept as uint8 (so the renderer stores it in 8 bits, volume::bricked).
+/// The same sub-box, kept as uint8 (so the renderer stores it in 8 bits, render::cpu::bricked).
 pub fn crop_u8_typed(name: &str, dims: [usize; 3], lo: [usize; 3], size: [usize; 3]) -> Volume {
     let g = Geometry {
         dims: size,

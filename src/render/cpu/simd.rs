@@ -4,11 +4,11 @@
 //!
 //! Why hand-written: LLVM does not vectorise the scalar loop on the default x86-64 target
 //! (SSE2, no gathers), and runtime dispatch needs the vector code in a `target_feature`
-//! function anyway. Every operation mirrors the scalar code in `march.rs` one for one (no
+//! function anyway. Every operation mirrors the scalar code in `sample.rs` one for one (no
 //! fused multiply-add, the same order), so both paths give bit-identical results — a test
 //! checks it — and the result does not depend on which one the CPU takes.
 
-use super::march::{interpolate_classify_scalar, Chunk, MarchParams, Ray, Voxel, CHUNK};
+use super::sample::{interpolate_classify_scalar, Chunk, MarchParams, Ray, Voxel, CHUNK};
 
 /// Whether this CPU can run [`interpolate_classify`].
 pub(crate) fn available() -> bool {
@@ -35,43 +35,22 @@ pub(crate) fn interpolate_classify<T: Voxel>(
 ) {
     #[cfg(target_arch = "x86_64")]
     if p.simd {
-        // SAFETY: `simd` is only true where `available()` said the CPU has AVX2 (`View`
-        // sets it from there; tests set it from there too); `p.grid` holds `Grid`'s
-        // invariants and a `Lut` has at least two entries (`render::validate`).
+        // SAFETY: `simd` is only true where `available()` said the CPU has AVX2 and the
+        // grid's indices fit 32-bit lanes (`View` sets it from `available()` and
+        // `Grid::gathers_fit`; tests from there too); `p.grid` holds `Grid`'s invariants
+        // and a `Lut` has at least two entries (`render::backend::validate`).
         unsafe { avx2::interpolate_classify(p, d, ray, n, delta_norm, out) };
         return;
     }
     interpolate_classify_scalar(p, d, ray, n, delta_norm, out);
 }
 
-/// Loading the corner pairs (i, i + 1) of 8 samples at once, per stored type.
-#[cfg(target_arch = "x86_64")]
-pub(crate) trait Gather {
-    /// Values at `idx + off` and `idx + off + 1` per lane, as f32 (integers exactly).
-    ///
-    /// # Safety
-    /// AVX2; every index + off + 1, and for `u8` the 2 bytes after it, inside the slice
-    /// that `ptr` starts (`volume::bricked::PAD`).
-    unsafe fn pair(
-        ptr: *const Self,
-        idx: std::arch::x86_64::__m256i,
-        off: i32,
-    ) -> (std::arch::x86_64::__m256, std::arch::x86_64::__m256);
-}
-
-#[cfg(not(target_arch = "x86_64"))]
-pub(crate) trait Gather {}
-#[cfg(not(target_arch = "x86_64"))]
-impl Gather for u8 {}
-#[cfg(not(target_arch = "x86_64"))]
-impl Gather for u16 {}
-#[cfg(not(target_arch = "x86_64"))]
-impl Gather for f32 {}
-
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
+    use super::super::bricked::{BRICK_POINTS, BRICK_VALUES};
+    use super::super::sample::Gather;
     use super::*;
-    use crate::volume::{BRICK_CELLS, BRICK_POINTS, BRICK_VALUES};
+    use crate::volume::BRICK_CELLS;
     use std::arch::x86_64::*;
 
     const _: () = assert!(CHUNK == 8, "one AVX2 register of f32 lanes");
@@ -121,8 +100,8 @@ mod avx2 {
 
     /// SAFETY (callers): the CPU has AVX2; `p.grid` satisfies `Grid`'s invariants and `d` is
     /// its value slice (every index below is then inside `d`, as in the scalar `trilinear`,
-    /// plus `volume::bricked::PAD` for the 4-byte gathers), and the LUT has at least two
-    /// entries.
+    /// plus `bricked::PAD` for the 4-byte gathers), its values fit 32-bit indices
+    /// (`Grid::gathers_fit`), and the LUT has at least two entries.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn interpolate_classify<T: Voxel>(
         p: &MarchParams,
@@ -259,11 +238,14 @@ mod avx2 {
 
 #[cfg(test)]
 mod tests {
-    use super::super::march::{BoxFrame, Chunk, Grid, MarchParams};
-    use super::super::skip;
+    use super::super::bricked::BrickValues;
+    use super::super::march::BoxFrame;
+    use super::super::sample::Grid;
+    use super::super::{skip, CpuBackend};
     use super::*;
+    use crate::render::backend::Backend;
     use crate::tf::Lut;
-    use crate::volume::{BrickValues, Geometry, ScalarType, TypedBuffer, Volume};
+    use crate::volume::{Geometry, ScalarType, TypedBuffer, Volume};
     use glam::DVec3;
     use std::path::Path;
 
@@ -312,14 +294,15 @@ mod tests {
         let mut kinds = Vec::new();
         for v in &volumes {
             let level = &v.levels[0];
-            kinds.push(match level.bricked().values() {
+            let prepared = CpuBackend.prepare(v, 0).unwrap();
+            kinds.push(match prepared.values() {
                 BrickValues::U8(_) => "u8",
                 BrickValues::U16(_) => "u16",
                 BrickValues::F32(_) => "f32",
             });
-            let blocks = skip::blocks(level, &lut, false, 0.0, false);
+            let blocks = skip::blocks(&level.bricks, &lut, false, 0.0, false);
             let params = |simd: bool| MarchParams {
-                grid: Grid::new(level, &blocks),
+                grid: Grid::new(dims, &prepared.data.bricked, &blocks),
                 lut: &lut,
                 inv_l: 1.0 / 20.0,
                 stop_below: 0.0,

@@ -11,7 +11,8 @@
 //! (65535) steps is stored as `u8` (`u16`): value = q · scale, exactly as normalized (to
 //! within 1e-6); a 256³ `uint8` volume then takes 23 MiB (it fits the L3 cache) instead of
 //! 64 MiB of f32. Filtered mip levels are rounded to 16 bits ([`Narrow::Round16`]); level 0
-//! of a float volume, and any level with NaN, stays f32. Built once per level, on first render.
+//! of a float volume, and any level with NaN, stays f32. Built once per level, when the CPU
+//! backend prepares it (`render::cpu`).
 //!
 //! The copy lives in an anonymous mapping advised for transparent huge pages (Linux): a ray
 //! enters a new brick every few samples, and with 4 KiB pages that is a TLB miss once the
@@ -24,8 +25,7 @@
 //! Each buffer has [`PAD`] values more than its bricks need: AVX2 gathers read 4 bytes at a
 //! corner's address, 3 bytes past the last `u8` corner.
 
-use super::pyramid::BrickGrid;
-use super::BRICK_CELLS;
+use crate::volume::{BrickGrid, Narrow, BRICK_CELLS};
 
 /// Points per brick side: its cells plus one.
 pub const BRICK_POINTS: usize = BRICK_CELLS + 1;
@@ -39,8 +39,11 @@ pub const PAD: usize = 4;
 /// `i + BRICK_POINTS * (j + BRICK_POINTS * k)`; bricks numbered as in [`BrickGrid`].
 #[derive(Clone, Copy, Debug)]
 pub enum BrickValues<'a> {
+    /// Stored `q`, normalized value `q · scale` (integer volumes spanning ≤ 255 steps).
     U8(&'a [u8]),
+    /// Stored `q`, normalized value `q · scale` (≤ 65535 steps, or a rounded mip level).
     U16(&'a [u16]),
+    /// The normalized values themselves.
     F32(&'a [f32]),
 }
 
@@ -54,6 +57,7 @@ impl BrickValues<'_> {
         }
     }
 
+    /// Whether no value is stored (never, for a built level: the padding is always there).
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -81,7 +85,9 @@ enum Storage {
 }
 
 impl BrickedData {
-    pub(super) fn build(
+    /// The bricks of a level with `dims` points holding `data`, its ranges `grid`, stored as
+    /// `narrow` allows.
+    pub(crate) fn build(
         dims: [usize; 3],
         data: &[f32],
         grid: &BrickGrid,
@@ -109,6 +115,7 @@ impl BrickedData {
         }
     }
 
+    /// The stored values.
     pub fn values(&self) -> BrickValues<'_> {
         match &self.storage {
             Storage::U8(b) => BrickValues::U8(b.as_slice()),
@@ -122,22 +129,10 @@ impl BrickedData {
         self.scale
     }
 
+    /// Bytes held.
     pub fn memory_bytes(&self) -> usize {
         self.values().bytes()
     }
-}
-
-/// How a level may be stored in fewer bits than f32.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Narrow {
-    /// Level 0 of an integer volume: its normalized values should be k / D for integers
-    /// k ≤ D (checked; a value that is not keeps the level in f32).
-    Exact(u32),
-    /// A filtered mip level, an approximation already: rounded to 16 bits (error ≤ 2⁻¹⁷ of
-    /// the range, 1/512 of a 256-entry LUT's cell), unless it holds NaN.
-    Round16,
-    /// f32 (float volumes' level 0).
-    No,
 }
 
 /// Whether every value is k / d for an integer k in [0, d], to within 1e-6 (NaN is not).

@@ -7,82 +7,14 @@ use std::ops::ControlFlow;
 
 use glam::DVec3;
 
+use super::bricked::BrickValues;
 use super::fastmath::ceil;
+use super::sample::{
+    cell, classify, trilinear, Chunk, Classified, Grid, MarchParams, Ray, Voxel, CHUNK,
+};
 use super::simd;
 use super::skip::Blocks;
 use crate::math::fast_exp;
-use crate::tf::Lut;
-use crate::volume::{BrickValues, Level, BRICK_CELLS, BRICK_POINTS, BRICK_VALUES};
-
-/// A level's samples (brick by brick, `volume::BrickedData`) with the index arithmetic
-/// precomputed.
-pub(crate) struct Grid<'a> {
-    pub(super) values: BrickValues<'a>,
-    /// Normalized value per unit of a stored value.
-    pub(super) scale: f32,
-    /// Largest valid coordinate per axis: dims − 1.
-    pub(super) max_coord: [f32; 3],
-    /// Largest cell index per axis: max(dims − 2, 0).
-    pub(super) max_cell: [u32; 3],
-    /// Bricks along x, and in an xy-layer.
-    pub(super) brick_stride: [u32; 2],
-    /// [super-blocks, bricks]: checked coarse to fine before sampling.
-    blocks: &'a [Blocks; 2],
-}
-
-impl<'a> Grid<'a> {
-    pub(crate) fn new(level: &'a Level, blocks: &'a [Blocks; 2]) -> Grid<'a> {
-        let d = level.dims;
-        let c = level.bricks.counts;
-        let bricked = level.bricked();
-        // Every index `trilinear` computes is below (number of bricks) · BRICK_VALUES, which
-        // must fit in i32 (the index arithmetic is 32-bit for speed, and AVX2 gathers take
-        // signed 32-bit indices: 2³¹ values per level).
-        assert!(
-            bricked.values().len() <= i32::MAX as usize,
-            "level too large for 32-bit brick indices"
-        );
-        Grid {
-            values: bricked.values(),
-            scale: bricked.scale(),
-            max_coord: d.map(|n| (n - 1) as f32),
-            max_cell: d.map(|n| n.saturating_sub(2) as u32),
-            brick_stride: [c[0] as u32, (c[0] * c[1]) as u32],
-            blocks,
-        }
-    }
-}
-
-/// A stored value type of the bricked data.
-pub(super) trait Voxel: Copy + Into<f32> + simd::Gather {}
-impl Voxel for u8 {}
-impl Voxel for u16 {}
-impl Voxel for f32 {}
-
-/// A ray in a level's index space, clipped to the box at `a`: sample n sits at `a + u · bd`
-/// with u = n + jitter (u = s / δ, s the world distance from the entry point).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Ray {
-    pub(super) a: [f32; 3],
-    /// b · δ: the index-space step from one sample to the next.
-    pub(super) bd: [f32; 3],
-    /// 1 / (b · δ) per axis (0 where b is 0): block exits in sample units without divisions.
-    inv_bd: [f32; 3],
-    /// Number of segments; segment n is [n δ, min((n + 1) δ, length)].
-    segments: u32,
-    delta: f32,
-    delta_last: f32,
-    /// Where in its segment each sample sits, in [0, 1) (0.5 without jitter).
-    pub(super) jitter: f32,
-}
-
-impl Ray {
-    /// Number of segments (and samples) of the ray.
-    #[cfg(test)]
-    pub(crate) fn segments(&self) -> u32 {
-        self.segments
-    }
-}
 
 /// One view's box in a level's index space, with what every ray's clipping shares.
 #[derive(Clone, Copy, Debug)]
@@ -199,18 +131,6 @@ pub(crate) struct Marched {
     pub samples: u32,
 }
 
-/// Constants of one march shared by every ray of a view.
-pub(crate) struct MarchParams<'a> {
-    pub grid: Grid<'a>,
-    pub lut: &'a Lut,
-    /// 1 / L (L = the box's longest side, docs/DESIGN.md density units).
-    pub inv_l: f32,
-    /// Stop once T falls below this (0 = never).
-    pub stop_below: f32,
-    /// Interpolate and classify with AVX2 (`simd::available()`); results are bit-identical.
-    pub simd: bool,
-}
-
 /// Work found by the block walk and not yet composited. Consecutive blocks of one kind are
 /// merged first: uniform runs of equal value cost one `exp`, and sample ranges get long enough
 /// for [`Compositor::samples`] to keep a chunk full (a brick holds only ~5 samples of a ray).
@@ -243,46 +163,6 @@ struct Compositor<'a, 'p, T, F> {
     acc: [f32; 3],
     samples: u32,
     pending: Pending,
-}
-
-/// A sample's value through the LUT.
-#[derive(Clone, Copy)]
-struct Classified {
-    /// LUT entry below the value and the weight of the entry above.
-    j: u32,
-    w: f32,
-    rgb: [f32; 3],
-    /// Optical depth σ · δ / L of one sample, and e^(−τ).
-    tau: f32,
-    ext: f32,
-}
-
-/// Look `v` up in the LUT for a segment of normalized length `delta_norm`; `None` for NaN
-/// (any NaN corner makes the sample NaN, since 0 · NaN is NaN: empty space).
-#[inline(always)]
-fn classify(lut: &[[f32; 4]], v: f32, delta_norm: f32) -> Option<Classified> {
-    if v.is_nan() {
-        return None;
-    }
-    // max/min, not clamp: the same operations as the AVX2 path, with no panic branch.
-    #[allow(clippy::manual_clamp)]
-    let x = v.max(0.0).min(1.0) * (lut.len() - 1) as f32;
-    // SAFETY: x ∈ [0, len − 1] (not NaN), so the conversion is in range.
-    let j = unsafe { x.to_int_unchecked::<u32>() }.min(lut.len() as u32 - 2);
-    let w = x - j as f32;
-    let (e0, e1) = (lut[j as usize], lut[j as usize + 1]);
-    let tau = lerp(e0[0], e1[0], w) * delta_norm;
-    Some(Classified {
-        j,
-        w,
-        rgb: [
-            lerp(e0[1], e1[1], w),
-            lerp(e0[2], e1[2], w),
-            lerp(e0[3], e1[3], w),
-        ],
-        tau,
-        ext: fast_exp(-tau),
-    })
 }
 
 impl<T: Voxel, F: FnMut(&Sample)> Compositor<'_, '_, T, F> {
@@ -404,134 +284,6 @@ impl<T: Voxel, F: FnMut(&Sample)> Compositor<'_, '_, T, F> {
         }
         ControlFlow::Continue(())
     }
-}
-
-/// Samples per chunk of [`Compositor::samples`]: one AVX2 register of f32.
-pub(super) const CHUNK: usize = 8;
-
-/// A chunk of samples interpolated and classified, as structure of arrays. NaN samples have
-/// τ = 0 (and the class of value 0); [`Chunk::get`] returns `None` for them.
-#[derive(Default)]
-pub(super) struct Chunk {
-    pub v: [f32; CHUNK],
-    pub j: [u32; CHUNK],
-    pub w: [f32; CHUNK],
-    pub rgb: [[f32; CHUNK]; 3],
-    pub tau: [f32; CHUNK],
-    pub ext: [f32; CHUNK],
-}
-
-impl Chunk {
-    #[inline(always)]
-    fn get(&self, i: usize) -> Option<Classified> {
-        (!self.v[i].is_nan()).then(|| Classified {
-            j: self.j[i],
-            w: self.w[i],
-            rgb: [self.rgb[0][i], self.rgb[1][i], self.rgb[2][i]],
-            tau: self.tau[i],
-            ext: self.ext[i],
-        })
-    }
-}
-
-/// Samples n … n + CHUNK − 1 of `ray`, interpolated and classified in scalar code (what
-/// `simd` does with AVX2, operation for operation).
-#[inline(always)]
-pub(super) fn interpolate_classify_scalar<T: Voxel>(
-    p: &MarchParams,
-    d: &[T],
-    ray: &Ray,
-    n: u32,
-    delta_norm: f32,
-    out: &mut Chunk,
-) {
-    let (g, lut) = (&p.grid, &p.lut.entries[..]);
-    let (a, bd, jit) = (ray.a, ray.bd, ray.jitter);
-    for i in 0..CHUNK {
-        let u = (n + i as u32) as f32 + jit;
-        let v = trilinear(g, d, a[0] + u * bd[0], a[1] + u * bd[1], a[2] + u * bd[2]);
-        let k = classify(lut, v, delta_norm).unwrap_or_else(|| {
-            let mut k = classify(lut, 0.0, delta_norm).expect("0 is not NaN");
-            k.tau = 0.0;
-            k.ext = 1.0;
-            k
-        });
-        out.v[i] = v;
-        out.j[i] = k.j;
-        out.w[i] = k.w;
-        for c in 0..3 {
-            out.rgb[c][i] = k.rgb[c];
-        }
-        out.tau[i] = k.tau;
-        out.ext[i] = k.ext;
-    }
-}
-
-#[inline(always)]
-fn lerp(a: f32, b: f32, w: f32) -> f32 {
-    a + w * (b - a)
-}
-
-/// Index coordinate `p` on axis `ax` clamped into the box [0, dims − 1] (max/min: the
-/// non-NaN operand, the same operations as the AVX2 path).
-#[inline(always)]
-fn clamp_coord(g: &Grid, p: f32, ax: usize) -> f32 {
-    p.max(0.0).min(g.max_coord[ax])
-}
-
-/// The cell holding the clamped coordinate `p` (from [`clamp_coord`]) on axis `ax`.
-#[inline(always)]
-fn cell_of_clamped(g: &Grid, p: f32, ax: usize) -> u32 {
-    // SAFETY: p ∈ [0, dims − 1] and not NaN (`clamp_coord`), so the conversion is in range.
-    // Unchecked because the checked `as` costs a few instructions per axis in the innermost
-    // loop.
-    unsafe { p.to_int_unchecked::<u32>() }.min(g.max_cell[ax])
-}
-
-/// The cell holding index coordinate `p` on axis `ax`, clamped into the grid.
-#[inline(always)]
-fn cell(g: &Grid, p: f32, ax: usize) -> u32 {
-    cell_of_clamped(g, clamp_coord(g, p, ax), ax)
-}
-
-/// The trilinear sample of `d` (the grid's values) at index position (x, y, z), clamped into
-/// the box first, as a normalized value.
-#[inline(always)]
-fn trilinear<T: Voxel>(g: &Grid, d: &[T], x: f32, y: f32, z: f32) -> f32 {
-    const P: u32 = BRICK_POINTS as u32;
-    const SHIFT: u32 = BRICK_CELLS.trailing_zeros();
-    const MASK: u32 = BRICK_CELLS as u32 - 1;
-    let (x, y, z) = (
-        clamp_coord(g, x, 0),
-        clamp_coord(g, y, 1),
-        clamp_coord(g, z, 2),
-    );
-    let (cx, cy, cz) = (
-        cell_of_clamped(g, x, 0),
-        cell_of_clamped(g, y, 1),
-        cell_of_clamped(g, z, 2),
-    );
-    let (fx, fy, fz) = (x - cx as f32, y - cy as f32, z - cz as f32);
-    let brick =
-        (cx >> SHIFT) + g.brick_stride[0] * (cy >> SHIFT) + g.brick_stride[1] * (cz >> SHIFT);
-    let base =
-        (brick * BRICK_VALUES as u32 + (cx & MASK) + P * ((cy & MASK) + P * (cz & MASK))) as usize;
-    let (sy, sz) = (P as usize, (P * P) as usize);
-    debug_assert!(
-        base + 1 + sy + sz < d.len(),
-        "trilinear: cell outside the grid"
-    );
-    // SAFETY: c ≤ max_cell = dims − 2 per axis, so the brick (c >> 3) is below the brick count
-    // ⌈(dims − 1)/8⌉ (both from the same dims, `Grid::new`), and the local corner (c & 7) + 1
-    // ≤ 8 < BRICK_POINTS: every corner lies in this brick's BRICK_VALUES, inside `data`.
-    // Unchecked because a bounds check is a branch, which keeps the chunk loop from
-    // vectorising: this is the renderer's innermost loop.
-    let at = |i: usize| -> f32 { unsafe { *d.get_unchecked(i) }.into() };
-    let c00 = lerp(at(base), at(base + 1), fx);
-    let c10 = lerp(at(base + sy), at(base + sy + 1), fx);
-    let c01 = lerp(at(base + sz), at(base + sz + 1), fx);
-    let c11 = lerp(at(base + sz + sy), at(base + sz + sy + 1), fx);
-    lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz) * g.scale
 }
 
 /// Walk the blocks of `blocks` that the ray crosses between sample coordinates `u0` and `u1`
@@ -751,7 +503,10 @@ fn march_body<T: Voxel, F: FnMut(&Sample)>(
 
 #[cfg(test)]
 mod tests {
+    use super::super::CpuBackend;
     use super::*;
+    use crate::render::backend::Backend;
+    use crate::tf::Lut;
     use crate::volume::{Geometry, TypedBuffer, Volume};
     use std::path::Path;
 
@@ -775,6 +530,7 @@ mod tests {
         let v = Volume::from_buffer(Path::new("t"), g, &TypedBuffer::from_f64(vals)).unwrap();
         let level = &v.levels[0];
         assert!(level.bricks.uniform.iter().filter(|&&u| u).count() >= 8);
+        let prepared = CpuBackend.prepare(&v, 0).unwrap();
         let lut = Lut {
             entries: (0..7)
                 .map(|j| {
@@ -787,11 +543,15 @@ mod tests {
                 })
                 .collect(),
         };
-        let with = super::super::skip::blocks(level, &lut, false, 0.0, true);
-        let without = super::super::skip::blocks(level, &lut, false, 0.0, false);
+        let with = super::super::skip::blocks(&level.bricks, &lut, false, 0.0, true);
+        let without = super::super::skip::blocks(&level.bricks, &lut, false, 0.0, false);
         for stop in [0.0, 0.05] {
             let params = |uniform: bool| MarchParams {
-                grid: Grid::new(level, if uniform { &with } else { &without }),
+                grid: Grid::new(
+                    dims,
+                    &prepared.data.bricked,
+                    if uniform { &with } else { &without },
+                ),
                 lut: &lut,
                 inv_l: 1.0 / 32.0,
                 stop_below: stop,

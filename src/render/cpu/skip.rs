@@ -2,7 +2,7 @@
 //! them no density) are jumped over, uniform blocks (every point one value) are crossed in one
 //! step.
 //!
-//! A trilinear sample inside a brick lies in the brick's [min, max] (see `volume::pyramid`),
+//! A trilinear sample inside a brick lies in the brick's [min, max] (see `volume::BrickGrid`),
 //! and the LUT is linear between entries, so σ on [min, max] is bounded by the largest entry
 //! among those whose cells overlap the range. A prefix count of entries with σ above the
 //! threshold answers "is σ ≤ threshold on [min, max]" in O(1) per brick.
@@ -12,7 +12,7 @@
 //! a quarter of the steps it would need brick by brick.
 
 use crate::tf::Lut;
-use crate::volume::{Level, BRICK_CELLS};
+use crate::volume::{BrickGrid, BRICK_CELLS};
 
 /// Bricks per super-block side.
 const SUPER: usize = 4;
@@ -32,22 +32,22 @@ pub(crate) struct Blocks {
     pub value: Vec<f32>,
 }
 
-/// [super-blocks, bricks] of `level` for `lut`. `skip` false marks nothing empty; `uniform`
+/// [super-blocks, bricks] of a level with brick ranges `grid` for `lut`. `skip` false marks nothing empty; `uniform`
 /// false marks nothing uniform (tests compare against sample-by-sample marching).
 pub(crate) fn blocks(
-    level: &Level,
+    grid: &BrickGrid,
     lut: &Lut,
     skip: bool,
     threshold: f32,
     uniform: bool,
 ) -> [Blocks; 2] {
-    let b = &level.bricks;
+    let b = grid;
     let bricks = Blocks {
         cells: BRICK_CELLS,
         shift: BRICK_CELLS.trailing_zeros(),
         counts: b.counts,
         empty: if skip {
-            empty_bricks(level, lut, threshold)
+            empty_bricks(grid, lut, threshold)
         } else {
             vec![false; b.min.len()]
         },
@@ -97,8 +97,8 @@ pub(crate) fn blocks(
     [supers, bricks]
 }
 
-/// Per brick of `level`: true when every sample in it has σ ≤ `threshold` (or is NaN).
-pub(crate) fn empty_bricks(level: &Level, lut: &Lut, threshold: f32) -> Vec<bool> {
+/// Per brick of `grid`: true when every sample in it has σ ≤ `threshold` (or is NaN).
+pub(crate) fn empty_bricks(grid: &BrickGrid, lut: &Lut, threshold: f32) -> Vec<bool> {
     let n = lut.entries.len();
     let scale = (n - 1) as f32;
     // visible[k] = number of entries among the first k whose σ exceeds the threshold.
@@ -108,7 +108,7 @@ pub(crate) fn empty_bricks(level: &Level, lut: &Lut, threshold: f32) -> Vec<bool
         let last = *visible.last().expect("starts non-empty");
         visible.push(last + u32::from(e[0] > threshold));
     }
-    let b = &level.bricks;
+    let b = grid;
     b.min
         .iter()
         .zip(&b.max)
@@ -158,12 +158,12 @@ mod tests {
                 .map(|j| [if j >= 6 { 5.0 } else { 0.0 }, 1.0, 1.0, 1.0])
                 .collect(),
         };
-        assert_eq!(empty_bricks(level, &lut, 0.0), vec![true, false]);
+        assert_eq!(empty_bricks(&level.bricks, &lut, 0.0), vec![true, false]);
         // Entry 5 (x = 0.5) becomes visible: the first brick touches it now.
         lut.entries[5][0] = 1.0;
-        assert_eq!(empty_bricks(level, &lut, 0.0), vec![false, false]);
+        assert_eq!(empty_bricks(&level.bricks, &lut, 0.0), vec![false, false]);
         // ... unless it is below the threshold.
-        assert_eq!(empty_bricks(level, &lut, 1.0), vec![true, false]);
+        assert_eq!(empty_bricks(&level.bricks, &lut, 1.0), vec![true, false]);
     }
 
     #[test]
@@ -174,14 +174,14 @@ mod tests {
         let lut = Lut {
             entries: vec![[0.0, 0.0, 0.0, 0.0], [7.0, 1.0, 1.0, 1.0]],
         };
-        let [supers, bricks] = blocks(&v.levels[0], &lut, true, 0.0, true);
+        let [supers, bricks] = blocks(&v.levels[0].bricks, &lut, true, 0.0, true);
         assert_eq!((supers.cells, supers.counts), (32, [2, 1, 1]));
         assert_eq!(supers.empty, vec![true, false]);
         assert_eq!(supers.value[0], 0.0);
         assert!(supers.value[1].is_nan());
         assert_eq!(bricks.empty.iter().filter(|&&e| e).count(), 4);
         // Without skipping nothing is empty, and the zero super-block is still uniform.
-        let [supers, _] = blocks(&v.levels[0], &lut, false, 0.0, true);
+        let [supers, _] = blocks(&v.levels[0].bricks, &lut, false, 0.0, true);
         assert_eq!(supers.empty, vec![false, false]);
         assert_eq!(supers.value[0], 0.0);
     }

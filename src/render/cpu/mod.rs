@@ -1,0 +1,580 @@
+//! The CPU backend: each prepared level is a bricked copy (`bricked.rs`) with its brick
+//! ranges; a view builds the empty/uniform block tables for its LUT (`skip.rs`) and marches
+//! every ray (`march.rs`, sampling in `sample.rs`, 8 samples at a time with AVX2 in
+//! `simd.rs`) in parallel 16 × 16 tiles. Shots cast below the output size are upsampled here
+//! (and the gradient taken through the upsampling's transpose).
+//!
+//! Imports run one way: `render::backend` (the [`Backend`] trait) ← `render::cpu` ← the
+//! `render` facade; inside, `sample` is used by `march` and `simd`, `simd` by `march`, and
+//! none of them imports the others back.
+//!
+//! **Prepared levels are cached** per level allocation (`volume::Level` shares its samples in
+//! an `Arc` that never changes): preparing the same level again — every view of an
+//! optimization — costs a lookup. An entry is dropped at the next `prepare` after its level's
+//! samples are freed, so a dropped volume's copies do not outlive the next render by much.
+
+mod bricked;
+mod fastmath;
+mod march;
+mod sample;
+mod simd;
+mod skip;
+
+use std::sync::{Arc, Mutex, OnceLock, Weak};
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use super::backend::{validate, Backend, RenderError, RenderOptions, Rendered, Shot};
+use crate::camera::Camera;
+use crate::image::{resize_bilinear, resize_bilinear_adjoint, Image};
+use crate::tf::{Lut, LutGrad};
+use crate::volume::{BrickGrid, Volume};
+
+pub use bricked::BrickValues;
+use bricked::BrickedData;
+use march::{march, BoxFrame};
+use sample::{Grid, MarchParams, Ray};
+use skip::Blocks;
+
+/// Tile side in pixels (parallel work unit and gradient reduction unit).
+const TILE: usize = 16;
+
+/// The CPU renderer (rayon threads, AVX2 where the CPU has it).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CpuBackend;
+
+/// A level in the renderer's layout: what the cache holds. `dims` and `grid` are those the
+/// bricks were built from, so the march's unchecked indexing always agrees with the data.
+struct CpuLevel {
+    dims: [usize; 3],
+    grid: BrickGrid,
+    bricked: BrickedData,
+}
+
+/// A mip level of a volume, prepared for the CPU backend.
+#[derive(Clone)]
+pub struct CpuPrepared {
+    level: usize,
+    spacing: [f64; 3],
+    origin: [f64; 3],
+    /// 1 / L (L = the box's longest side, docs/DESIGN.md density units).
+    inv_l: f32,
+    data: Arc<CpuLevel>,
+}
+
+impl CpuPrepared {
+    /// Which mip level this is.
+    pub fn level(&self) -> usize {
+        self.level
+    }
+
+    /// The stored values (8, 16 or 32 bits per point; `bricked.rs`).
+    pub fn values(&self) -> BrickValues<'_> {
+        self.data.bricked.values()
+    }
+
+    /// Bytes held by the bricked copy.
+    pub fn memory_bytes(&self) -> usize {
+        self.data.bricked.memory_bytes()
+    }
+}
+
+impl std::fmt::Debug for CpuPrepared {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "CpuPrepared(level {}, {:?} points, {:?})",
+            self.level, self.data.dims, self.data.bricked
+        )
+    }
+}
+
+/// One cached level: its samples' allocation (dead once the level is dropped) and the copy.
+struct CacheEntry {
+    key: Weak<Vec<f32>>,
+    level: Arc<OnceLock<Arc<CpuLevel>>>,
+}
+
+/// Every level prepared so far whose samples still exist.
+static CACHE: Mutex<Vec<CacheEntry>> = Mutex::new(Vec::new());
+
+/// The prepared copy of `level`, built on first use. The global lock is held only to find or
+/// add the entry; the build runs under the entry's own `OnceLock`, so views of one level
+/// wait for one build instead of each making a copy.
+fn cached(level: &crate::volume::Level) -> Arc<CpuLevel> {
+    let shared = level.shared_data();
+    let slot = {
+        // A panic elsewhere while the lock was held leaves the list itself consistent.
+        let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+        cache.retain(|e| e.key.strong_count() > 0);
+        match cache
+            .iter()
+            .find(|e| std::ptr::eq(e.key.as_ptr(), Arc::as_ptr(shared)))
+        {
+            Some(e) => e.level.clone(),
+            None => {
+                let slot = Arc::new(OnceLock::new());
+                cache.push(CacheEntry {
+                    key: Arc::downgrade(shared),
+                    level: slot.clone(),
+                });
+                slot
+            }
+        }
+    };
+    slot.get_or_init(|| {
+        let dims = level.dims;
+        // The level's own ranges when they are those of its dims (always, unless a caller
+        // changed the public fields); rebuilt otherwise, since the march trusts them.
+        let counts = dims.map(|d| {
+            d.saturating_sub(1)
+                .max(1)
+                .div_ceil(crate::volume::BRICK_CELLS)
+        });
+        let grid = if level.bricks.counts == counts
+            && level.bricks.min.len() == counts.iter().product::<usize>()
+        {
+            level.bricks.clone()
+        } else {
+            BrickGrid::build(dims, level.data())
+        };
+        let bricked = BrickedData::build(dims, level.data(), &grid, level.narrow());
+        Arc::new(CpuLevel {
+            dims,
+            grid,
+            bricked,
+        })
+    })
+    .clone()
+}
+
+impl Backend for CpuBackend {
+    type Prepared = CpuPrepared;
+    /// The forward's colour and T_N at the cast size (over black when upsampled).
+    type Tape = Rendered;
+
+    fn prepare(&self, volume: &Volume, level: usize) -> Result<CpuPrepared, RenderError> {
+        let Some(l) = volume.levels.get(level) else {
+            return Err(RenderError::Level {
+                level,
+                max: volume.levels.len() - 1,
+            });
+        };
+        Ok(CpuPrepared {
+            level,
+            spacing: l.spacing,
+            origin: volume.geometry.origin,
+            inv_l: (1.0 / volume.geometry.longest_side()) as f32,
+            data: cached(l),
+        })
+    }
+
+    fn forward(
+        &self,
+        prepared: &CpuPrepared,
+        lut: &Lut,
+        shot: &Shot,
+    ) -> Result<(Rendered, Rendered), RenderError> {
+        let (camera, bg, opts) = (shot.camera, shot.background, shot.options);
+        if !shot.upsampled() {
+            let r = forward(prepared, lut, camera, bg, opts)?;
+            return Ok((r.clone(), r));
+        }
+        // Colour over black is the accumulated colour alone: I = up(acc) + up(T) · B.
+        let (s, n) = (shot.cast, (bg.width, bg.height));
+        if s.0 == 0 || s.1 == 0 {
+            return Err(RenderError::EmptyImage {
+                got_w: s.0,
+                got_h: s.1,
+            });
+        }
+        let r = forward(prepared, lut, camera, &Image::new(s.0, s.1), opts)?;
+        let acc = resize_bilinear(&r.image.data, s, 3, n);
+        let t = resize_bilinear(&r.transmittance, s, 1, n);
+        let mut image = Image::new(n.0, n.1);
+        for (p, px) in image.data.chunks_exact_mut(3).enumerate() {
+            for c in 0..3 {
+                px[c] = acc[3 * p + c] + t[p] * bg.data[3 * p + c];
+            }
+        }
+        let full = Rendered {
+            image,
+            transmittance: t,
+            level: r.level,
+            samples: r.samples,
+        };
+        Ok((full, r))
+    }
+
+    fn backward(
+        &self,
+        prepared: &CpuPrepared,
+        lut: &Lut,
+        shot: &Shot,
+        tape: &Rendered,
+        d_image: &[f32],
+        d_transmittance: &[f32],
+    ) -> Result<LutGrad, RenderError> {
+        let (camera, bg, opts) = (shot.camera, shot.background, shot.options);
+        if !shot.upsampled() {
+            let fin = Final::Rendered(tape);
+            fin.check(d_image, d_transmittance)?;
+            return backward(prepared, lut, camera, fin, opts, d_image, d_transmittance);
+        }
+        // Through I = up(acc) + up(T) · B: ∂/∂up(acc) = ∂/∂I, ∂/∂up(T) = ∂/∂T + Σ_c ∂/∂I_c B_c,
+        // then the upsampling's transpose.
+        let (s, n) = (shot.cast, (bg.width, bg.height));
+        Final::Background(bg).check(d_image, d_transmittance)?;
+        let d_t: Vec<f32> = (0..n.0 * n.1)
+            .map(|p| {
+                let from_image: f32 = (0..3)
+                    .map(|c| d_image[3 * p + c] * bg.data[3 * p + c])
+                    .sum();
+                d_transmittance.get(p).copied().unwrap_or(0.0) + from_image
+            })
+            .collect();
+        let d_acc_s = resize_bilinear_adjoint(d_image, n, 3, s);
+        let d_t_s = resize_bilinear_adjoint(&d_t, n, 1, s);
+        let fin = Final::Rendered(tape);
+        fin.check(&d_acc_s, &d_t_s)?;
+        backward(prepared, lut, camera, fin, opts, &d_acc_s, &d_t_s)
+    }
+}
+
+/// Everything one view's rays share, validated.
+struct View<'a> {
+    params: MarchParams<'a>,
+    rays: crate::camera::RayFrame,
+    frame: BoxFrame,
+    jitter_seed: Option<u64>,
+    width: usize,
+    height: usize,
+    level: usize,
+}
+
+impl<'a> View<'a> {
+    fn ray(&self, px: usize, py: usize) -> Option<Ray> {
+        let jitter = match self.jitter_seed {
+            None => 0.5,
+            Some(seed) => unit_hash(seed, (py * self.width + px) as u64),
+        };
+        self.frame.clip(self.rays.dir(px, py), jitter)
+    }
+
+    /// Set up a view of `prepared` with its `blocks` (from [`view_blocks`]).
+    fn new(
+        prepared: &'a CpuPrepared,
+        lut: &'a Lut,
+        camera: &Camera,
+        (width, height): (usize, usize),
+        opts: &RenderOptions,
+        blocks: &'a [Blocks; 2],
+    ) -> View<'a> {
+        let level = &prepared.data;
+        let voxel = prepared
+            .spacing
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min);
+        let grid = Grid::new(level.dims, &level.bricked, blocks);
+        let simd = simd::available() && grid.gathers_fit();
+        View {
+            params: MarchParams {
+                grid,
+                lut,
+                inv_l: prepared.inv_l,
+                stop_below: opts.early_termination,
+                simd,
+            },
+            rays: camera.rays(width, height),
+            frame: BoxFrame::new(
+                camera.position,
+                DVec3::from_array(prepared.origin),
+                DVec3::from_array(prepared.spacing),
+                level.dims,
+                opts.step as f64 * voxel,
+            ),
+            jitter_seed: opts.jitter_seed,
+            width,
+            height,
+            level: prepared.level,
+        }
+    }
+
+    fn tiles(&self) -> Vec<(usize, usize)> {
+        let mut t = Vec::new();
+        for ty in (0..self.height).step_by(TILE) {
+            for tx in (0..self.width).step_by(TILE) {
+                t.push((tx, ty));
+            }
+        }
+        t
+    }
+
+    fn tile_pixels(&self, (tx, ty): (usize, usize)) -> impl Iterator<Item = (usize, usize)> + '_ {
+        let (x1, y1) = ((tx + TILE).min(self.width), (ty + TILE).min(self.height));
+        (ty..y1).flat_map(move |py| (tx..x1).map(move |px| (px, py)))
+    }
+}
+
+/// splitmix64 of (seed, index) mapped to [0, 1).
+fn unit_hash(seed: u64, index: u64) -> f32 {
+    let mut z = seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    // 24 random bits: exactly representable, strictly below 1.
+    (z >> 40) as f32 / (1u64 << 24) as f32
+}
+
+/// The view's block tables: `prepared`'s bricks against `lut`.
+fn view_blocks(prepared: &CpuPrepared, lut: &Lut, opts: &RenderOptions) -> [Blocks; 2] {
+    skip::blocks(
+        &prepared.data.grid,
+        lut,
+        opts.skip_empty,
+        opts.empty_sigma,
+        true,
+    )
+}
+
+/// Render `prepared` with `lut` from `camera` over `background` (whose size is the image size).
+pub(super) fn forward(
+    prepared: &CpuPrepared,
+    lut: &Lut,
+    camera: &Camera,
+    background: &Image,
+    opts: &RenderOptions,
+) -> Result<Rendered, RenderError> {
+    validate(lut, opts)?;
+    let size = (background.width, background.height);
+    if size.0 == 0 || size.1 == 0 {
+        return Err(RenderError::EmptyImage {
+            got_w: size.0,
+            got_h: size.1,
+        });
+    }
+    let blocks = view_blocks(prepared, lut, opts);
+    let v = View::new(prepared, lut, camera, size, opts, &blocks);
+    let tiles = v.tiles();
+    // Per tile: (pixel, rgb, T) triples and the sample count.
+    type TileOut = (Vec<(usize, [f32; 3], f32)>, u64);
+    let done: Vec<TileOut> = tiles
+        .par_iter()
+        .map(|&tile| {
+            let mut out = Vec::with_capacity(TILE * TILE);
+            let mut samples = 0u64;
+            for (px, py) in v.tile_pixels(tile) {
+                let p = py * v.width + px;
+                let bg = background.pixel(px, py);
+                let (acc, t) = match v.ray(px, py) {
+                    Some(ray) => {
+                        let m = march(&v.params, &ray, |_| {});
+                        samples += m.samples as u64;
+                        (m.acc, m.transmittance)
+                    }
+                    None => ([0.0; 3], 1.0),
+                };
+                out.push((p, std::array::from_fn(|c| acc[c] + t * bg[c]), t));
+            }
+            (out, samples)
+        })
+        .collect();
+    let mut image = Image::new(v.width, v.height);
+    let mut transmittance = vec![1.0; v.width * v.height];
+    let mut samples = 0;
+    for (pixels, s) in done {
+        samples += s;
+        for (p, rgb, t) in pixels {
+            image.data[3 * p..3 * p + 3].copy_from_slice(&rgb);
+            transmittance[p] = t;
+        }
+    }
+    Ok(Rendered {
+        image,
+        transmittance,
+        level: v.level,
+        samples,
+    })
+}
+
+/// Where the backward gets each pixel's final colour and transmittance.
+#[derive(Clone, Copy)]
+pub(super) enum Final<'a> {
+    /// Re-march each ray over this background.
+    Background(&'a Image),
+    /// The forward's result.
+    Rendered(&'a Rendered),
+}
+
+impl Final<'_> {
+    /// The image size.
+    pub(super) fn size(&self) -> (usize, usize) {
+        match self {
+            Final::Background(b) => (b.width, b.height),
+            Final::Rendered(r) => (r.image.width, r.image.height),
+        }
+    }
+
+    /// The gradients (and the forward's result) have the image's size.
+    pub(super) fn check(
+        &self,
+        d_image: &[f32],
+        d_transmittance: &[f32],
+    ) -> Result<(), RenderError> {
+        let (w, h) = self.size();
+        let size_err = |what, got, expected| RenderError::GradientSize {
+            what,
+            got,
+            expected,
+            w,
+            h,
+        };
+        if d_image.len() != w * h * 3 {
+            return Err(size_err("d_image", d_image.len(), w * h * 3));
+        }
+        if !(d_transmittance.is_empty() || d_transmittance.len() == w * h) {
+            return Err(size_err("d_transmittance", d_transmittance.len(), w * h));
+        }
+        if let Final::Rendered(r) = self {
+            if r.transmittance.len() != w * h || r.image.data.len() != w * h * 3 {
+                return Err(size_err(
+                    "rendered transmittance",
+                    r.transmittance.len(),
+                    w * h,
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// ∂L/∂LUT of one view of `prepared` (sizes checked by [`Final::check`]).
+pub(super) fn backward(
+    prepared: &CpuPrepared,
+    lut: &Lut,
+    camera: &Camera,
+    fin: Final,
+    opts: &RenderOptions,
+    d_image: &[f32],
+    d_transmittance: &[f32],
+) -> Result<LutGrad, RenderError> {
+    fin.check(d_image, d_transmittance)?;
+    validate(lut, opts)?;
+    let (w, h) = fin.size();
+    if w == 0 || h == 0 {
+        return Err(RenderError::EmptyImage { got_w: w, got_h: h });
+    }
+    let blocks = view_blocks(prepared, lut, opts);
+    let v = View::new(prepared, lut, camera, (w, h), opts, &blocks);
+    let n = lut.entries.len();
+    let tiles = v.tiles();
+    let grads: Vec<Vec<[f64; 4]>> = tiles
+        .par_iter()
+        .map(|&tile| {
+            let mut grad = vec![[0.0f64; 4]; n];
+            for (px, py) in v.tile_pixels(tile) {
+                let p = py * w + px;
+                let g = [d_image[3 * p], d_image[3 * p + 1], d_image[3 * p + 2]];
+                let g_t = d_transmittance.get(p).copied().unwrap_or(0.0);
+                if g == [0.0; 3] && g_t == 0.0 {
+                    continue;
+                }
+                let Some(ray) = v.ray(px, py) else { continue };
+                let (image, t_final) = match fin {
+                    Final::Rendered(r) => (r.image.pixel(px, py), r.transmittance[p]),
+                    Final::Background(bg) => {
+                        let m = march(&v.params, &ray, |_| {});
+                        let b = bg.pixel(px, py);
+                        let rgb = std::array::from_fn(|c| m.acc[c] + m.transmittance * b[c]);
+                        (rgb, m.transmittance)
+                    }
+                };
+                let tail = g_t * t_final;
+                march(&v.params, &ray, |s| {
+                    accumulate(&mut grad, s, g, image, tail)
+                });
+            }
+            grad
+        })
+        .collect();
+    // Fixed-order reduction: independent of how rayon scheduled the tiles.
+    let mut total = LutGrad::zeros(n);
+    for g in grads {
+        for (a, b) in total.entries.iter_mut().zip(&g) {
+            for c in 0..4 {
+                a[c] += b[c];
+            }
+        }
+    }
+    Ok(total)
+}
+
+/// One sample's part of ∂L/∂LUT (module docs: "Backward"), for a pixel with ∂L/∂I = `g`,
+/// final colour `image` and `tail` = ∂L/∂T_N · T_N. A function of its own, always inlined:
+/// as a closure body LLVM called it once per sample.
+#[inline(always)]
+fn accumulate(grad: &mut [[f64; 4]], s: &march::Sample, g: [f32; 3], image: [f32; 3], tail: f32) {
+    let weight = s.t_before - s.t_after;
+    let mut d_sigma = -tail;
+    let mut d_rgb = [0.0f32; 3];
+    for c in 0..3 {
+        d_sigma += g[c] * (s.t_after * s.rgb[c] - (image[c] - s.acc[c]));
+        d_rgb[c] = weight * g[c];
+    }
+    let d_sigma = (d_sigma * s.delta_norm * s.count) as f64;
+    let (w1, w0) = (s.lut_weight as f64, 1.0 - s.lut_weight as f64);
+    let (e0, e1) = grad.split_at_mut(s.lut_index + 1);
+    let (e0, e1) = (&mut e0[s.lut_index], &mut e1[0]);
+    e0[0] += w0 * d_sigma;
+    e1[0] += w1 * d_sigma;
+    for c in 0..3 {
+        e0[c + 1] += w0 * d_rgb[c] as f64;
+        e1[c + 1] += w1 * d_rgb[c] as f64;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::volume::{Geometry, TypedBuffer};
+    use std::path::Path;
+
+    fn volume(seed: usize) -> Volume {
+        let dims = [12, 10, 9];
+        let n: usize = dims.iter().product();
+        let vals = (0..n).map(|i| ((i * 31 + seed) % 17) as f64).collect();
+        let g = Geometry {
+            dims,
+            spacing: [1.0; 3],
+            origin: [0.0; 3],
+        };
+        Volume::from_buffer(Path::new("t"), g, &TypedBuffer::from_f64(vals)).unwrap()
+    }
+
+    /// A level is bricked once (clones of the volume share it), and the copy goes once the
+    /// volume is gone and something else is prepared.
+    #[test]
+    fn prepared_levels_are_cached_and_released() {
+        let v = volume(1);
+        let a = CpuBackend.prepare(&v, 0).unwrap();
+        let b = CpuBackend.prepare(&v.clone(), 0).unwrap();
+        assert!(Arc::ptr_eq(&a.data, &b.data));
+        let other = CpuBackend.prepare(&v, 1).unwrap();
+        assert!(!Arc::ptr_eq(&a.data, &other.data));
+        assert_eq!(other.level(), 1);
+        let weak = Arc::downgrade(&a.data);
+        drop((a, b, other, v));
+        let w = volume(2);
+        CpuBackend.prepare(&w, 0).unwrap();
+        assert!(
+            weak.upgrade().is_none(),
+            "a dropped volume's copy is still held"
+        );
+        assert!(matches!(
+            CpuBackend.prepare(&w, 99),
+            Err(RenderError::Level { level: 99, .. })
+        ));
+    }
+}

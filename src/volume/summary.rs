@@ -1,0 +1,389 @@
+//! What `t2tf info` reports about a volume file, computed without making the volume: no f32
+//! copy, no pyramid. A `.raw` file is streamed in blocks of [`BLOCK_BYTES`] (memory bounded
+//! whatever the file's size; one sequential read for 8/16-bit data, two for wider types);
+//! `.vti` and `.vtk` files are decoded in memory as for a load, but not normalized. The
+//! numbers equal those of [`super::load`] bit for bit: the same per-value formula
+//! (`normalize_value`), the same range rule, and the level shapes of `pyramid`.
+
+use std::io::Read;
+use std::path::Path;
+
+use super::{
+    check_geometry, denormalize, half_scale, norm_range, normalize_value, pyramid, raw, ByteOrder,
+    Geometry, ReadOptions, ScalarType, SourceFormat, TypedBuffer, VolumeError, VolumeSource,
+    HISTOGRAM_BINS,
+};
+
+/// Bytes read at a time from a `.raw` file (a multiple of every scalar size).
+const BLOCK_BYTES: usize = 8 << 20;
+
+/// A volume file's statistics, as [`super::Volume`] would hold them after a load.
+#[derive(Clone, Debug)]
+pub struct Summary {
+    /// Points per axis, spacing and origin.
+    pub geometry: Geometry,
+    /// The scalar type of the file.
+    pub scalar_type: ScalarType,
+    /// Finite min and max (data units).
+    pub range: [f64; 2],
+    /// The data range that maps to [0, 1] (`Volume::norm_range`).
+    pub norm_range: [f64; 2],
+    /// Count of NaN/Inf values.
+    pub non_finite: usize,
+    /// Counts of normalized values in `HISTOGRAM_BINS` equal bins over [0, 1].
+    pub histogram: Vec<u64>,
+    /// Points per axis of every mip level a load would build, level 0 first.
+    pub levels: Vec<[usize; 3]>,
+    /// Bytes a load holds for level 0 (`Level::memory_bytes`).
+    pub level0_bytes: usize,
+    /// Bytes a load holds for levels 1 and up.
+    pub pyramid_bytes: usize,
+    /// The file and how it was read.
+    pub source: VolumeSource,
+}
+
+impl Summary {
+    /// Map a normalized value in [0, 1] back to data units (as `Volume::denormalize`).
+    pub fn denormalize(&self, t: f64) -> f64 {
+        denormalize(self.norm_range, t)
+    }
+}
+
+/// Statistics gathered over the values.
+struct Stats {
+    range: [f64; 2],
+    norm_range: [f64; 2],
+    non_finite: usize,
+    histogram: Vec<u64>,
+}
+
+/// Summarize the volume file at `path` read with `opts`.
+pub fn summarize(path: &Path, opts: &ReadOptions) -> Result<Summary, VolumeError> {
+    // The checks `decode` makes, in its order.
+    let meta = super::read::file_metadata(path)?;
+    let (geometry, scalar_type, format, stats) = if super::read::is_raw(path, opts)? {
+        raw::check_size(path, opts, meta.len())?;
+        raw_summary(path, opts)?
+    } else {
+        let d = super::decode(path, opts)?;
+        check_geometry(path, &d.geometry, d.buffer.len())?;
+        let stats = buffer_stats(&d.buffer);
+        (d.geometry, d.buffer.scalar_type(), d.format, stats)
+    };
+    let Some(stats) = stats else {
+        return Err(VolumeError::file(
+            path,
+            "every value is NaN or infinite: nothing to render",
+        ));
+    };
+    let levels: Vec<[usize; 3]> = pyramid::level_shapes(geometry)
+        .into_iter()
+        .map(|(d, _)| d)
+        .collect();
+    let bytes: Vec<usize> = levels.iter().map(|&d| pyramid::level_bytes(d)).collect();
+    Ok(Summary {
+        geometry,
+        scalar_type,
+        range: stats.range,
+        norm_range: stats.norm_range,
+        non_finite: stats.non_finite,
+        histogram: stats.histogram,
+        levels,
+        level0_bytes: bytes[0],
+        pyramid_bytes: bytes[1..].iter().sum(),
+        source: VolumeSource {
+            path: path.to_path_buf(),
+            format,
+        },
+    })
+}
+
+/// Geometry, type, format and statistics (`None`: no finite value) of a file.
+type RawSummary = (Geometry, ScalarType, SourceFormat, Option<Stats>);
+
+/// A `.raw` file (its size checked against its layout), streamed block by block.
+fn raw_summary(path: &Path, opts: &ReadOptions) -> Result<RawSummary, VolumeError> {
+    let io = |error| VolumeError::Io {
+        path: path.to_path_buf(),
+        error,
+    };
+    // The geometry and format exactly as the raw reader gives them (decoding no bytes).
+    let (dims, dtype) = raw::layout(path, opts)?;
+    let byte_order = opts.byte_order.unwrap_or(ByteOrder::Little);
+    let geometry = Geometry {
+        dims,
+        spacing: opts.spacing.unwrap_or([1.0; 3]),
+        origin: [0.0; 3],
+    };
+    check_geometry(path, &geometry, geometry.voxel_count())?;
+    let blocks = |f: &mut dyn FnMut(&[u8])| -> Result<(), VolumeError> {
+        let mut file = std::fs::File::open(path).map_err(io)?;
+        let mut block = vec![0u8; BLOCK_BYTES];
+        loop {
+            let n = read_full(&mut file, &mut block).map_err(io)?;
+            if n == 0 {
+                return Ok(());
+            }
+            f(&block[..n]);
+        }
+    };
+    let stats = match small_codes(dtype) {
+        Some(codes) => {
+            let mut counts = vec![0u64; codes];
+            blocks(&mut |b| count_codes(dtype, byte_order, b, &mut counts))?;
+            Some(code_stats(dtype, &counts))
+        }
+        None => {
+            let mut acc = MinMax::default();
+            blocks(&mut |b| {
+                TypedBuffer::new(dtype, byte_order, b.to_vec()).for_each(|v| acc.add(v))
+            })?;
+            match acc.norm_range() {
+                None => None,
+                Some(nr) => {
+                    let mut h = Histogram::new(nr);
+                    blocks(&mut |b| {
+                        TypedBuffer::new(dtype, byte_order, b.to_vec()).for_each(|v| h.add(v))
+                    })?;
+                    Some(acc.stats(h.counts))
+                }
+            }
+        }
+    };
+    let format = SourceFormat::Raw {
+        scalar_type: dtype,
+        byte_order,
+    };
+    Ok((geometry, dtype, format, stats))
+}
+
+/// Fill `buf` from `r` (short only at the end of the file); bytes read.
+fn read_full(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match r.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(n)
+}
+
+/// Statistics of values held in memory.
+fn buffer_stats(buffer: &TypedBuffer) -> Option<Stats> {
+    let (ty, order, bytes) = buffer.raw();
+    if let Some(codes) = small_codes(ty) {
+        let mut counts = vec![0u64; codes];
+        count_codes(ty, order, bytes, &mut counts);
+        return Some(code_stats(ty, &counts));
+    }
+    let mut acc = MinMax::default();
+    buffer.for_each(|v| acc.add(v));
+    let mut h = Histogram::new(acc.norm_range()?);
+    buffer.for_each(|v| h.add(v));
+    Some(acc.stats(h.counts))
+}
+
+/// Distinct codes of an 8- or 16-bit integer type; `None` for other types.
+fn small_codes(ty: ScalarType) -> Option<usize> {
+    match ty {
+        ScalarType::U8 | ScalarType::I8 => Some(1 << 8),
+        ScalarType::U16 | ScalarType::I16 => Some(1 << 16),
+        _ => None,
+    }
+}
+
+/// The number a code stands for (as `small_int`).
+fn code_value(ty: ScalarType, c: usize) -> f64 {
+    match ty {
+        ScalarType::I8 => c as u8 as i8 as f64,
+        ScalarType::I16 => c as u16 as i16 as f64,
+        _ => c as f64,
+    }
+}
+
+/// Count the codes of the values in `bytes`.
+fn count_codes(ty: ScalarType, order: ByteOrder, bytes: &[u8], counts: &mut [u64]) {
+    if ty.size() == 1 {
+        for &b in bytes {
+            counts[b as usize] += 1;
+        }
+        return;
+    }
+    for c in bytes.chunks_exact(2) {
+        let b = [c[0], c[1]];
+        let code = match order {
+            ByteOrder::Little => u16::from_le_bytes(b),
+            ByteOrder::Big => u16::from_be_bytes(b),
+        };
+        counts[code as usize] += 1;
+    }
+}
+
+/// Range and histogram from code counts (integers are always finite).
+fn code_stats(ty: ScalarType, counts: &[u64]) -> Stats {
+    let mut acc = MinMax::default();
+    for (c, _) in counts.iter().enumerate().filter(|(_, &k)| k > 0) {
+        acc.add(code_value(ty, c));
+    }
+    let nr = acc.norm_range().expect("a volume has at least one value");
+    let scale = half_scale(nr);
+    let mut histogram = vec![0u64; HISTOGRAM_BINS];
+    for (c, &k) in counts.iter().enumerate().filter(|(_, &k)| k > 0) {
+        histogram[normalize_value(code_value(ty, c), nr, scale).1] += k;
+    }
+    acc.stats(histogram)
+}
+
+/// The finite range and the count of other values.
+struct MinMax {
+    lo: f64,
+    hi: f64,
+    finite: usize,
+    non_finite: usize,
+}
+
+impl Default for MinMax {
+    fn default() -> MinMax {
+        MinMax {
+            lo: f64::INFINITY,
+            hi: f64::NEG_INFINITY,
+            finite: 0,
+            non_finite: 0,
+        }
+    }
+}
+
+impl MinMax {
+    fn add(&mut self, v: f64) {
+        if v.is_finite() {
+            self.lo = self.lo.min(v);
+            self.hi = self.hi.max(v);
+            self.finite += 1;
+        } else {
+            self.non_finite += 1;
+        }
+    }
+
+    /// `None` when no value is finite.
+    fn norm_range(&self) -> Option<[f64; 2]> {
+        (self.finite > 0).then(|| norm_range(self.lo, self.hi))
+    }
+
+    fn stats(&self, histogram: Vec<u64>) -> Stats {
+        Stats {
+            range: [self.lo, self.hi],
+            norm_range: norm_range(self.lo, self.hi),
+            non_finite: self.non_finite,
+            histogram,
+        }
+    }
+}
+
+/// Histogram of the finite values over a known normalization range.
+struct Histogram {
+    norm_range: [f64; 2],
+    scale: f64,
+    counts: Vec<u64>,
+}
+
+impl Histogram {
+    fn new(norm_range: [f64; 2]) -> Histogram {
+        Histogram {
+            norm_range,
+            scale: half_scale(norm_range),
+            counts: vec![0; HISTOGRAM_BINS],
+        }
+    }
+
+    fn add(&mut self, v: f64) {
+        if v.is_finite() {
+            self.counts[normalize_value(v, self.norm_range, self.scale).1] += 1;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every type and byte order: the summary equals the loaded volume's statistics, with a
+    /// block size that splits the file mid-way.
+    #[test]
+    fn summary_equals_load() {
+        let dir = tempfile::tempdir().unwrap();
+        let dims = [13, 11, 7];
+        let n: usize = dims.iter().product();
+        for ty in ScalarType::ALL {
+            for order in [ByteOrder::Little, ByteOrder::Big] {
+                let mut values: Vec<f64> = (0..n)
+                    .map(|i| {
+                        ((i * 7919) % 251) as f64
+                            - if ty.integer_range().is_some_and(|r| r.0 < 0.0) {
+                                100.0
+                            } else {
+                                0.0
+                            }
+                    })
+                    .collect();
+                if ty.integer_range().is_none() {
+                    values[3] = f64::NAN;
+                    values[9] = f64::INFINITY;
+                    values[10] = 0.125;
+                }
+                let bytes = encode(&values, ty, order);
+                let path = dir
+                    .path()
+                    .join(format!("v_13x11x7_{}.raw", ty.scivis_name()));
+                std::fs::write(&path, &bytes).unwrap();
+                let opts = ReadOptions {
+                    byte_order: Some(order),
+                    ..Default::default()
+                };
+                let s = summarize(&path, &opts).unwrap();
+                let v = super::super::load(&path, &opts).unwrap();
+                let what = format!("{ty} {order:?}");
+                assert_eq!(s.geometry, v.geometry, "{what}");
+                assert_eq!(s.scalar_type, v.scalar_type, "{what}");
+                assert_eq!(s.range, v.range, "{what}");
+                assert_eq!(s.norm_range, v.norm_range, "{what}");
+                assert_eq!(s.non_finite, v.non_finite, "{what}");
+                assert_eq!(s.histogram, v.histogram, "{what}");
+                assert_eq!(s.source, v.source.clone().unwrap(), "{what}");
+                let dims: Vec<[usize; 3]> = v.levels.iter().map(|l| l.dims).collect();
+                assert_eq!(s.levels, dims, "{what}");
+                assert_eq!(s.level0_bytes, v.levels[0].memory_bytes(), "{what}");
+                assert_eq!(s.level0_bytes + s.pyramid_bytes, v.memory_bytes(), "{what}");
+            }
+        }
+    }
+
+    /// `values` stored as `ty` in `order` (values are exact in every type used above).
+    fn encode(values: &[f64], ty: ScalarType, order: ByteOrder) -> Vec<u8> {
+        macro_rules! enc {
+            ($t:ty) => {
+                values
+                    .iter()
+                    .flat_map(|&v| match order {
+                        ByteOrder::Little => (v as $t).to_le_bytes().to_vec(),
+                        ByteOrder::Big => (v as $t).to_be_bytes().to_vec(),
+                    })
+                    .collect()
+            };
+        }
+        match ty {
+            ScalarType::U8 => enc!(u8),
+            ScalarType::I8 => enc!(i8),
+            ScalarType::U16 => enc!(u16),
+            ScalarType::I16 => enc!(i16),
+            ScalarType::U32 => enc!(u32),
+            ScalarType::I32 => enc!(i32),
+            ScalarType::U64 => enc!(u64),
+            ScalarType::I64 => enc!(i64),
+            ScalarType::F32 => enc!(f32),
+            ScalarType::F64 => enc!(f64),
+        }
+    }
+}
