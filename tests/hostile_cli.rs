@@ -354,7 +354,17 @@ fn a_volume_too_large_for_memory_is_a_clean_error_not_an_abort() {
         .unwrap()
         .set_len(2048 * 2048 * 2048)
         .unwrap();
-    let (code, err) = run(limit_address_space(t2tf().arg("info").arg(&raw), AS_LIMIT));
+    // `render` loads the volume (`info` streams it and succeeds: tests/hostile_volumes.rs).
+    let (code, err) = run(limit_address_space(
+        t2tf()
+            .arg("render")
+            .arg(&raw)
+            .arg("--tf")
+            .arg(preset(dir.path()))
+            .arg("--out")
+            .arg(dir.path().join("x.png")),
+        AS_LIMIT,
+    ));
     assert_eq!(code, 1, "{err}");
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(err.contains("big_2048x2048x2048_uint8.raw"), "{err}");
