@@ -196,7 +196,7 @@ fn setups() -> (Vec<Setup>, Vec<String>) {
     for k in Kernel::ALL {
         match (k, k.missing()) {
             (Kernel::Portable | Kernel::PortableBf16, _) => skipped.push(format!(
-                "{}: scalar reference (tested in tests/clip_kernels.rs, too slow to time here)",
+                "{}: scalar reference (tested in tests/clip/clip_kernels.rs, too slow to time here)",
                 k.name()
             )),
             (_, Some(what)) => skipped.push(format!("{}: this CPU lacks {what}", k.name())),

@@ -6,7 +6,7 @@
 //! `catch_unwind` in a process whose address space is capped, so a panic or an allocation
 //! abort is a finding. Inputs whose outcome differs from every earlier one (a coarse stand-in
 //! for coverage: the error's words) join the corpus; `--save-corpus` writes them to
-//! tests/fuzz_corpus/TARGET/, which tests/fuzz_replay.rs replays in CI.
+//! tests/fuzz_corpus/TARGET/, which tests/volume/fuzz_replay.rs replays in CI.
 //!
 //! ```sh
 //! cargo run --release --example fuzz -- vti --iterations 1000000

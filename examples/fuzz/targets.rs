@@ -1,6 +1,6 @@
 //! The parsers the fuzzer drives, one function per target: bytes in, `Ok`/`Err` out, and a
 //! short "signature" of the outcome (the error's first words) to tell behaviours apart.
-//! Shared with tests/fuzz_replay.rs (through `#[path]`), which replays the committed corpus.
+//! Shared with tests/volume/fuzz_replay.rs (through `#[path]`), which replays the committed corpus.
 
 use std::path::{Path, PathBuf};
 

@@ -1,6 +1,6 @@
 //! Recovering a known TF from reference renders: one target image per view and a loss on the
 //! images (a pixel loss needs no CLIP at all). It drives the same renderer backward, TF
-//! backward and SGD as Algorithm 1, so it checks them together (tests/optimize_recovery.rs)
+//! backward and SGD as Algorithm 1, so it checks them together (tests/optimize/optimize_recovery.rs)
 //! and shows, offline, that the optimizer finds a TF from pictures (examples/demo_recover.rs).
 //!
 //! Not Algorithm 1's loop (`super::optimize`): there the positive is one embedding for every

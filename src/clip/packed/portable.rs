@@ -1,5 +1,5 @@
 //! Scalar micro-kernels for the two packed layouts: the reference every SIMD kernel is tested
-//! against (`tests/clip_kernels.rs`), and the f32 engine of CPUs without AVX2. They compute
+//! against (`tests/clip/clip_kernels.rs`), and the f32 engine of CPUs without AVX2. They compute
 //! the same sums as the SIMD kernels (one multiply-add per k step, in k order), so f32 results
 //! agree with `Avx2Fma` to rounding of fused vs separate multiply-add.
 

@@ -1,6 +1,6 @@
 //! Renderer hard cases, equivalences and behaviour on real data.
 
-mod render_util;
+use crate::render_util;
 
 use render_util::*;
 use t2tf::background;

@@ -331,7 +331,7 @@ struct Golden {
     grad_images: Vec<Vec<Vec<Vec<f32>>>>,
 }
 
-/// max |got − want| / max |want|, as tests/clip_golden.rs measures parity.
+/// max |got − want| / max |want|, as tests/clip/clip_golden.rs measures parity.
 fn rel_err(got: &[f32], want: &[f32]) -> f64 {
     let scale = want.iter().fold(0.0f64, |m, &v| m.max(v.abs() as f64));
     let diff = got
@@ -349,7 +349,7 @@ fn to_image(nested: &[Vec<Vec<f32>>]) -> Image {
     }
 }
 
-/// The transformers golden fixtures (tests/clip_golden.rs) through every kernel: the f32 ones
+/// The transformers golden fixtures (tests/clip/clip_golden.rs) through every kernel: the f32 ones
 /// at the golden tests' 1e-4; the bf16 ones at 5e-2, from rounding every weight and
 /// activation to 8 significant bits (2⁻⁹ relative each) through 2 layers: measured worst
 /// 1.1e-2 (text), 6.3e-3 (image) and 1.4e-2 (input gradient) on these fixtures.

@@ -14,7 +14,7 @@
 //! Without pvpython this test says so and passes, unless T2TF_REQUIRE_PARAVIEW=1.
 //! `T2TF_PARITY_KEEP=DIR` keeps the presets, screenshots and renders in DIR.
 
-mod paraview_util;
+use crate::paraview_util;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -30,7 +30,7 @@ const SIZE: usize = 192;
 
 /// The bar for every case. Measured (ParaView 5.11, Mesa llvmpipe): 48.5–60.7 dB where
 /// the preset spans the data range (the uint8 neghip lowest: ParaView filters 8-bit textures
-/// coarsely, tests/paraview_match.rs), 46.1–48.4 dB with --paraview-lut in the 5 % window.
+/// coarsely, tests/paraview/paraview_match.rs), 46.1–48.4 dB with --paraview-lut in the 5 % window.
 const BAR: f64 = 40.0;
 
 /// ParaView library presets, one per colour space: (name, the colour space ParaView keeps it

@@ -4,7 +4,7 @@
 //!
 //! Without pvpython these tests say so and pass, unless T2TF_REQUIRE_PARAVIEW=1.
 
-mod paraview_util;
+use crate::paraview_util;
 
 use paraview_util::{assert_volume_only_inside, floats, paraview_available, psnr, pvpython, repo};
 use std::path::Path;

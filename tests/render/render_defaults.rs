@@ -4,7 +4,7 @@
 //! where the step matters most (BENCHMARKS.md "Render defaults"); and the CLI's defaults are
 //! those options.
 
-mod render_util;
+use crate::render_util;
 
 use std::path::Path;
 use std::process::Command;
@@ -99,7 +99,7 @@ fn final_quality_is_within_the_bar_of_the_converged_render() {
 /// 38 dB: the lowest measurement (neghip, 40.0 dB) less 2 dB for other CPUs and compilers,
 /// above the loop options on both volumes. What it buys: a difference of d dB from the
 /// converged render, independent of how the converged render differs from a reference it
-/// matches at P dB (ParaView: 31–36 dB, tests/paraview_match.rs), costs the comparison
+/// matches at P dB (ParaView: 31–36 dB, tests/paraview/paraview_match.rs), costs the comparison
 /// 10·log10(1 + 10^((P − d)/10)) dB, 0.5 dB at d = P + 9.1: 40.4 dB for the optimizer TF's
 /// 31.3 dB ParaView match. Neghip's narrow peak (40.0 dB) is just short of that; a smoother
 /// TF is far above it (BENCHMARKS.md "Render defaults").

@@ -3,7 +3,7 @@
 //! a tiny CLIPModel whose config.json uses `text_config_dict` / `vision_config_dict` next to
 //! stale sub-configs, gelu, layer_norm_eps 1e-6, head dims 3 and 13, intermediate sizes 11 and
 //! 60, projection_dim 10, and 23-pixel images cut into 5-pixel patches (17 tokens, the last 3
-//! rows and columns unseen). Parity is checked as in tests/clip_golden.rs, with both GEMM
+//! rows and columns unseen). Parity is checked as in tests/clip/clip_golden.rs, with both GEMM
 //! engines: text embeddings, image embeddings, input gradient of a cosine similarity.
 
 use std::path::Path;
@@ -35,7 +35,7 @@ struct Golden {
 const DIR: &str = "tests/fixtures/clip/odd_shapes";
 const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
 
-/// Parity criterion of tests/clip_golden.rs: max |rust − reference| ≤ TOL · max |reference|
+/// Parity criterion of tests/clip/clip_golden.rs: max |rust − reference| ≤ TOL · max |reference|
 /// over the whole vector; both sides compute in f32 from identical weights and differ only in
 /// summation order.
 const TOL: f64 = 1e-4;

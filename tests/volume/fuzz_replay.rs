@@ -3,7 +3,7 @@
 //! each input must give `Ok` or an error, never a panic. The inputs are the distinct
 //! behaviours the fuzzer found, so this keeps every parser's odd corners covered in CI.
 
-#[path = "../examples/fuzz/targets.rs"]
+#[path = "../../examples/fuzz/targets.rs"]
 #[allow(dead_code)]
 mod targets;
 

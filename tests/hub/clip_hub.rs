@@ -9,7 +9,7 @@
 //! - the CLI (`clip-score`, `model fetch`, `model list`) does all of it through the `HF_*`
 //!   environment variables alone.
 
-mod hub_server;
+use crate::hub_server;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

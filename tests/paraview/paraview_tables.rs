@@ -6,7 +6,7 @@
 //!
 //! Without pvpython these tests say so and pass, unless T2TF_REQUIRE_PARAVIEW=1.
 
-mod paraview_util;
+use crate::paraview_util;
 
 use std::path::Path;
 

@@ -3,7 +3,7 @@
 //! gradient flow through every term, averaging over views, SGD, schedule, stop flag,
 //! determinism, errors instead of NaN).
 
-mod optimize_toy;
+use crate::optimize_toy;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 

@@ -354,7 +354,7 @@ fn a_volume_too_large_for_memory_is_a_clean_error_not_an_abort() {
         .unwrap()
         .set_len(2048 * 2048 * 2048)
         .unwrap();
-    // `render` loads the volume (`info` streams it and succeeds: tests/hostile_volumes.rs).
+    // `render` loads the volume (`info` streams it and succeeds: tests/volume/hostile_volumes.rs).
     let (code, err) = run(limit_address_space(
         t2tf()
             .arg("render")

@@ -10,7 +10,7 @@
 //! The tolerance 2e-4·max|∇| + 1e-3·|∇ᵢ| sits above that bound and still fails on any missing
 //! or mis-weighted term (those are O(|∇ᵢ|); dropping the ∂L/∂T_N term fails three cases).
 
-mod render_util;
+use crate::render_util;
 
 use render_util::*;
 use t2tf::background;

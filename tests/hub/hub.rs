@@ -2,7 +2,7 @@
 //! `huggingface_hub` sharing its cache. Every test has its own temporary cache and passes
 //! settings explicitly: nothing touches the real cache, the environment or the network.
 
-mod hub_server;
+use crate::hub_server;
 
 use std::collections::HashMap;
 use std::io::{Read, Write};

@@ -1,5 +1,5 @@
 //! write_all and the generated pvpython / VisIt scripts (content, Python syntax, atomicity).
-//! Running the pvpython script in ParaView is tests/paraview.rs.
+//! Running the pvpython script in ParaView is tests/paraview/paraview.rs.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -1,9 +1,9 @@
 //! The optimizer's renderer adapter casting rays below CLIP's input size: the upsampled view
 //! composited over the full-size background, and its gradient (through the upsampling's
 //! transpose and the background term of ∂I/∂T) against central differences, as in
-//! tests/render_grad.rs (same loss, step and tolerance argument).
+//! tests/render/render_grad.rs (same loss, step and tolerance argument).
 
-mod render_util;
+use crate::render_util;
 
 use render_util::*;
 use t2tf::camera::UpAxis;

@@ -11,7 +11,7 @@
 //! paraview/compat on PYTHONPATH in ParaView 5.11.0 on Python ≥ 3.11 (see paraview/README.md).
 //! Without pvpython these tests say so and pass, unless T2TF_REQUIRE_PARAVIEW=1.
 
-mod paraview_util;
+use crate::paraview_util;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -116,7 +116,7 @@ fn check_display(res: &serde_json::Value, array: &str) -> PathBuf {
 
 /// `t2tf render` of `volume` with `preset` from the camera the plugin applies (t2tf's script
 /// camera: yaw 0, pitch 0, 3 bounding radii, z up) on ParaView's gray background, with a fine
-/// ray step (0.1 voxel) as tests/paraview_match.rs does, so sampling differences stay small;
+/// ray step (0.1 voxel) as tests/paraview/paraview_match.rs does, so sampling differences stay small;
 /// with `paraview_lut`, the TF sampled as ParaView samples it (`--paraview-lut`: a 1024-entry
 /// table over the data range, opacity corrected per entry).
 fn our_render(volume: &Path, preset: &Path, png: &Path, paraview_lut: bool) -> Image {
@@ -178,7 +178,7 @@ fn plugin_applies_the_tf_of_a_vti_file() {
         // The input comes from a .vti reader: t2tf reads that file itself. The volume is the
         // 16-bit headsq: with the 8-bit neghip this comparison measured 33.9 dB (34.1 dB with
         // --paraview-lut), because ParaView filters 8-bit volume textures at 8-bit precision
-        // (tests/paraview_match.rs: 31.3 dB, 35.8 dB for a float32 copy of the same data).
+        // (tests/paraview/paraview_match.rs: 31.3 dB, 35.8 dB for a float32 copy of the same data).
         // Measured with headsq: 45.0 dB (exact TF, step 0.1 voxel).
         applies_and_matches("vti", "ImageFile", false, false, 35.0);
     }

@@ -1,7 +1,7 @@
 //! A whole run through `optimize::driver` on the analytic stand-ins: text embeddings and
 //! their cache, initialization, the loop, final scores, preview, and the files written.
 
-mod optimize_toy;
+use crate::optimize_toy;
 
 use std::path::Path;
 use std::sync::atomic::AtomicBool;

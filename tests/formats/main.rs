@@ -1,0 +1,13 @@
+//! Integration tests: TF formats and presets: conversion, round trips, colour spaces, errors.
+//!
+//! One test binary per area (`cargo test --release --test formats`); each
+//! module is one former test file, so a test's name is `MODULE::TEST`.
+
+mod formats_convert;
+mod formats_errors;
+mod formats_placeholders;
+mod formats_roundtrip;
+mod formats_scripts;
+mod presets_colorspaces;
+mod presets_library;
+mod tf_hard_cases;

@@ -1,0 +1,17 @@
+//! Integration tests: the optimizer: loop, driver, CLI, progress, recovery, render size.
+//!
+//! One test binary per area (`cargo test --release --test optimize`); each
+//! module is one former test file, so a test's name is `MODULE::TEST`.
+
+#[path = "../optimize_toy/mod.rs"]
+mod optimize_toy;
+#[path = "../render_util/mod.rs"]
+mod render_util;
+
+mod optimize_cli;
+mod optimize_driver;
+mod optimize_e2e;
+mod optimize_loop;
+mod optimize_progress;
+mod optimize_recovery;
+mod optimize_render_size;

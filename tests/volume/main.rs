@@ -1,0 +1,10 @@
+//! Integration tests: volume readers: fixtures, shared volumes, errors, hostile files, the fuzz corpus.
+//!
+//! One test binary per area (`cargo test --release --test volume`); each
+//! module is one former test file, so a test's name is `MODULE::TEST`.
+
+mod volume_errors;
+mod volume_fixtures;
+mod volume_shared;
+mod hostile_volumes;
+mod fuzz_replay;
