@@ -4,6 +4,8 @@
 //! `volume` → `tf` → `camera`/`background` → `render` → `clip` → `optimize` → `formats`.
 //! The command-line interface is the binary's (src/main.rs, src/cli), not part of this API.
 
+#![warn(missing_docs)]
+
 pub mod background;
 pub mod camera;
 pub mod clip;

@@ -14,9 +14,13 @@ pub enum HubError {
          (HF_HUB_OFFLINE=1 then needs no network), or pass --model DIR"
     )]
     Network {
+        /// The repository id (`owner/name`).
         repo: String,
+        /// The file within the repository.
         file: String,
+        /// The URL requested.
         url: String,
+        /// What went wrong, in words.
         reason: String,
     },
     /// 401/403 without a token: the repo is gated or private.
@@ -25,9 +29,13 @@ pub enum HubError {
          `huggingface-cli login`, after accepting its licence on {page} if it is gated"
     )]
     AuthRequired {
+        /// The repository id (`owner/name`).
         repo: String,
+        /// The URL requested.
         url: String,
+        /// The HTTP status code.
         status: u16,
+        /// The repository's page on the Hub.
         page: String,
     },
     /// 401/403 although a token was sent: the token's account cannot read the repo.
@@ -36,17 +44,25 @@ pub enum HubError {
          {page} with the token's account, or use another token (HF_TOKEN, `huggingface-cli login`)"
     )]
     AccessDenied {
+        /// The repository id (`owner/name`).
         repo: String,
+        /// The URL requested.
         url: String,
+        /// The HTTP status code.
         status: u16,
+        /// The repository's page on the Hub.
         page: String,
     },
     /// `X-Error-Code: RepoNotFound` (the Hub also answers so for private repos it may not show).
     #[error("repo {repo} not found (HTTP {status} from {url}): check the id; {hint}")]
     RepoNotFound {
+        /// The repository id (`owner/name`).
         repo: String,
+        /// The URL requested.
         url: String,
+        /// The HTTP status code.
         status: u16,
+        /// What to check next.
         hint: &'static str,
     },
     /// `X-Error-Code: RevisionNotFound`.
@@ -55,30 +71,46 @@ pub enum HubError {
          or commit"
     )]
     RevisionNotFound {
+        /// The repository id (`owner/name`).
         repo: String,
+        /// The branch, tag or commit asked for.
         revision: String,
+        /// The URL requested.
         url: String,
+        /// The HTTP status code.
         status: u16,
     },
     /// Any other unexpected HTTP status.
     #[error("{url} answered HTTP {status}{detail}; try again later, or use the cache offline (HF_HUB_OFFLINE=1)")]
     Status {
+        /// The URL requested.
         url: String,
+        /// The HTTP status code.
         status: u16,
+        /// The Hub's own error message, if it sent one.
         detail: String,
     },
     /// The server's answer cannot be used (missing headers, redirect without `Location`, ...).
     #[error("unexpected answer from {url}: {reason}; if HF_ENDPOINT is set, check it points to a Hugging Face Hub")]
-    BadResponse { url: String, reason: String },
+    BadResponse {
+        /// The URL requested.
+        url: String,
+        /// What went wrong, in words.
+        reason: String,
+    },
     /// A downloaded LFS file does not hash to its etag; the partial file was deleted.
     #[error(
         "{file} downloaded from {url} is corrupt: expected sha256 {expected}, got {got}; nothing \
          was kept, run again to download it anew"
     )]
     Integrity {
+        /// The file within the repository.
         file: String,
+        /// The URL requested.
         url: String,
+        /// The sha256 the Hub announced (the etag).
         expected: String,
+        /// The sha256 of what arrived.
         got: String,
     },
     /// Offline and the file is not in the cache.
@@ -89,22 +121,31 @@ pub enum HubError {
         cache.display()
     )]
     NotCached {
+        /// The repository id (`owner/name`).
         repo: String,
+        /// The branch, tag or commit asked for.
         revision: String,
+        /// The file within the repository.
         file: String,
+        /// The cache folder searched.
         cache: PathBuf,
     },
     /// A repo id, revision or file name that cannot be used as a Hub path or a cache path.
     #[error("invalid {what} {value:?}: {reason}")]
     InvalidName {
+        /// Which kind of name (repo id, revision, file).
         what: &'static str,
+        /// The name given.
         value: String,
+        /// What went wrong, in words.
         reason: &'static str,
     },
     /// Reading or writing the cache failed.
     #[error("{}: {source}", path.display())]
     Io {
+        /// The file or folder.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
 }

@@ -10,8 +10,11 @@ use super::HubError;
 /// The kind of repo a cache folder belongs to (its `models--` / `datasets--` / `spaces--` prefix).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum RepoKind {
+    /// `models--owner--name`.
     Model,
+    /// `datasets--owner--name`.
     Dataset,
+    /// `spaces--owner--name`.
     Space,
 }
 
@@ -20,6 +23,7 @@ pub enum RepoKind {
 pub struct CachedRepo {
     /// `owner/name`.
     pub repo_id: String,
+    /// Model, dataset or space.
     pub kind: RepoKind,
     /// The repo's cache folder.
     pub path: PathBuf,
@@ -35,6 +39,7 @@ pub struct CachedRepo {
 /// One cached commit.
 #[derive(Clone, Debug)]
 pub struct CachedSnapshot {
+    /// The commit hash (the `snapshots/` folder's name).
     pub commit: String,
     /// The files of that commit present in the cache, by name.
     pub files: Vec<CachedFile>,
@@ -47,6 +52,7 @@ pub struct CachedFile {
     pub name: String,
     /// The snapshot path (usually a symlink into `blobs/`).
     pub path: PathBuf,
+    /// Its size in bytes (of the blob it points to).
     pub size: u64,
 }
 

@@ -19,7 +19,7 @@
 //! - the token goes to the CDN too: its `HeaderAgent` adds `Authorization` to every request
 //!   (sync.rs:67-73), including the GET of an absolute redirect's `Location` (sync.rs:568-572).
 //!
-//! Modules: [`env`] settings, `cache` the layout, `http` requests and redirects, `download`
+//! Modules: [`mod@env`] settings, `cache` the layout, `http` requests and redirects, `download`
 //! transfer/resume/verify/progress, `list` cached repos.
 
 mod cache;

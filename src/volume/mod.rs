@@ -112,6 +112,7 @@ impl Geometry {
 /// Why a volume could not be made. Readers wrap these with the file's path.
 #[derive(Debug, thiserror::Error)]
 pub enum VolumeError {
+    /// A file that cannot be read as a volume.
     #[error("{path}: {message}")]
     File {
         /// The file.

@@ -6,5 +6,5 @@
 #[path = "../hub_server/mod.rs"]
 mod hub_server;
 
-mod hub;
 mod clip_hub;
+mod hub;

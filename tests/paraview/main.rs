@@ -9,6 +9,6 @@ mod paraview_util;
 mod paraview;
 mod paraview_apply;
 mod paraview_match;
+mod paraview_parity;
 mod paraview_plugin;
 mod paraview_tables;
-mod paraview_parity;

@@ -3,8 +3,8 @@
 //! One test binary per area (`cargo test --release --test volume`); each
 //! module is one former test file, so a test's name is `MODULE::TEST`.
 
+mod fuzz_replay;
+mod hostile_volumes;
 mod volume_errors;
 mod volume_fixtures;
 mod volume_shared;
-mod hostile_volumes;
-mod fuzz_replay;
