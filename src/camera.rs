@@ -159,6 +159,21 @@ pub struct ParaViewCamera {
     pub view_angle: f64,
 }
 
+impl ParaViewCamera {
+    /// Looking at the box's centre along −y from `distance` bounding radii, z up, 45°: the
+    /// view the generated scripts open with when no orbit view is given.
+    pub fn front(geometry: &crate::volume::Geometry, distance: f64) -> ParaViewCamera {
+        let c = geometry.center();
+        let r = geometry.bounding_radius();
+        ParaViewCamera {
+            position: [c[0], c[1] - distance * r, c[2]],
+            focal_point: c,
+            view_up: [0.0, 0.0, 1.0],
+            view_angle: VIEW_ANGLE_DEG,
+        }
+    }
+}
+
 /// Per-image ray set-up: a pixel's ray is `origin + t * dir(px, py)`, `t` in world units.
 #[derive(Clone, Copy, Debug)]
 pub struct RayFrame {

@@ -621,7 +621,7 @@ fn script_view(
     preview_views: usize,
     g: &crate::volume::Geometry,
     up: crate::camera::UpAxis,
-) -> Result<crate::formats::ScriptView> {
+) -> Result<crate::camera::ParaViewCamera> {
     let first = crate::optimize::View::orbit(settings, preview_views)[0].clone();
     let cam = crate::camera::Camera::orbit(
         g,
@@ -633,12 +633,7 @@ fn script_view(
         },
     )?
     .paraview();
-    Ok(crate::formats::ScriptView {
-        position: cam.position,
-        focal_point: cam.focal_point,
-        view_up: cam.view_up,
-        view_angle_deg: cam.view_angle,
-    })
+    Ok(cam)
 }
 
 /// The model's f32 weights must fit the memory budget before they are read.

@@ -29,36 +29,9 @@ pub use visit_script::{freeform_opacity, visit_script};
 
 use std::path::{Path, PathBuf};
 
+use crate::camera::ParaViewCamera;
 use crate::tf::ControlPoints;
 use crate::volume::Volume;
-
-/// A camera for the generated scripts, in world units (the renderer's camera converts into
-/// it). `view_angle_deg` is the vertical field of view (docs/DESIGN.md "Conventions": 45°).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ScriptView {
-    /// Where the camera is.
-    pub position: [f64; 3],
-    /// The point it looks at.
-    pub focal_point: [f64; 3],
-    /// The direction that is up in the picture.
-    pub view_up: [f64; 3],
-    /// Vertical field of view, degrees.
-    pub view_angle_deg: f64,
-}
-
-impl ScriptView {
-    /// Looking at the volume's centre along −y from `distance` bounding radii, z up, 45°.
-    pub fn front(volume: &Volume, distance: f64) -> ScriptView {
-        let c = volume.geometry.center();
-        let r = volume.geometry.bounding_radius();
-        ScriptView {
-            position: [c[0], c[1] - distance * r, c[2]],
-            focal_point: c,
-            view_up: [0.0, 0.0, 1.0],
-            view_angle_deg: 45.0,
-        }
-    }
-}
 
 /// A transfer-function file format: one file of this module with a unit struct implementing
 /// this trait, and one entry in [`FORMATS`]. Everything that reads or writes TF files — the
@@ -257,7 +230,7 @@ pub fn write_all(
     name: &str,
     cp: &ControlPoints,
     volume: &Volume,
-    view: &ScriptView,
+    view: &ParaViewCamera,
     background: [f64; 3],
     unit_distance: Option<f64>,
 ) -> Result<WrittenFiles, FormatError> {

@@ -3,7 +3,8 @@
 
 use std::fmt::Write as _;
 
-use super::{ExportTf, FormatError, ScriptView};
+use super::{ExportTf, FormatError};
+use crate::camera::ParaViewCamera;
 use crate::volume::{ByteOrder, ScalarType, SourceFormat, Volume};
 
 /// A Python string literal for `s` (JSON string syntax is valid Python).
@@ -55,7 +56,7 @@ pub(crate) fn one_line(s: &str) -> String {
 pub fn paraview_script(
     tf: &ExportTf,
     volume: &Volume,
-    view: &ScriptView,
+    view: &ParaViewCamera,
     background: [f64; 3],
     script_name: &str,
 ) -> Result<String, FormatError> {
@@ -100,7 +101,7 @@ fn write_constants(
     w: &mut String,
     tf: &ExportTf,
     volume: &Volume,
-    view: &ScriptView,
+    view: &ParaViewCamera,
     background: [f64; 3],
     path: &str,
     format: &SourceFormat,
@@ -141,7 +142,7 @@ BACKGROUND = {bg}
         pos = py_list(view.position),
         focal = py_list(view.focal_point),
         up = py_list(view.view_up),
-        angle = view.view_angle_deg,
+        angle = view.view_angle,
         bg = py_list(background),
     );
 }

@@ -13,7 +13,8 @@
 use std::fmt::Write as _;
 
 use super::paraview_script::{one_line, py_list, py_str, source_path};
-use super::{ExportTf, FormatError, ScriptView};
+use super::{ExportTf, FormatError};
+use crate::camera::ParaViewCamera;
 use crate::tf::interpolate;
 use crate::volume::{ByteOrder, ScalarType, SourceFormat, Volume};
 
@@ -116,7 +117,7 @@ fn vti_head(g: &crate::volume::Geometry, vtk_type: &str, order: ByteOrder) -> St
 pub fn visit_script(
     tf: &ExportTf,
     volume: &Volume,
-    view: &ScriptView,
+    view: &ParaViewCamera,
     background: [f64; 3],
     script_name: &str,
 ) -> Result<String, FormatError> {
@@ -136,7 +137,7 @@ pub fn visit_script(
     let d: [f64; 3] = std::array::from_fn(|a| view.position[a] - view.focal_point[a]);
     let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-12);
     let normal = d.map(|v| v / dist);
-    let parallel_scale = dist * (0.5 * view.view_angle_deg).to_radians().tan();
+    let parallel_scale = dist * (0.5 * view.view_angle).to_radians().tan();
     let radius = g.bounding_radius();
     // A raw file reaches VisIt through a BOV header (no copy) or a `.vti` copy (exact types).
     let (mut bov, mut vti, mut vti_bytes, mut vti_order) = (None, None, 0usize, "<");
@@ -307,7 +308,7 @@ if shot:
         normal = py_list(normal),
         focus = py_list(view.focal_point),
         up = py_list(view.view_up),
-        angle = view.view_angle_deg,
+        angle = view.view_angle,
         ps = parallel_scale,
         // VisIt's clip planes are distances from the focus along the view normal.
         near = -2.0 * radius,

@@ -4,7 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
-use t2tf::formats::{write_all, ScriptView};
+use t2tf::camera::ParaViewCamera;
+use t2tf::formats::write_all;
 use t2tf::tf::ControlPoints;
 use t2tf::volume::{
     ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,
@@ -83,7 +84,7 @@ fn written_files_have_no_leftover_placeholders() {
     for (i, format) in sources.into_iter().enumerate() {
         let v = volume(format);
         let name = format!("tf{i}");
-        let view = ScriptView::front(&v, 2.5);
+        let view = ParaViewCamera::front(&v.geometry, 2.5);
         let files = write_all(d.path(), &name, &cp, &v, &view, [0.1; 3], None).unwrap();
         let scripts = [files.paraview_script.clone(), files.visit_script.clone()];
         for path in [files.json, files.xml, files.ct]

@@ -4,9 +4,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use t2tf::formats::{
-    freeform_opacity, paraview_script, visit_script, write_all, ExportTf, ScriptView,
-};
+use t2tf::camera::ParaViewCamera;
+use t2tf::formats::{freeform_opacity, paraview_script, visit_script, write_all, ExportTf};
 use t2tf::tf::ControlPoints;
 use t2tf::volume::{
     ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,
@@ -65,7 +64,7 @@ fn compiles(path: &Path) {
 fn write_all_writes_every_output_atomically() {
     let v = volume(raw(ScalarType::U16));
     let d = tempfile::tempdir().unwrap();
-    let view = ScriptView::front(&v, 3.0);
+    let view = ParaViewCamera::front(&v.geometry, 3.0);
     let files = write_all(d.path(), "vol", &cp(), &v, &view, [1.0, 1.0, 1.0], None).unwrap();
     let mut names: Vec<String> = std::fs::read_dir(d.path())
         .unwrap()
@@ -150,7 +149,7 @@ fn freeform_opacity_samples_the_opacity_curve() {
 #[test]
 fn readers_per_source_format_and_missing_source() {
     let tf = ExportTf::from_control_points("t", &cp(), &volume(raw(ScalarType::U8)), None);
-    let view = ScriptView::front(&volume(raw(ScalarType::U8)), 2.0);
+    let view = ParaViewCamera::front(&volume(raw(ScalarType::U8)).geometry, 2.0);
     let vti = volume(SourceFormat::Vti {
         array: "density".into(),
     });
@@ -338,7 +337,7 @@ fn visit_reads_raw_values_exactly() {
         });
         vol.source.as_mut().unwrap().path = raw_path.clone();
         let tf = ExportTf::from_control_points("t", &cp(), &vol, None);
-        let view = ScriptView::front(&vol, 2.0);
+        let view = ParaViewCamera::front(&vol.geometry, 2.0);
         let script = d.path().join("t_visit.py");
         std::fs::write(
             &script,

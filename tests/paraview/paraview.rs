@@ -9,7 +9,8 @@ use crate::paraview_util;
 use paraview_util::{assert_volume_only_inside, floats, paraview_available, psnr, pvpython, repo};
 use std::path::Path;
 
-use t2tf::formats::{to_paraview_json, to_paraview_xml, write_all, ExportTf, ScriptView};
+use t2tf::camera::ParaViewCamera;
+use t2tf::formats::{to_paraview_json, to_paraview_xml, write_all, ExportTf};
 use t2tf::image::Image;
 use t2tf::tf::ControlPoints;
 use t2tf::volume::{
@@ -164,8 +165,8 @@ fn presets_import_and_apply_exactly() {
 }
 
 /// Pixel rectangle (x0, y0, x1, y1) covering the projected box for a pinhole camera with
-/// vertical field of view `view.view_angle_deg` and a `w`×`h` image.
-fn projected_box(v: &Volume, view: &ScriptView, w: usize, h: usize) -> [f64; 4] {
+/// vertical field of view `view.view_angle` and a `w`×`h` image.
+fn projected_box(v: &Volume, view: &ParaViewCamera, w: usize, h: usize) -> [f64; 4] {
     let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
     let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     let cross = |a: [f64; 3], b: [f64; 3]| {
@@ -182,7 +183,7 @@ fn projected_box(v: &Volume, view: &ScriptView, w: usize, h: usize) -> [f64; 4] 
     let f = norm(sub(view.focal_point, view.position));
     let r = norm(cross(f, view.view_up));
     let u = cross(r, f);
-    let t = (view.view_angle_deg.to_radians() / 2.0).tan();
+    let t = (view.view_angle.to_radians() / 2.0).tan();
     let aspect = w as f64 / h as f64;
     let (o, e) = (v.geometry.origin, v.geometry.extent());
     let mut b = [
@@ -216,11 +217,11 @@ fn generated_script_renders_the_volume_in_paraview() {
     // An oblique view so the box projects to a hexagon-ish region, not the whole frame.
     let c = v.geometry.center();
     let r = v.geometry.bounding_radius();
-    let view = ScriptView {
+    let view = ParaViewCamera {
         position: [c[0] + 2.2 * r, c[1] - 2.2 * r, c[2] + 1.0 * r],
         focal_point: c,
         view_up: [0.0, 0.0, 1.0],
-        view_angle_deg: 45.0,
+        view_angle: 45.0,
     };
     let background = [0.1, 0.2, 0.3];
     let files = write_all(
@@ -270,7 +271,7 @@ fn unit_distance_does_not_change_the_paraview_image() {
         return;
     }
     let v = neghip();
-    let view = ScriptView::front(&v, 2.5);
+    let view = ParaViewCamera::front(&v.geometry, 2.5);
     let dir = tempfile::tempdir().unwrap();
     let mut shots = Vec::new();
     for (name, u) in [("u05", 0.5), ("u4", 4.0)] {
@@ -337,7 +338,7 @@ fn generated_script_opens_vti_and_legacy_vtk() {
         .map(|i| range[0] + (range[1] - range[0]) * i as f64 / (n - 1) as f64)
         .collect();
     let base = Volume::from_buffer(Path::new("wavelet"), g, &TypedBuffer::from_f64(ramp)).unwrap();
-    let view = ScriptView::front(&base, 2.5);
+    let view = ParaViewCamera::front(&base.geometry, 2.5);
     for (file, format) in [
         (
             "wavelet.vti",

@@ -11,8 +11,8 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 
 use paraview_util::{paraview_available, pvpython_output, repo};
+use t2tf::camera::ParaViewCamera;
 use t2tf::formats::write_all;
-use t2tf::formats::ScriptView;
 use t2tf::image::Image;
 use t2tf::tf::ControlPoints;
 use t2tf::volume::{self, ReadOptions, Volume};
@@ -43,7 +43,7 @@ fn test_tf() -> ControlPoints {
 
 /// t2tf's preset for neghip, written into `dir`.
 fn preset(dir: &Path, v: &Volume) -> PathBuf {
-    let view = ScriptView::front(v, 2.5);
+    let view = ParaViewCamera::front(&v.geometry, 2.5);
     write_all(dir, "neghip", &test_tf(), v, &view, [0.0; 3], None)
         .unwrap()
         .json

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use t2tf::camera::{Camera, Orbit, UpAxis};
-use t2tf::formats::{load_tf, write_all, ScriptView};
+use t2tf::formats::{load_tf, write_all};
 use t2tf::image::Image;
 use t2tf::render::{self, RenderOptions};
 use t2tf::tf::ControlPoints;
@@ -317,12 +317,7 @@ fn optimizer_output_opens_in_paraview_and_matches_our_render() {
     std::fs::write(&f32_path, floats).unwrap();
     let vf = load(&f32_path, &ReadOptions::default()).unwrap();
     assert_eq!(vf.range, volume.range);
-    let view = ScriptView {
-        position: pv.position,
-        focal_point: pv.focal_point,
-        view_up: pv.view_up,
-        view_angle_deg: pv.view_angle,
-    };
+    let view = pv;
     let files = write_all(dir.path(), "f32", &cp, &vf, &view, bg, None).unwrap();
     let img_f32 = screenshot(
         &files.paraview_script.expect("script written"),
@@ -370,12 +365,7 @@ fn smooth_tf_oblique_view_matches_our_render() {
     )
     .unwrap();
     let pv = cam.paraview();
-    let view = ScriptView {
-        position: pv.position,
-        focal_point: pv.focal_point,
-        view_up: pv.view_up,
-        view_angle_deg: pv.view_angle,
-    };
+    let view = pv;
     let bg = [0.3, 0.3, 0.3];
     let dir = tempfile::tempdir().unwrap();
     let files = write_all(dir.path(), "smooth", &smooth_tf(), &volume, &view, bg, None).unwrap();

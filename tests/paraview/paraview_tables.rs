@@ -11,7 +11,8 @@ use crate::paraview_util;
 use std::path::Path;
 
 use paraview_util::{paraview_available, pvpython, repo};
-use t2tf::formats::{paraview_script, write_all, ExportTf, ScriptView};
+use t2tf::camera::ParaViewCamera;
+use t2tf::formats::{paraview_script, write_all, ExportTf};
 use t2tf::tf::ControlPoints;
 use t2tf::volume::{self, ReadOptions, Volume};
 
@@ -40,7 +41,7 @@ fn exported_close_points_fit_paraview_tables() {
         return;
     }
     let v = neghip();
-    let view = ScriptView::front(&v, 2.5);
+    let view = ParaViewCamera::front(&v.geometry, 2.5);
     let dir = tempfile::tempdir().unwrap();
 
     // The control: opacity points 1e-4 data units apart over a range of 255 ask VTK for a
