@@ -199,9 +199,8 @@ impl OptimizeArgs {
     pub fn validate(self) -> Result<ValidArgs> {
         let settings = self.settings().validate()?;
         if let Some(p) = &self.prompt {
-            if p.trim().is_empty() {
-                bail!("--prompt is empty: say what the renderings should show");
-            }
+            // Before loading anything; the driver applies the same rule for library callers.
+            crate::optimize::driver::check_prompt(p)?;
         }
         if let Some(r) = &self.reference_image {
             if !r.is_file() {

@@ -179,6 +179,14 @@ struct Embedded {
     cache: Option<CacheOutcome>,
 }
 
+/// The one rule for a prompt: it must say something (not empty, not only spaces).
+pub fn check_prompt(prompt: &str) -> Result<(), OptimizeError> {
+    if prompt.trim().is_empty() {
+        return Err(OptimizeError::EmptyPrompt);
+    }
+    Ok(())
+}
+
 /// The text side of a run: the positive (prompt or reference image), the user's negatives
 /// and the pool (cached on disk when `job.cache` says where).
 fn embed_targets<R, E: ImageEncoder, T: TextEncoder, P>(
@@ -189,12 +197,7 @@ fn embed_targets<R, E: ImageEncoder, T: TextEncoder, P>(
     let s = job.settings;
     let positive = match job.positive {
         Positive::Prompt(p) => {
-            if p.trim().is_empty() {
-                return Err(OptimizeError::Setting {
-                    name: "prompt",
-                    message: "is empty: say what the renderings should show".into(),
-                });
-            }
+            check_prompt(p)?;
             encode_all(text_encoder, &[p.to_owned()])?.remove(0)
         }
         Positive::Image(im) => {

@@ -16,6 +16,10 @@ pub enum OptimizeError {
         /// What is wrong with its value.
         message: String,
     },
+    /// The prompt says nothing (empty or blank): checked by [`super::driver::check_prompt`],
+    /// which the CLI calls before loading anything and the driver before encoding.
+    #[error("--prompt is empty: say what the renderings should show")]
+    EmptyPrompt,
     /// The contrastive loss needs at least one negative class.
     #[error("the contrastive loss needs at least one negative prompt, got none")]
     NoNegatives,
