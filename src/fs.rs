@@ -585,6 +585,28 @@ mod tests {
     }
 
     #[test]
+    fn messages_name_the_file_and_what_is_wrong() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("no/such/tf.json");
+        let e = atomic_write_bytes(&missing, b"[]").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "{}: cannot create a file in {}: the folder does not exist",
+                missing.display(),
+                dir.path().join("no/such").display()
+            )
+        );
+        let file = dir.path().join("file");
+        std::fs::write(&file, "x").unwrap();
+        // The system's reason follows the prefix, in its own words.
+        let e = OutputLock::acquire(&file).unwrap_err().to_string();
+        let prefix = format!("{}: cannot create the output folder: ", file.display());
+        assert!(e.starts_with(&prefix), "{e}");
+        assert!(file.is_file(), "a refused --out must not be touched");
+    }
+
+    #[test]
     fn a_second_lock_names_the_holder() {
         let dir = tempfile::tempdir().unwrap();
         let _held = OutputLock::acquire(dir.path()).unwrap();
