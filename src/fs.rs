@@ -94,9 +94,9 @@ const PARTIAL_SUFFIX: &str = ".partial";
 /// Folder a run stages its output set in (`.t2tf-set-PID`), inside `--out`.
 const SET_PREFIX: &str = ".t2tf-set-";
 /// The file that holds the lock of an output folder.
-pub const LOCK_NAME: &str = ".t2tf.lock";
+pub(crate) const LOCK_NAME: &str = ".t2tf.lock";
 /// Written last in a set: while it is missing from the output folder, the set is incomplete.
-pub const MANIFEST: &str = "report.json";
+pub(crate) const MANIFEST: &str = "report.json";
 
 /// Symlinks followed before giving up (Linux's own limit).
 const MAX_LINKS: usize = 40;
@@ -104,7 +104,7 @@ const MAX_LINKS: usize = 40;
 /// The file that writing `path` replaces: `path` itself, or the end of its chain of symlinks.
 /// Refuses anything that exists and is not a regular file: a device, a FIFO, a socket or a
 /// folder is not ours to replace with a file.
-pub fn output_target(path: &Path) -> Result<PathBuf> {
+pub(crate) fn output_target(path: &Path) -> Result<PathBuf> {
     let mut target = path.to_path_buf();
     for _ in 0..MAX_LINKS {
         let meta = match std::fs::symlink_metadata(&target) {
@@ -211,7 +211,7 @@ fn folder_error(path: &Path, dir: &Path, e: &std::io::Error) -> FsError {
 }
 
 /// Atomically write a byte string (text formats build their content in memory).
-pub fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
+pub(crate) fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
     atomic_write(path, |w| w.write_all(bytes))
 }
 
