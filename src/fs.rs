@@ -7,7 +7,86 @@
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+/// Why an output file or folder could not be written; every message names the file or
+/// folder. The system's error is part of the message and not a `source`: the CLI prints the
+/// cause chain (`{:#}`), which would say it twice.
+#[derive(Debug, thiserror::Error)]
+pub enum FsError {
+    /// An operation on `path` failed (`action` says which: "writing failed", "cannot list", …).
+    #[error("{}: {action}: {error}", path.display())]
+    Io {
+        /// The file or folder (as the user named it where there is such a name).
+        path: PathBuf,
+        /// What was being done, in the words of the message.
+        action: &'static str,
+        /// What the system said.
+        error: std::io::Error,
+    },
+    /// The name exists and is a folder, device, FIFO or socket, which a file must not replace.
+    #[error("{}: exists and is not a regular file ({kind}); t2tf writes regular files only: choose another name", path.display())]
+    NotRegular {
+        /// The name given.
+        path: PathBuf,
+        /// What it is ("a folder", "a device", …).
+        kind: &'static str,
+    },
+    /// The chain of symlinks is longer than Linux follows (or loops).
+    #[error("{}: too many levels of symlinks", path.display())]
+    TooManyLinks {
+        /// The name given.
+        path: PathBuf,
+    },
+    /// A temporary (or the lock file, or the staging folder) cannot be created in `dir`.
+    #[error("{}: cannot create a file in {}: {why}", path.display(), dir.display())]
+    Folder {
+        /// The file that was to be written.
+        path: PathBuf,
+        /// Its folder.
+        dir: PathBuf,
+        /// Why, without the temporary's name.
+        why: String,
+    },
+    /// `--out` names something that is not a folder.
+    #[error("{}: --out exists and is not a folder", dir.display())]
+    NotAFolder {
+        /// The name given as `--out`.
+        dir: PathBuf,
+    },
+    /// Another run holds the lock of the output folder.
+    #[error("{}: another t2tf run ({who}) is writing into this folder; wait for it to finish or choose another --out", dir.display())]
+    Busy {
+        /// The output folder.
+        dir: PathBuf,
+        /// "process PID", or "another process" when the lock file does not say.
+        who: String,
+    },
+    /// The staging folder of an output set could not be created.
+    #[error("cannot stage the output files: {0}")]
+    Stage(Box<FsError>),
+    /// A staged file could not be moved into the output folder; it stays staged.
+    #[error("{}: cannot move the finished file into place (it is kept at {}): {error}", to.display(), from.display())]
+    Move {
+        /// The staged file.
+        from: PathBuf,
+        /// Where it was to go.
+        to: PathBuf,
+        /// What the system said.
+        error: std::io::Error,
+    },
+}
+
+impl FsError {
+    /// `map_err` adapter: the io error of `action` on `path`.
+    fn io<'a>(path: &'a Path, action: &'static str) -> impl Fn(std::io::Error) -> FsError + 'a {
+        move |error| FsError::Io {
+            path: path.to_path_buf(),
+            action,
+            error,
+        }
+    }
+}
+
+type Result<T, E = FsError> = std::result::Result<T, E>;
 
 /// Prefix of every temporary t2tf leaves beside an output (`.t2tf-PID-XXXXXX.partial`).
 const PARTIAL_PREFIX: &str = ".t2tf-";
@@ -15,9 +94,9 @@ const PARTIAL_SUFFIX: &str = ".partial";
 /// Folder a run stages its output set in (`.t2tf-set-PID`), inside `--out`.
 const SET_PREFIX: &str = ".t2tf-set-";
 /// The file that holds the lock of an output folder.
-pub const LOCK_NAME: &str = ".t2tf.lock";
+pub(crate) const LOCK_NAME: &str = ".t2tf.lock";
 /// Written last in a set: while it is missing from the output folder, the set is incomplete.
-pub const MANIFEST: &str = "report.json";
+pub(crate) const MANIFEST: &str = "report.json";
 
 /// Symlinks followed before giving up (Linux's own limit).
 const MAX_LINKS: usize = 40;
@@ -25,33 +104,34 @@ const MAX_LINKS: usize = 40;
 /// The file that writing `path` replaces: `path` itself, or the end of its chain of symlinks.
 /// Refuses anything that exists and is not a regular file: a device, a FIFO, a socket or a
 /// folder is not ours to replace with a file.
-pub fn output_target(path: &Path) -> Result<PathBuf> {
+pub(crate) fn output_target(path: &Path) -> Result<PathBuf> {
     let mut target = path.to_path_buf();
     for _ in 0..MAX_LINKS {
         let meta = match std::fs::symlink_metadata(&target) {
             Ok(m) => m,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(target),
-            Err(e) => bail!("{}: cannot inspect the output: {e}", path.display()),
+            Err(e) => return Err(FsError::io(path, "cannot inspect the output")(e)),
         };
         let kind = meta.file_type();
         if kind.is_file() {
             return Ok(target);
         }
         if !kind.is_symlink() {
-            bail!(
-                "{}: exists and is not a regular file ({}); t2tf writes regular files only: choose another name",
-                path.display(),
-                kind_name(&kind)
-            );
+            return Err(FsError::NotRegular {
+                path: path.to_path_buf(),
+                kind: kind_name(&kind),
+            });
         }
-        let link = std::fs::read_link(&target)
-            .with_context(|| format!("{}: cannot read the symlink", path.display()))?;
+        let link =
+            std::fs::read_link(&target).map_err(FsError::io(path, "cannot read the symlink"))?;
         target = match target.parent() {
             Some(dir) if link.is_relative() => dir.join(link),
             _ => link,
         };
     }
-    bail!("{}: too many levels of symlinks", path.display())
+    Err(FsError::TooManyLinks {
+        path: path.to_path_buf(),
+    })
 }
 
 fn kind_name(kind: &std::fs::FileType) -> &'static str {
@@ -83,9 +163,9 @@ fn parent_of(path: &Path) -> &Path {
 }
 
 /// Write `path` through `fill`; the file appears under its name only if `fill` succeeds.
-pub fn atomic_write(
+pub(crate) fn atomic_write(
     path: &Path,
-    fill: impl FnOnce(&mut BufWriter<&mut std::fs::File>) -> Result<()>,
+    fill: impl FnOnce(&mut BufWriter<&mut std::fs::File>) -> std::io::Result<()>,
 ) -> Result<()> {
     let target = output_target(path)?;
     let dir = parent_of(&target);
@@ -106,37 +186,33 @@ pub fn atomic_write(
         .map_err(|e| folder_error(path, dir, &e))?;
     {
         let mut w = BufWriter::new(tmp.as_file_mut());
-        fill(&mut w).with_context(|| format!("{}: writing failed", path.display()))?;
-        w.flush()
-            .with_context(|| format!("{}: writing failed", path.display()))?;
+        fill(&mut w)
+            .and_then(|()| w.flush())
+            .map_err(FsError::io(path, "writing failed"))?;
     }
     tmp.as_file()
         .sync_all()
-        .with_context(|| format!("{}: writing failed", path.display()))?;
-    tmp.persist(&target).map_err(|e| e.error).with_context(|| {
-        format!(
-            "{}: cannot rename the finished file into place",
-            path.display()
-        )
-    })?;
+        .map_err(FsError::io(path, "writing failed"))?;
+    tmp.persist(&target)
+        .map_err(|e| FsError::io(path, "cannot rename the finished file into place")(e.error))?;
     Ok(())
 }
 
-fn folder_error(path: &Path, dir: &Path, e: &std::io::Error) -> anyhow::Error {
+fn folder_error(path: &Path, dir: &Path, e: &std::io::Error) -> FsError {
     let why = match e.kind() {
         std::io::ErrorKind::NotFound => "the folder does not exist".to_string(),
         kind => std::io::Error::from(kind).to_string(),
     };
-    anyhow::anyhow!(
-        "{}: cannot create a file in {}: {why}",
-        path.display(),
-        dir.display()
-    )
+    FsError::Folder {
+        path: path.to_path_buf(),
+        dir: dir.to_path_buf(),
+        why,
+    }
 }
 
 /// Atomically write a byte string (text formats build their content in memory).
-pub fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
-    atomic_write(path, |w| Ok(w.write_all(bytes)?))
+pub(crate) fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
+    atomic_write(path, |w| w.write_all(bytes))
 }
 
 /// Check before any work that a file can be written at `path`: the name is free or a regular
@@ -177,7 +253,7 @@ pub fn clean_stale(dir: &Path) -> Result<Vec<String>> {
     let entries = match std::fs::read_dir(dir) {
         Ok(e) => e,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(done),
-        Err(e) => bail!("{}: cannot list the output folder: {e}", dir.display()),
+        Err(e) => return Err(FsError::io(dir, "cannot list the output folder")(e)),
     };
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
@@ -205,8 +281,7 @@ fn finish_or_drop_set(dir: &Path, staged: &Path) -> Result<()> {
         let names = set.staged_names()?;
         set.commit(&names)
     } else {
-        std::fs::remove_dir_all(staged)
-            .with_context(|| format!("{}: cannot remove a stale folder", staged.display()))
+        std::fs::remove_dir_all(staged).map_err(FsError::io(staged, "cannot remove a stale folder"))
     }
 }
 
@@ -242,9 +317,11 @@ impl OutputLock {
     pub fn acquire(dir: &Path) -> Result<OutputLock> {
         let created = (!dir.exists()).then(|| dir.to_path_buf());
         std::fs::create_dir_all(dir)
-            .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;
+            .map_err(FsError::io(dir, "cannot create the output folder"))?;
         if !dir.is_dir() {
-            bail!("{}: --out exists and is not a folder", dir.display());
+            return Err(FsError::NotAFolder {
+                dir: dir.to_path_buf(),
+            });
         }
         let path = dir.join(LOCK_NAME);
         let mut file = std::fs::OpenOptions::new()
@@ -257,7 +334,7 @@ impl OutputLock {
         lock_file(&file).map_err(|_| busy(dir, &path))?;
         file.set_len(0)
             .and_then(|()| writeln!(file, "{}", std::process::id()))
-            .with_context(|| format!("{}: cannot write to the output folder", dir.display()))?;
+            .map_err(FsError::io(dir, "cannot write to the output folder"))?;
         Ok(OutputLock {
             _file: file,
             created,
@@ -282,15 +359,15 @@ fn lock_file(_file: &std::fs::File) -> std::io::Result<()> {
     Ok(())
 }
 
-fn busy(dir: &Path, lock: &Path) -> anyhow::Error {
+fn busy(dir: &Path, lock: &Path) -> FsError {
     let owner = std::fs::read_to_string(lock)
         .ok()
         .and_then(|s| s.trim().parse::<u32>().ok());
     let who = owner.map_or("another process".to_string(), |p| format!("process {p}"));
-    anyhow::anyhow!(
-        "{}: another t2tf run ({who}) is writing into this folder; wait for it to finish or choose another --out",
-        dir.display()
-    )
+    FsError::Busy {
+        dir: dir.to_path_buf(),
+        who,
+    }
 }
 
 /// The files of one run, staged in `OUT/.t2tf-set-PID/` and moved into `OUT` together by
@@ -307,12 +384,10 @@ impl OutputSet {
     pub fn begin(out: &Path) -> Result<OutputSet> {
         let staging = out.join(format!("{SET_PREFIX}{}", std::process::id()));
         if staging.exists() {
-            std::fs::remove_dir_all(&staging)
-                .with_context(|| format!("{}: cannot remove", staging.display()))?;
+            std::fs::remove_dir_all(&staging).map_err(FsError::io(&staging, "cannot remove"))?;
         }
         std::fs::create_dir(&staging)
-            .map_err(|e| folder_error(&staging, out, &e))
-            .context("cannot stage the output files")?;
+            .map_err(|e| FsError::Stage(Box::new(folder_error(&staging, out, &e))))?;
         Ok(OutputSet {
             out: out.to_path_buf(),
             staging,
@@ -326,10 +401,10 @@ impl OutputSet {
 
     fn staged_names(&self) -> Result<Vec<String>> {
         let mut names = Vec::new();
-        for e in std::fs::read_dir(&self.staging)
-            .with_context(|| format!("{}: cannot list", self.staging.display()))?
-        {
-            let e = e.with_context(|| format!("{}: cannot list", self.staging.display()))?;
+        let list = FsError::io(&self.staging, "cannot list");
+        let entries = std::fs::read_dir(&self.staging).map_err(&list)?;
+        for e in entries {
+            let e = e.map_err(&list)?;
             names.push(e.file_name().to_string_lossy().into_owned());
         }
         Ok(names)
@@ -346,7 +421,7 @@ impl OutputSet {
         let manifest_target = output_target(&self.out.join(MANIFEST))?;
         if manifest_target.exists() {
             std::fs::remove_file(&manifest_target)
-                .with_context(|| format!("{}: cannot replace", manifest_target.display()))?;
+                .map_err(FsError::io(&manifest_target, "cannot replace"))?;
         }
         for (from, to) in &moves {
             rename(from, to)?;
@@ -355,18 +430,15 @@ impl OutputSet {
             rename(&manifest, &manifest_target)?;
         }
         sync_dir(&self.out);
-        std::fs::remove_dir_all(&self.staging)
-            .with_context(|| format!("{}: cannot remove", self.staging.display()))
+        std::fs::remove_dir_all(&self.staging).map_err(FsError::io(&self.staging, "cannot remove"))
     }
 }
 
 fn rename(from: &Path, to: &Path) -> Result<()> {
-    std::fs::rename(from, to).with_context(|| {
-        format!(
-            "{}: cannot move the finished file into place (it is kept at {})",
-            to.display(),
-            from.display()
-        )
+    std::fs::rename(from, to).map_err(|error| FsError::Move {
+        from: from.to_path_buf(),
+        to: to.to_path_buf(),
+        error,
     })
 }
 
@@ -404,7 +476,7 @@ mod tests {
         let p = dir.path().join("out.json");
         let r = atomic_write(&p, |w| {
             w.write_all(b"half")?;
-            anyhow::bail!("interrupted")
+            Err(std::io::Error::other("interrupted"))
         });
         assert!(r.is_err());
         assert!(!p.exists());
@@ -510,6 +582,28 @@ mod tests {
             "new"
         );
         assert!(!staged.exists() && !half.exists());
+    }
+
+    #[test]
+    fn messages_name_the_file_and_what_is_wrong() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("no/such/tf.json");
+        let e = atomic_write_bytes(&missing, b"[]").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "{}: cannot create a file in {}: the folder does not exist",
+                missing.display(),
+                dir.path().join("no/such").display()
+            )
+        );
+        let file = dir.path().join("file");
+        std::fs::write(&file, "x").unwrap();
+        // The system's reason follows the prefix, in its own words.
+        let e = OutputLock::acquire(&file).unwrap_err().to_string();
+        let prefix = format!("{}: cannot create the output folder: ", file.display());
+        assert!(e.starts_with(&prefix), "{e}");
+        assert!(file.is_file(), "a refused --out must not be touched");
     }
 
     #[test]

@@ -53,7 +53,7 @@ pub enum ImageError {
     },
     /// The encoded file could not be written (`crate::fs`'s error, which names the file).
     #[error(transparent)]
-    Write(Box<dyn std::error::Error + Send + Sync + 'static>),
+    Write(#[from] crate::fs::FsError),
 }
 
 /// An RGB image: `data[(y * width + x) * 3 + c]`, y = 0 is the top row.
@@ -141,7 +141,7 @@ impl Image {
                 path: path.to_path_buf(),
                 source,
             })?;
-        crate::fs::atomic_write_bytes(path, &png_bytes).map_err(|e| ImageError::Write(e.into()))
+        Ok(crate::fs::atomic_write_bytes(path, &png_bytes)?)
     }
 
     /// The 8-bit RGB PNG encoding of the image, appended to `out`.

@@ -26,10 +26,9 @@ pub enum FormatError {
         /// What the system said.
         error: std::io::Error,
     },
-    /// Writing an output failed: `crate::fs`'s message, which names the file, with its
-    /// causes joined as the CLI prints them.
-    #[error("{0}")]
-    Output(String),
+    /// Writing an output failed (`crate::fs`'s error, which names the file).
+    #[error(transparent)]
+    Output(#[from] crate::fs::FsError),
 }
 
 impl FormatError {
@@ -49,12 +48,6 @@ impl FormatError {
             path: path.to_path_buf(),
             error,
         }
-    }
-
-    /// A failed write through `crate::fs` (whose errors are `anyhow` chains): the chain is
-    /// flattened into the message, so `{:#}` prints what it printed before.
-    pub(crate) fn output(error: anyhow::Error) -> Self {
-        FormatError::Output(format!("{error:#}"))
     }
 }
 

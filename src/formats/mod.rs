@@ -187,7 +187,7 @@ pub fn write_tf(path: &Path, tf: &ExportTf) -> Result<(), FormatError> {
 
 /// Write `text` atomically through `crate::fs`, its message (which names the file) kept.
 fn write_text(path: &Path, text: &str) -> Result<(), FormatError> {
-    atomic_write_bytes(path, text.as_bytes()).map_err(FormatError::output)
+    Ok(atomic_write_bytes(path, text.as_bytes())?)
 }
 
 /// The files [`write_all`] wrote.

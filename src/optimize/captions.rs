@@ -278,9 +278,9 @@ enum StoreError {
         path: PathBuf,
         source: std::io::Error,
     },
-    /// `crate::fs::atomic_write_bytes`'s message (it names the file).
-    #[error("{0}")]
-    Write(String),
+    /// `crate::fs::atomic_write_bytes`'s error (it names the file).
+    #[error(transparent)]
+    Write(#[from] crate::fs::FsError),
 }
 
 fn store(path: &Path, key: &[u8; 32], emb: &[Vec<f32>]) -> Result<(), StoreError> {
@@ -294,8 +294,7 @@ fn store(path: &Path, key: &[u8; 32], emb: &[Vec<f32>]) -> Result<(), StoreError
             source,
         })?;
     }
-    crate::fs::atomic_write_bytes(path, &encode(key, emb))
-        .map_err(|e| StoreError::Write(format!("{e:#}")))
+    Ok(crate::fs::atomic_write_bytes(path, &encode(key, emb))?)
 }
 
 #[cfg(test)]

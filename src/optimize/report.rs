@@ -15,7 +15,7 @@ pub enum ReportError {
     Json(#[from] serde_json::Error),
     /// The file could not be written (`crate::fs`'s error, which names the file).
     #[error(transparent)]
-    Write(Box<dyn std::error::Error + Send + Sync + 'static>),
+    Write(#[from] crate::fs::FsError),
 }
 
 /// Loss terms of one step (each already weighted, so `total` is their sum), averaged over views.
@@ -178,7 +178,7 @@ impl Report {
     pub fn write(&self, path: &Path) -> Result<(), ReportError> {
         let mut bytes = serde_json::to_vec_pretty(self)?;
         bytes.push(b'\n');
-        crate::fs::atomic_write_bytes(path, &bytes).map_err(|e| ReportError::Write(e.into()))
+        Ok(crate::fs::atomic_write_bytes(path, &bytes)?)
     }
 }
 
