@@ -16,7 +16,7 @@ mod summary;
 mod vti;
 mod vti_blocks;
 
-pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
+pub use buffer::{ByteOrder, ScalarType, TextValueError, TypedBuffer, UnknownScalarType};
 pub(crate) use pyramid::Narrow;
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
 pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
