@@ -126,8 +126,19 @@ impl fmt::Display for ScalarType {
     }
 }
 
+/// A scalar type name that none of the accepted spellings match.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "unknown scalar type '{0}' (expected one of uint8, int8, uint16, int16, uint32, int32, \
+     uint64, int64, float32, float64)"
+)]
+pub struct UnknownScalarType(
+    /// The name as given.
+    pub String,
+);
+
 impl FromStr for ScalarType {
-    type Err = String;
+    type Err = UnknownScalarType;
 
     /// Accepts the SciVis names (`uint8`), VTK XML names (`UInt8`) and C-ish aliases.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
@@ -142,12 +153,7 @@ impl FromStr for ScalarType {
             "int64" | "i64" | "long" | "long_long" | "idtype" | "vtkidtype" => ScalarType::I64,
             "float32" | "f32" | "float" => ScalarType::F32,
             "float64" | "f64" | "double" => ScalarType::F64,
-            _ => {
-                return Err(format!(
-                    "unknown scalar type '{s}' (expected one of uint8, int8, uint16, int16, \
-                     uint32, int32, uint64, int64, float32, float64)"
-                ))
-            }
+            _ => return Err(UnknownScalarType(s.to_string())),
         };
         Ok(t)
     }
@@ -185,6 +191,24 @@ pub struct TypedBuffer {
     declared: ScalarType,
 }
 
+/// A text value that the array's declared integer type cannot hold.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "value {index} ({value}) is not an integer its declared type {type_name} holds ({lo} to {hi})"
+)]
+pub struct TextValueError {
+    /// Position of the value in the array.
+    pub index: usize,
+    /// The value as read.
+    pub value: f64,
+    /// The declared type's VTK XML name.
+    pub type_name: &'static str,
+    /// Smallest value the type holds.
+    pub lo: f64,
+    /// Largest value the type holds.
+    pub hi: f64,
+}
+
 impl TypedBuffer {
     /// `bytes.len()` must be a multiple of the type's size; extra bytes are an error upstream.
     pub fn new(scalar_type: ScalarType, byte_order: ByteOrder, bytes: Vec<u8>) -> Self {
@@ -205,7 +229,7 @@ impl TypedBuffer {
     /// Text values of an integer array must be integers its declared type holds (VTK would
     /// wrap 300 in a UInt8 array to 44; rendering the value 300 instead would disagree with
     /// ParaView silently). Float arrays take any value.
-    pub fn check_text_values(values: &[f64], declared: ScalarType) -> Result<(), String> {
+    pub fn check_text_values(values: &[f64], declared: ScalarType) -> Result<(), TextValueError> {
         let Some((lo, hi)) = declared.integer_range() else {
             return Ok(());
         };
@@ -214,11 +238,13 @@ impl TypedBuffer {
             .position(|&v| !(v.fract() == 0.0 && v >= lo && v <= hi))
         {
             None => Ok(()),
-            Some(i) => Err(format!(
-                "value {i} ({}) is not an integer its declared type {} holds ({lo} to {hi})",
-                values[i],
-                declared.vtk_xml_name()
-            )),
+            Some(i) => Err(TextValueError {
+                index: i,
+                value: values[i],
+                type_name: declared.vtk_xml_name(),
+                lo,
+                hi,
+            }),
         }
     }
 

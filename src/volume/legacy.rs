@@ -11,6 +11,106 @@ use std::path::Path;
 
 use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer, VolumeError};
 
+/// Why a legacy `.vtk` file could not be read. Each message is one line; the reader adds the
+/// file's path.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum LegacyError {
+    #[error("not a legacy VTK file: the first line is not '# vtk DataFile Version x.x'")]
+    NotLegacy,
+    #[error("line 3 must be ASCII or BINARY, found '{0}'")]
+    BadEncodingLine(String),
+    #[error("'{line}' is missing a field")]
+    MissingField { line: String },
+    #[error("'{value}' in '{line}' is not a count")]
+    NotACount { value: String, line: String },
+    #[error("'{value}' in '{line}' is not a number")]
+    NotANumber { value: String, line: String },
+    #[error("'{0}' contains a zero")]
+    ZeroDimension(String),
+    #[error("LOOKUP_TABLE: {0}")]
+    LookupTable(ReadError),
+    #[error("unexpected line '{line}' (near byte {byte})")]
+    UnexpectedLine { line: String, byte: usize },
+    #[error("DATASET {0} is not supported: only STRUCTURED_POINTS (image data)")]
+    UnsupportedDataset(String),
+    #[error("{0} comes before DIMENSIONS")]
+    SectionBeforeDimensions(String),
+    #[error("DIMENSIONS {0:?} are too large")]
+    DimensionsTooLarge([usize; 3]),
+    #[error(
+        "POINT_DATA {count} does not match DIMENSIONS {}x{}x{} ({points} points)",
+        .dims[0], .dims[1], .dims[2]
+    )]
+    PointCountMismatch {
+        count: usize,
+        dims: [usize; 3],
+        points: usize,
+    },
+    /// An attribute section (`SCALARS`, `VECTORS`, …) whose values cannot be read.
+    #[error("{key} {name}: {error}")]
+    Attribute {
+        key: String,
+        name: String,
+        error: ReadError,
+    },
+    #[error("FIELD ends before its arrays")]
+    FieldEnds,
+    #[error("FIELD array line '{0}' needs 'name ncomp ntuples type'")]
+    FieldLine(String),
+    #[error("FIELD array {name}: {error}")]
+    FieldArray { name: String, error: ReadError },
+    #[error(
+        "array '{name}' is {key} with {ncomp} components: only single-component scalars can \
+         be rendered"
+    )]
+    NotScalar {
+        name: String,
+        key: String,
+        ncomp: usize,
+    },
+    #[error("no 'DATASET STRUCTURED_POINTS' line")]
+    NoDataset,
+    #[error("no DIMENSIONS line")]
+    NoDimensions,
+    #[error("array '{0}' is cell data; only point data can be volume rendered")]
+    CellData(String),
+    #[error("no point-data array named '{name}' (point-data arrays: {available})")]
+    NoArrayNamed { name: String, available: String },
+    #[error("no point data (POINT_DATA with SCALARS) to render")]
+    NoPointData,
+    #[error("array '{name}': {error}")]
+    Unrenderable { name: String, error: Unrenderable },
+}
+
+/// Why an array that was read cannot be rendered (reported only if it is the one chosen).
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum Unrenderable {
+    #[error("has {0} components: only single-component scalars can be rendered")]
+    Components(usize),
+    #[error("its type '{0}' is not a numeric type this reader supports")]
+    UnsupportedType(String),
+}
+
+/// Why an array's values could not be read.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum ReadError {
+    #[error("value count overflows")]
+    ValueCountOverflows,
+    #[error("file ends after {read} of {needed} values (truncated?)")]
+    Truncated { read: usize, needed: usize },
+    #[error("value {index} '{text}' is not a number")]
+    NotANumber { index: usize, text: String },
+    /// A value outside the declared type's range.
+    #[error(transparent)]
+    TextValues(#[from] super::TextValueError),
+    #[error("binary data of an unsupported type cannot be skipped")]
+    BinaryUnsupported,
+    #[error("byte count overflows")]
+    ByteCountOverflows,
+    #[error("needs {len} bytes of binary data but the file has {available} left (truncated?)")]
+    BinaryTruncated { len: usize, available: usize },
+}
+
 /// Which data section the arrays being read belong to.
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Section {
@@ -23,7 +123,7 @@ enum Section {
 /// An array found in the point data: its values, or why it cannot be rendered.
 struct Found {
     name: String,
-    values: Result<TypedBuffer, String>,
+    values: Result<TypedBuffer, Unrenderable>,
 }
 
 /// A cursor over the file's bytes: header lines are text, binary data follows a newline.
@@ -101,7 +201,7 @@ fn legacy_type(name: &str) -> Option<ScalarType> {
 
 /// Parse the legacy file `bytes`; `want` names the point-data array to read.
 pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, VolumeError> {
-    let err = |m: String| VolumeError::file(path, m);
+    let err = |e: LegacyError| VolumeError::file(path, e.to_string());
     let mut c = Cursor { bytes, pos: 0 };
     let ascii = header(&mut c).map_err(err)?;
     let mut p = Parser {
@@ -128,20 +228,17 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
 }
 
 /// The first three lines: the version line, the title, and ASCII or BINARY (`true` for ASCII).
-fn header(c: &mut Cursor<'_>) -> Result<bool, String> {
+fn header(c: &mut Cursor<'_>) -> Result<bool, LegacyError> {
     let first = c.raw_line().unwrap_or("");
     if !first.starts_with("# vtk DataFile Version") {
-        return Err(
-            "not a legacy VTK file: the first line is not '# vtk DataFile Version x.x'".into(),
-        );
+        return Err(LegacyError::NotLegacy);
     }
     let _title = c.raw_line();
     match c.line().map(str::to_ascii_uppercase).as_deref() {
         Some("ASCII") => Ok(true),
         Some("BINARY") => Ok(false),
-        other => Err(format!(
-            "line 3 must be ASCII or BINARY, found '{}'",
-            other.unwrap_or("end of file")
+        other => Err(LegacyError::BadEncodingLine(
+            other.unwrap_or("end of file").to_string(),
         )),
     }
 }
@@ -192,26 +289,31 @@ impl<'l> Line<'l> {
         }
     }
 
-    fn arg(&self, i: usize) -> Result<&'l str, String> {
+    fn arg(&self, i: usize) -> Result<&'l str, LegacyError> {
         self.args
             .get(i)
             .copied()
-            .ok_or_else(|| format!("'{}' is missing a field", self.text))
+            .ok_or_else(|| LegacyError::MissingField {
+                line: self.text.to_string(),
+            })
     }
 
-    fn num(&self, i: usize) -> Result<usize, String> {
+    fn num(&self, i: usize) -> Result<usize, LegacyError> {
         let a = self.arg(i)?;
-        a.parse()
-            .map_err(|_| format!("'{a}' in '{}' is not a count", self.text))
+        a.parse().map_err(|_| LegacyError::NotACount {
+            value: a.to_string(),
+            line: self.text.to_string(),
+        })
     }
 
-    fn vec3(&self) -> Result<[f64; 3], String> {
+    fn vec3(&self) -> Result<[f64; 3], LegacyError> {
         let mut v = [0.0; 3];
         for (a, slot) in v.iter_mut().enumerate() {
             let s = self.arg(a)?;
-            *slot = s
-                .parse()
-                .map_err(|_| format!("'{s}' in '{}' is not a number", self.text))?;
+            *slot = s.parse().map_err(|_| LegacyError::NotANumber {
+                value: s.to_string(),
+                line: self.text.to_string(),
+            })?;
         }
         Ok(v)
     }
@@ -219,14 +321,14 @@ impl<'l> Line<'l> {
 
 impl Parser<'_, '_> {
     /// Handle one keyword line and the data that follows it.
-    fn keyword(&mut self, text: &str) -> Result<Flow, String> {
+    fn keyword(&mut self, text: &str) -> Result<Flow, LegacyError> {
         let l = Line::new(text);
         match l.key.as_str() {
             "DATASET" => self.dataset(&l)?,
             "DIMENSIONS" => {
                 let d = [l.num(0)?, l.num(1)?, l.num(2)?];
                 if d.contains(&0) {
-                    return Err(format!("'{}' contains a zero", l.text));
+                    return Err(LegacyError::ZeroDimension(l.text.to_string()));
                 }
                 self.dims = Some(d);
             }
@@ -242,7 +344,7 @@ impl Parser<'_, '_> {
                 // A colour table of `size` RGBA entries (floats in ASCII, bytes in BINARY).
                 let size = l.num(1)?;
                 read_array(&mut self.c, self.ascii, Some(ScalarType::U8), size, 4, true)
-                    .map_err(|m| format!("LOOKUP_TABLE: {m}"))?;
+                    .map_err(LegacyError::LookupTable)?;
             }
             "METADATA" => {
                 // Version 5.1 metadata blocks end at a blank line.
@@ -253,46 +355,44 @@ impl Parser<'_, '_> {
                 }
             }
             _ => {
-                return Err(format!(
-                    "unexpected line '{}' (near byte {})",
-                    truncate(text),
-                    self.c.pos
-                ))
+                return Err(LegacyError::UnexpectedLine {
+                    line: truncate(text),
+                    byte: self.c.pos,
+                })
             }
         }
         Ok(Flow::More)
     }
 
     /// `DATASET kind`: only image data.
-    fn dataset(&mut self, l: &Line) -> Result<(), String> {
+    fn dataset(&mut self, l: &Line) -> Result<(), LegacyError> {
         let kind = l.arg(0)?.to_ascii_uppercase();
         if kind != "STRUCTURED_POINTS" {
-            return Err(format!(
-                "DATASET {kind} is not supported: only STRUCTURED_POINTS (image data)"
-            ));
+            return Err(LegacyError::UnsupportedDataset(kind));
         }
         self.dataset_seen = true;
         Ok(())
     }
 
     /// `POINT_DATA n` / `CELL_DATA n`: the section the next arrays belong to.
-    fn data_section(&mut self, l: &Line) -> Result<(), String> {
+    fn data_section(&mut self, l: &Line) -> Result<(), LegacyError> {
         let key = &l.key;
         let d = self
             .dims
-            .ok_or_else(|| format!("{key} comes before DIMENSIONS"))?;
+            .ok_or_else(|| LegacyError::SectionBeforeDimensions(key.clone()))?;
         self.count = l.num(0)?;
         let count = self.count;
         self.section = if key == "POINT_DATA" {
             let n = d
                 .iter()
                 .try_fold(1usize, |a, &x| a.checked_mul(x))
-                .ok_or_else(|| format!("DIMENSIONS {d:?} are too large"))?;
+                .ok_or(LegacyError::DimensionsTooLarge(d))?;
             if count != n {
-                return Err(format!(
-                    "POINT_DATA {count} does not match DIMENSIONS {}x{}x{} ({n} points)",
-                    d[0], d[1], d[2]
-                ));
+                return Err(LegacyError::PointCountMismatch {
+                    count,
+                    dims: d,
+                    points: n,
+                });
             }
             Section::Point
         } else {
@@ -302,7 +402,7 @@ impl Parser<'_, '_> {
     }
 
     /// `SCALARS name type [ncomp]` (+ `LOOKUP_TABLE`) or `COLOR_SCALARS name ncomp`.
-    fn scalars(&mut self, l: &Line) -> Result<Flow, String> {
+    fn scalars(&mut self, l: &Line) -> Result<Flow, LegacyError> {
         let key = &l.key;
         let name = l.arg(0)?.to_string();
         let color = key == "COLOR_SCALARS";
@@ -322,8 +422,14 @@ impl Parser<'_, '_> {
                 _ => self.c.pos = save,
             }
         }
-        let values = read_array(&mut self.c, self.ascii, ty, self.count, ncomp, color)
-            .map_err(|m| format!("{key} {name}: {m}"))?;
+        let values =
+            read_array(&mut self.c, self.ascii, ty, self.count, ncomp, color).map_err(|error| {
+                LegacyError::Attribute {
+                    key: key.clone(),
+                    name: name.clone(),
+                    error,
+                }
+            })?;
         if self.section == Section::Point {
             let f = found(&name, l.arg(1).unwrap_or("?"), ncomp, values);
             self.names.push(name.clone());
@@ -344,25 +450,22 @@ impl Parser<'_, '_> {
     }
 
     /// `FIELD name n` and its n arrays (`name ncomp ntuples type`, or `NULL_ARRAY`).
-    fn field(&mut self, l: &Line) -> Result<Flow, String> {
+    fn field(&mut self, l: &Line) -> Result<Flow, LegacyError> {
         let n_arrays = l.num(1)?;
         for _ in 0..n_arrays {
-            let head = self
-                .c
-                .line()
-                .ok_or_else(|| "FIELD ends before its arrays".to_string())?;
+            let head = self.c.line().ok_or(LegacyError::FieldEnds)?;
             let f: Vec<&str> = head.split_ascii_whitespace().collect();
             if f.first() == Some(&"NULL_ARRAY") {
                 continue;
             }
             if f.len() < 4 {
-                return Err(format!(
-                    "FIELD array line '{head}' needs 'name ncomp ntuples type'"
-                ));
+                return Err(LegacyError::FieldLine(head.to_string()));
             }
             let parse = |s: &str| {
-                s.parse::<usize>()
-                    .map_err(|_| format!("'{s}' in '{head}' is not a count"))
+                s.parse::<usize>().map_err(|_| LegacyError::NotACount {
+                    value: s.to_string(),
+                    line: head.to_string(),
+                })
             };
             let (ncomp, ntuples) = (parse(f[1])?, parse(f[2])?);
             let values = read_array(
@@ -373,7 +476,10 @@ impl Parser<'_, '_> {
                 ncomp,
                 false,
             )
-            .map_err(|m| format!("FIELD array {}: {m}", f[0]))?;
+            .map_err(|error| LegacyError::FieldArray {
+                name: f[0].to_string(),
+                error,
+            })?;
             if self.section == Section::Point && ntuples == self.count {
                 let fnd = found(f[0], f[3], ncomp, values);
                 self.names.push(f[0].to_string());
@@ -400,7 +506,7 @@ impl Parser<'_, '_> {
 
     /// VECTORS, NORMALS, TENSORS(6), TEXTURE_COORDINATES: read to be skipped (or to say why
     /// the array asked for cannot be rendered).
-    fn other_attribute(&mut self, l: &Line) -> Result<(), String> {
+    fn other_attribute(&mut self, l: &Line) -> Result<(), LegacyError> {
         let key = &l.key;
         let (ncomp, ty) = match key.as_str() {
             "TEXTURE_COORDINATES" => (l.num(1)?, l.arg(2)?),
@@ -417,13 +523,18 @@ impl Parser<'_, '_> {
             ncomp,
             false,
         )
-        .map_err(|m| format!("{key} {name}: {m}"))?;
+        .map_err(|error| LegacyError::Attribute {
+            key: key.clone(),
+            name: name.clone(),
+            error,
+        })?;
         if self.section == Section::Point {
             if self.want == Some(name.as_str()) {
-                return Err(format!(
-                    "array '{name}' is {key} with {ncomp} components: only \
-                     single-component scalars can be rendered"
-                ));
+                return Err(LegacyError::NotScalar {
+                    name,
+                    key: key.clone(),
+                    ncomp,
+                });
             }
             self.names.push(name);
         } else if self.section == Section::Cell {
@@ -433,23 +544,29 @@ impl Parser<'_, '_> {
     }
 
     /// The geometry and the chosen array, once the file has been read.
-    fn finish(self) -> Result<Decoded, String> {
+    fn finish(self) -> Result<Decoded, LegacyError> {
         if !self.dataset_seen {
-            return Err("no 'DATASET STRUCTURED_POINTS' line".into());
+            return Err(LegacyError::NoDataset);
         }
-        let dims = self.dims.ok_or_else(|| "no DIMENSIONS line".to_string())?;
+        let dims = self.dims.ok_or(LegacyError::NoDimensions)?;
         let (want, names, cell_names) = (self.want, &self.names, &self.cell_names);
         let f = self.chosen.or(self.fallback).ok_or_else(|| match want {
-            Some(w) if cell_names.iter().any(|c| c == w) => {
-                format!("array '{w}' is cell data; only point data can be volume rendered")
-            }
-            Some(w) => format!(
-                "no point-data array named '{w}' (point-data arrays: {})",
-                list(names)
-            ),
-            None => "no point data (POINT_DATA with SCALARS) to render".into(),
+            Some(w) if cell_names.iter().any(|c| c == w) => LegacyError::CellData(w.to_string()),
+            Some(w) => LegacyError::NoArrayNamed {
+                name: w.to_string(),
+                available: list(names),
+            },
+            None => LegacyError::NoPointData,
         })?;
-        let buffer = f.values.map_err(|m| format!("array '{}': {m}", f.name))?;
+        let buffer = match f.values {
+            Ok(b) => b,
+            Err(error) => {
+                return Err(LegacyError::Unrenderable {
+                    name: f.name,
+                    error,
+                })
+            }
+        };
         Ok(Decoded {
             geometry: Geometry {
                 dims,
@@ -466,13 +583,9 @@ impl Parser<'_, '_> {
 /// matters only if this array is the one chosen).
 fn found(name: &str, type_name: &str, ncomp: usize, values: Option<TypedBuffer>) -> Found {
     let values = match values {
-        _ if ncomp != 1 => Err(format!(
-            "has {ncomp} components: only single-component scalars can be rendered"
-        )),
+        _ if ncomp != 1 => Err(Unrenderable::Components(ncomp)),
         Some(v) => Ok(v),
-        None => Err(format!(
-            "its type '{type_name}' is not a numeric type this reader supports"
-        )),
+        None => Err(Unrenderable::UnsupportedType(type_name.to_string())),
     };
     Found {
         name: name.to_string(),
@@ -517,19 +630,20 @@ fn read_array(
     tuples: usize,
     ncomp: usize,
     color: bool,
-) -> Result<Option<TypedBuffer>, String> {
+) -> Result<Option<TypedBuffer>, ReadError> {
     let n = tuples
         .checked_mul(ncomp)
-        .ok_or_else(|| "value count overflows".to_string())?;
+        .ok_or(ReadError::ValueCountOverflows)?;
     if ascii {
         let mut values = Vec::with_capacity(n.min(1 << 24));
         for i in 0..n {
             let tok = c
                 .token()
-                .ok_or_else(|| format!("file ends after {i} of {n} values (truncated?)"))?;
-            let v: f64 = tok
-                .parse()
-                .map_err(|_| format!("value {i} '{}' is not a number", truncate(tok)))?;
+                .ok_or(ReadError::Truncated { read: i, needed: n })?;
+            let v: f64 = tok.parse().map_err(|_| ReadError::NotANumber {
+                index: i,
+                text: truncate(tok),
+            })?;
             // COLOR_SCALARS text holds byte/255; VTK's reader turns it back into bytes the
             // same way, so data units match what ParaView shows.
             values.push(if color {
@@ -544,17 +658,15 @@ fn read_array(
         Ok(ty.map(|t| TypedBuffer::from_f64_as(values, t)))
     } else {
         let Some(t) = ty else {
-            return Err("binary data of an unsupported type cannot be skipped".into());
+            return Err(ReadError::BinaryUnsupported);
         };
         let len = n
             .checked_mul(t.size())
-            .ok_or_else(|| "byte count overflows".to_string())?;
+            .ok_or(ReadError::ByteCountOverflows)?;
         let available = c.bytes.len().saturating_sub(c.pos);
-        let data = c.take(len).ok_or_else(|| {
-            format!(
-                "needs {len} bytes of binary data but the file has {available} left (truncated?)"
-            )
-        })?;
+        let data = c
+            .take(len)
+            .ok_or(ReadError::BinaryTruncated { len, available })?;
         // Legacy binary files are big-endian by definition.
         Ok(Some(TypedBuffer::new(t, ByteOrder::Big, data.to_vec())))
     }

@@ -16,7 +16,7 @@ mod summary;
 mod vti;
 mod vti_blocks;
 
-pub use buffer::{ByteOrder, ScalarType, TypedBuffer};
+pub use buffer::{ByteOrder, ScalarType, TextValueError, TypedBuffer, UnknownScalarType};
 pub(crate) use pyramid::Narrow;
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
 pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
@@ -204,10 +204,7 @@ impl Volume {
             data,
         }) = small_int::normalize(buffer).or_else(|| normalize(buffer))
         else {
-            return Err(VolumeError::file(
-                name,
-                "every value is NaN or infinite: nothing to render",
-            ));
+            return Err(GeometryError::NoFiniteValues.at(name));
         };
 
         // Integer data spanning at most 65535 steps normalizes to k / span exactly: the
@@ -264,6 +261,41 @@ fn denormalize([lo, hi]: [f64; 2], t: f64) -> f64 {
     }
 }
 
+/// Why decoded data cannot be made into a volume. The caller adds the file's path.
+#[derive(Debug, thiserror::Error)]
+enum GeometryError {
+    #[error("every value is NaN or infinite: nothing to render")]
+    NoFiniteValues,
+    #[error("dimensions {0:?} contain a zero")]
+    ZeroDimension([usize; 3]),
+    #[error(
+        "holds {values} values but dimensions {}x{}x{} need {needed}",
+        .dims[0], .dims[1], .dims[2]
+    )]
+    ValueCount {
+        values: usize,
+        dims: [usize; 3],
+        needed: usize,
+    },
+    #[error("spacing {spacing:?} and origin {origin:?} must be finite, spacing positive")]
+    BadSpacing { spacing: [f64; 3], origin: [f64; 3] },
+    #[error(
+        "spacing {spacing:?} with origin {origin:?} gives a box of {extent:?} that single \
+         precision cannot represent; give a spacing near 1 with --spacing X,Y,Z"
+    )]
+    BoxUnrepresentable {
+        spacing: [f64; 3],
+        origin: [f64; 3],
+        extent: [f64; 3],
+    },
+}
+
+impl GeometryError {
+    fn at(self, path: &Path) -> VolumeError {
+        VolumeError::file(path, self.to_string())
+    }
+}
+
 /// The statistics and the one f32 copy of a buffer.
 struct Normalized {
     range: [f64; 2],
@@ -278,30 +310,24 @@ struct Normalized {
 fn check_geometry(name: &Path, geometry: &Geometry, values: usize) -> Result<(), VolumeError> {
     let n = geometry.voxel_count();
     if geometry.dims.contains(&0) {
-        return Err(VolumeError::file(
-            name,
-            format!("dimensions {:?} contain a zero", geometry.dims),
-        ));
+        return Err(GeometryError::ZeroDimension(geometry.dims).at(name));
     }
     if values != n {
-        return Err(VolumeError::file(
-            name,
-            format!(
-                "holds {} values but dimensions {}x{}x{} need {n}",
-                values, geometry.dims[0], geometry.dims[1], geometry.dims[2]
-            ),
-        ));
+        let e = GeometryError::ValueCount {
+            values,
+            dims: geometry.dims,
+            needed: n,
+        };
+        return Err(e.at(name));
     }
     for a in 0..3 {
         let s = geometry.spacing[a];
         if !(s.is_finite() && s > 0.0 && geometry.origin[a].is_finite()) {
-            return Err(VolumeError::file(
-                name,
-                format!(
-                    "spacing {:?} and origin {:?} must be finite, spacing positive",
-                    geometry.spacing, geometry.origin
-                ),
-            ));
+            let e = GeometryError::BadSpacing {
+                spacing: geometry.spacing,
+                origin: geometry.origin,
+            };
+            return Err(e.at(name));
         }
     }
 
@@ -320,14 +346,12 @@ fn check_box(name: &Path, g: &Geometry) -> Result<(), VolumeError> {
     if finite && sides {
         return Ok(());
     }
-    Err(VolumeError::file(
-        name,
-        format!(
-            "spacing {:?} with origin {:?} gives a box of {:?} that single precision cannot \
-             represent; give a spacing near 1 with --spacing X,Y,Z",
-            g.spacing, g.origin, extent
-        ),
-    ))
+    Err(GeometryError::BoxUnrepresentable {
+        spacing: g.spacing,
+        origin: g.origin,
+        extent,
+    }
+    .at(name))
 }
 
 /// The range that maps to [0, 1]: the finite range, widened by ±0.5 when it is one value.

@@ -3,12 +3,59 @@
 
 use std::path::Path;
 
-use super::VolumeError;
+use super::{UnknownScalarType, VolumeError};
+
+/// Why a raw file's name, flags or size do not give a readable array. Each message is one
+/// line; [`VolumeError::file`] adds the file's path.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum RawError {
+    /// A dimension in the name that does not fit in `usize`.
+    #[error("dimension '{0}' in the file name is too large")]
+    NameDimensionTooLarge(String),
+    /// The name's type part is not a scalar type.
+    #[error("file name: {0}")]
+    NameType(UnknownScalarType),
+    /// `--dims` given (or named) but no scalar type.
+    #[error(
+        "--dtype TYPE is missing: the name does not give the scalar type (e.g. --dtype uint8)"
+    )]
+    MissingDtype,
+    /// `--dtype` given (or named) but no dimensions.
+    #[error("--dims X,Y,Z is missing: the name does not give the dimensions")]
+    MissingDims,
+    /// Neither flags nor a parsable name.
+    #[error(
+        "name does not follow NAME_XxYxZ_DTYPE.raw (e.g. head_256x256x99_uint8.raw): give \
+         --dims X,Y,Z and --dtype TYPE"
+    )]
+    NoLayout,
+    /// A zero dimension.
+    #[error("dimensions {}x{}x{} contain a zero", .0[0], .0[1], .0[2])]
+    ZeroDimension([usize; 3]),
+    /// Dimensions whose byte count overflows.
+    #[error("dimensions {0:?} are too large")]
+    TooLarge([usize; 3]),
+    /// The file's size is not the array's.
+    #[error(
+        "file holds {len} bytes but {}x{}x{} {dtype} needs {need} bytes",
+        .dims[0], .dims[1], .dims[2]
+    )]
+    SizeMismatch {
+        /// The file's size in bytes.
+        len: u64,
+        /// Points per axis.
+        dims: [usize; 3],
+        /// The scalar type.
+        dtype: ScalarType,
+        /// The bytes the array needs.
+        need: u64,
+    },
+}
 use super::{ByteOrder, Decoded, Geometry, ReadOptions, ScalarType, SourceFormat, TypedBuffer};
 
 /// Dims and scalar type from an Open SciVis file name, if it follows the pattern.
 /// `Ok(None)`: the name has no `_XxYxZ_TYPE` tail; `Err`: it has one with a bad part.
-pub fn parse_name(stem: &str) -> Result<Option<([usize; 3], ScalarType)>, String> {
+pub(crate) fn parse_name(stem: &str) -> Result<Option<([usize; 3], ScalarType)>, RawError> {
     let mut parts = stem.rsplitn(3, '_');
     let (Some(dtype), Some(dims), Some(_name)) = (parts.next(), parts.next(), parts.next()) else {
         return Ok(None);
@@ -25,11 +72,9 @@ pub fn parse_name(stem: &str) -> Result<Option<([usize; 3], ScalarType)>, String
     for (slot, f) in d.iter_mut().zip(&fields) {
         *slot = f
             .parse()
-            .map_err(|_| format!("dimension '{f}' in the file name is too large"))?;
+            .map_err(|_| RawError::NameDimensionTooLarge(f.to_string()))?;
     }
-    let t = dtype
-        .parse::<ScalarType>()
-        .map_err(|e| format!("file name: {e}"))?;
+    let t = dtype.parse::<ScalarType>().map_err(RawError::NameType)?;
     Ok(Some((d, t)))
 }
 
@@ -38,13 +83,15 @@ pub(super) fn layout(
     path: &Path,
     opts: &ReadOptions,
 ) -> Result<([usize; 3], ScalarType), VolumeError> {
+    layout_inner(path, opts).map_err(|e| VolumeError::file(path, e.to_string()))
+}
+
+fn layout_inner(path: &Path, opts: &ReadOptions) -> Result<([usize; 3], ScalarType), RawError> {
     let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
     let named = match parse_name(stem) {
         Ok(n) => n,
         // A bad name only matters when the flags do not replace what it would give.
-        Err(e) if opts.dims.is_none() || opts.dtype.is_none() => {
-            return Err(VolumeError::file(path, e))
-        }
+        Err(e) if opts.dims.is_none() || opts.dtype.is_none() => return Err(e),
         Err(_) => None,
     };
     let dims = opts.dims.or(named.map(|n| n.0));
@@ -52,35 +99,12 @@ pub(super) fn layout(
     let (dims, dtype) = match (dims, dtype) {
         (Some(dims), Some(dtype)) => (dims, dtype),
         // One flag given: name the other rather than repeat the naming rule.
-        (Some(_), None) => {
-            return Err(VolumeError::file(
-                path,
-                "--dtype TYPE is missing: the name does not give the scalar type \
-                 (e.g. --dtype uint8)",
-            ))
-        }
-        (None, Some(_)) => {
-            return Err(VolumeError::file(
-                path,
-                "--dims X,Y,Z is missing: the name does not give the dimensions",
-            ))
-        }
-        (None, None) => {
-            return Err(VolumeError::file(
-                path,
-                "name does not follow NAME_XxYxZ_DTYPE.raw (e.g. head_256x256x99_uint8.raw): \
-                 give --dims X,Y,Z and --dtype TYPE",
-            ))
-        }
+        (Some(_), None) => return Err(RawError::MissingDtype),
+        (None, Some(_)) => return Err(RawError::MissingDims),
+        (None, None) => return Err(RawError::NoLayout),
     };
     if dims.contains(&0) {
-        return Err(VolumeError::file(
-            path,
-            format!(
-                "dimensions {}x{}x{} contain a zero",
-                dims[0], dims[1], dims[2]
-            ),
-        ));
+        return Err(RawError::ZeroDimension(dims));
     }
     Ok((dims, dtype))
 }
@@ -92,15 +116,15 @@ pub fn check_size(path: &Path, opts: &ReadOptions, len: u64) -> Result<(), Volum
     let need = dims
         .iter()
         .try_fold(dtype.size() as u64, |acc, &d| acc.checked_mul(d as u64))
-        .ok_or_else(|| VolumeError::file(path, format!("dimensions {dims:?} are too large")))?;
+        .ok_or_else(|| VolumeError::file(path, RawError::TooLarge(dims).to_string()))?;
     if len != need {
-        return Err(VolumeError::file(
-            path,
-            format!(
-                "file holds {len} bytes but {}x{}x{} {dtype} needs {need} bytes",
-                dims[0], dims[1], dims[2]
-            ),
-        ));
+        let e = RawError::SizeMismatch {
+            len,
+            dims,
+            dtype,
+            need,
+        };
+        return Err(VolumeError::file(path, e.to_string()));
     }
     Ok(())
 }
@@ -141,7 +165,7 @@ mod tests {
         assert_eq!(parse_name("volume").unwrap(), None);
         assert_eq!(parse_name("a_b_c").unwrap(), None);
         assert_eq!(parse_name("a_4x4_uint8").unwrap(), None);
-        let e = parse_name("a_4x4x4_uint9").unwrap_err();
+        let e = parse_name("a_4x4x4_uint9").unwrap_err().to_string();
         assert!(e.contains("uint9"), "{e}");
         assert!(parse_name("a_4x4x99999999999999999999999_uint8").is_err());
     }

@@ -76,20 +76,46 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
     decode_bytes(path, bytes, opts)
 }
 
+/// Why a path and its flags do not pick a reader. The reader adds the file's path.
+#[derive(Debug, thiserror::Error)]
+enum PathError {
+    #[error("no such file")]
+    NoSuchFile,
+    #[error("is a directory, not a volume file (.raw, .vti or .vtk)")]
+    Directory,
+    #[error(
+        "no file extension: expected .raw, .vti or .vtk (or give --dims and --dtype to read \
+         headerless raw data)"
+    )]
+    NoExtension,
+    #[error(
+        "unknown extension '.{0}': expected .raw, .vti or .vtk (or give --dims and --dtype to \
+         read headerless raw data)"
+    )]
+    UnknownExtension(String),
+    #[error("{0} applies to .raw files only; this file describes itself")]
+    RawOnlyFlag(&'static str),
+    #[error("--array applies to .vti and .vtk files; a .raw file holds one array")]
+    ArrayOnRaw,
+}
+
+impl PathError {
+    fn at(self, path: &Path) -> VolumeError {
+        VolumeError::file(path, self.to_string())
+    }
+}
+
 /// The file's metadata; an error when it is missing or a directory.
 pub(super) fn file_metadata(path: &Path) -> Result<std::fs::Metadata, VolumeError> {
     let meta = std::fs::metadata(path).map_err(|e| match e.kind() {
-        std::io::ErrorKind::NotFound => VolumeError::file(path, "no such file"),
+        std::io::ErrorKind::NotFound => PathError::NoSuchFile.at(path),
         _ => VolumeError::Io {
             path: path.to_path_buf(),
             error: e,
         },
     })?;
     if meta.is_dir() {
-        return Err(VolumeError::file(
-            path,
-            "is a directory, not a volume file (.raw, .vti or .vtk)",
-        ));
+        return Err(PathError::Directory.at(path));
     }
     Ok(meta)
 }
@@ -131,22 +157,8 @@ fn reader_for(path: &Path, opts: &ReadOptions) -> Result<Kind, VolumeError> {
         // Headerless data under any other name when a raw flag says how to read it (the raw
         // reader names a missing --dims or --dtype).
         _ if opts.dims.is_some() || opts.dtype.is_some() => Kind::Raw,
-        "" => {
-            return Err(VolumeError::file(
-                path,
-                "no file extension: expected .raw, .vti or .vtk \
-                 (or give --dims and --dtype to read headerless raw data)",
-            ))
-        }
-        other => {
-            return Err(VolumeError::file(
-                path,
-                format!(
-                    "unknown extension '.{other}': expected .raw, .vti or .vtk \
-                     (or give --dims and --dtype to read headerless raw data)"
-                ),
-            ))
-        }
+        "" => return Err(PathError::NoExtension.at(path)),
+        other => return Err(PathError::UnknownExtension(other.to_string()).at(path)),
     };
     if kind != Kind::Raw {
         let raw_only = [
@@ -155,16 +167,10 @@ fn reader_for(path: &Path, opts: &ReadOptions) -> Result<Kind, VolumeError> {
             (opts.byte_order.is_some(), "--byte-order"),
         ];
         if let Some((_, flag)) = raw_only.iter().find(|(given, _)| *given) {
-            return Err(VolumeError::file(
-                path,
-                format!("{flag} applies to .raw files only; this file describes itself"),
-            ));
+            return Err(PathError::RawOnlyFlag(flag).at(path));
         }
     } else if opts.array.is_some() {
-        return Err(VolumeError::file(
-            path,
-            "--array applies to .vti and .vtk files; a .raw file holds one array",
-        ));
+        return Err(PathError::ArrayOnRaw.at(path));
     }
     Ok(kind)
 }

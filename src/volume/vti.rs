@@ -27,8 +27,121 @@ use std::path::Path;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
-use super::vti_blocks::{base64_streams, unpack, Compressor, Layout};
+use super::vti_blocks::{base64_streams, unpack, BlockError, Compressor, Layout};
 use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer, VolumeError};
+
+/// Why a `.vti` file could not be read. Each message is one line (quoted file text may hold
+/// newlines; [`VolumeError::file`] folds them) and the reader adds the file's path.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum VtiError {
+    #[error("the XML part is not valid UTF-8 ({0})")]
+    XmlNotUtf8(std::str::Utf8Error),
+    #[error("malformed XML near byte {position}: {error}")]
+    MalformedXml {
+        position: u64,
+        error: quick_xml::Error,
+    },
+    #[error("is a VTK XML '{found}' file, not ImageData (only image data can be volume rendered)")]
+    NotImageData { found: String },
+    #[error("unknown byte_order '{0}'")]
+    UnknownByteOrder(String),
+    #[error("unknown header_type '{0}'")]
+    UnknownHeaderType(String),
+    #[error("unknown compressor '{0}'")]
+    UnknownCompressor(String),
+    #[error("Direction {0:?} is not the identity: rotated image data is not supported")]
+    Rotated([f64; 9]),
+    #[error("DataArray '{name}' has no type attribute")]
+    NoType { name: String },
+    #[error("DataArray '{name}': NumberOfComponents '{value}' is not a count")]
+    BadComponents { name: String, value: String },
+    #[error("DataArray '{name}': offset '{value}' is not a count")]
+    BadOffset { name: String, value: String },
+    #[error("not a VTK XML file: no <VTKFile> element")]
+    NoVtkFile,
+    #[error(
+        "has {pieces} pieces with different extents: only single-piece image data is \
+         supported (merge the pieces in ParaView and save again)"
+    )]
+    PiecesDiffer { pieces: usize },
+    #[error("no Extent on <Piece> or WholeExtent on <ImageData>")]
+    NoExtent,
+    #[error("extent {extent:?} is empty along axis {axis} (zero dimensions)")]
+    EmptyExtent { extent: [i64; 6], axis: usize },
+    #[error("extent {0:?} too large")]
+    ExtentTooLarge([i64; 6]),
+    #[error("array '{0}' is cell data; only point data can be volume rendered")]
+    CellData(String),
+    #[error("no point-data array named '{name}' (point-data arrays: {available})")]
+    NoArrayNamed { name: String, available: String },
+    #[error("no point-data arrays to render")]
+    NoPointArrays,
+    #[error("no point-data arrays to render (cell-data arrays: {0})")]
+    OnlyCellArrays(String),
+    #[error("<AppendedData> tag is not closed")]
+    AppendedNotClosed,
+    #[error("<AppendedData> tag is not valid text")]
+    AppendedNotText,
+    #[error("malformed tag '{0}'")]
+    MalformedTag(String),
+    #[error("<AppendedData> encoding '{0}' is not raw or base64")]
+    AppendedEncoding(String),
+    #[error("<AppendedData> has no '_' marker before its data")]
+    NoMarker,
+    #[error("malformed attribute: {0}")]
+    MalformedAttribute(quick_xml::events::attributes::AttrError),
+    #[error("malformed attribute {key}: {error}")]
+    MalformedAttributeValue {
+        key: String,
+        error: quick_xml::Error,
+    },
+    #[error("{what} '{text}' is not {count} numbers")]
+    NotNumbers {
+        what: &'static str,
+        text: String,
+        count: usize,
+    },
+    /// The array error is part of the message (not a `source`), like every reader message.
+    #[error("array '{name}': {error}")]
+    Array { name: String, error: ArrayError },
+}
+
+/// Why the selected array's values could not be read.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum ArrayError {
+    #[error(
+        "has {0} components: only single-component scalars can be rendered (pick another \
+         with --array)"
+    )]
+    Components(usize),
+    #[error("type '{0}' is not a numeric type (expected Int8 … UInt64, Float32, Float64)")]
+    UnknownType(String),
+    #[error("size overflows")]
+    SizeOverflows,
+    /// The extent does not fit in memory.
+    #[error(transparent)]
+    Memory(#[from] crate::memory::MemoryError),
+    #[error("holds more than the {0} values its extent needs")]
+    TooManyValues(usize),
+    #[error("value {index} '{text}' is not a number")]
+    NotANumber { index: usize, text: String },
+    #[error("holds {found} values but the extent needs {needed}")]
+    ValueCount { found: usize, needed: usize },
+    /// A value outside the declared type's range.
+    #[error(transparent)]
+    TextValues(#[from] super::buffer::TextValueError),
+    /// Binary data that cannot be decoded.
+    #[error(transparent)]
+    Block(#[from] BlockError),
+    #[error("format is appended but the file has no <AppendedData>")]
+    NoAppendedData,
+    #[error("appended array has no offset attribute")]
+    NoOffset,
+    #[error("offset {offset} is past the end of the appended data ({len} bytes; truncated?)")]
+    OffsetPastEnd { offset: usize, len: usize },
+    #[error("unknown format '{0}' (expected ascii, binary or appended)")]
+    UnknownFormat(String),
+}
 
 /// One point-data array as declared in the XML.
 struct ArrayDecl<'a> {
@@ -43,14 +156,13 @@ struct ArrayDecl<'a> {
 
 /// Parse the `.vti` file `bytes`; `want` names the point-data array to read.
 pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, VolumeError> {
-    decode_inner(bytes, want).map_err(|m| VolumeError::file(path, m))
+    decode_inner(bytes, want).map_err(|e| VolumeError::file(path, e.to_string()))
 }
 
-fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
+fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, VtiError> {
     // Appended data is not XML: cut it off before parsing.
     let split = find(bytes, b"<AppendedData").unwrap_or(bytes.len());
-    let xml = std::str::from_utf8(&bytes[..split])
-        .map_err(|e| format!("the XML part is not valid UTF-8 ({e})"))?;
+    let xml = std::str::from_utf8(&bytes[..split]).map_err(VtiError::XmlNotUtf8)?;
     let appended = if split < bytes.len() {
         Some(appended_section(&bytes[split..])?)
     } else {
@@ -61,8 +173,11 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, String> {
     let (dims, origin) = grid(&h)?;
     let n: usize = dims.iter().product();
     let decl = select(&h, want)?;
-    let buffer = read_array(decl, n, h.layout, appended.as_ref())
-        .map_err(|m| format!("array '{}': {m}", decl.name))?;
+    let buffer =
+        read_array(decl, n, h.layout, appended.as_ref()).map_err(|error| VtiError::Array {
+            name: decl.name.clone(),
+            error,
+        })?;
     Ok(Decoded {
         geometry: Geometry {
             dims,
@@ -92,7 +207,7 @@ struct Header<'a> {
 }
 
 /// The XML part's declarations, gathered element by element ([`HeaderParser`]).
-fn parse_header(xml: &str) -> Result<Header<'_>, String> {
+fn parse_header(xml: &str) -> Result<Header<'_>, VtiError> {
     let mut reader = Reader::from_str(xml);
     let mut p = HeaderParser {
         layout: Layout {
@@ -116,7 +231,10 @@ fn parse_header(xml: &str) -> Result<Header<'_>, String> {
     loop {
         let event = reader
             .read_event()
-            .map_err(|e| format!("malformed XML near byte {}: {e}", reader.error_position()))?;
+            .map_err(|error| VtiError::MalformedXml {
+                position: reader.error_position(),
+                error,
+            })?;
         match event {
             Event::Start(ref e) => p.element(e, true)?,
             Event::Empty(ref e) => p.element(e, false)?,
@@ -154,7 +272,7 @@ struct HeaderParser<'a> {
 
 impl<'a> HeaderParser<'a> {
     /// An opening (`is_start`) or empty element.
-    fn element(&mut self, e: &BytesStart<'_>, is_start: bool) -> Result<(), String> {
+    fn element(&mut self, e: &BytesStart<'_>, is_start: bool) -> Result<(), VtiError> {
         match e.name().as_ref() {
             "VTKFile" => self.root(e)?,
             "ImageData" => self.image_data(e)?,
@@ -181,38 +299,35 @@ impl<'a> HeaderParser<'a> {
     }
 
     /// `<VTKFile>`: the file type and how binary data is laid out.
-    fn root(&mut self, e: &BytesStart<'_>) -> Result<(), String> {
+    fn root(&mut self, e: &BytesStart<'_>) -> Result<(), VtiError> {
         let a = |key: &str| attr(e, key);
         self.saw_root = true;
         let ty = a("type")?.unwrap_or_default();
         if ty != "ImageData" {
-            return Err(format!(
-                "is a VTK XML '{ty}' file, not ImageData (only image data can \
-                 be volume rendered)"
-            ));
+            return Err(VtiError::NotImageData { found: ty });
         }
         self.layout.order = match a("byte_order")?.as_deref() {
             None | Some("LittleEndian") => ByteOrder::Little,
             Some("BigEndian") => ByteOrder::Big,
-            Some(o) => return Err(format!("unknown byte_order '{o}'")),
+            Some(o) => return Err(VtiError::UnknownByteOrder(o.to_string())),
         };
         self.layout.header_size = match a("header_type")?.as_deref() {
             None | Some("UInt32") => 4,
             Some("UInt64") => 8,
-            Some(h) => return Err(format!("unknown header_type '{h}'")),
+            Some(h) => return Err(VtiError::UnknownHeaderType(h.to_string())),
         };
         self.layout.compressor = match a("compressor")?.as_deref() {
             None | Some("") => Compressor::None,
             Some("vtkZLibDataCompressor") => Compressor::Zlib,
             Some("vtkLZ4DataCompressor") => Compressor::Lz4,
             Some("vtkLZMADataCompressor") => Compressor::Lzma,
-            Some(c) => return Err(format!("unknown compressor '{c}'")),
+            Some(c) => return Err(VtiError::UnknownCompressor(c.to_string())),
         };
         Ok(())
     }
 
     /// `<ImageData>`: extent, origin, spacing; a direction other than the identity is refused.
-    fn image_data(&mut self, e: &BytesStart<'_>) -> Result<(), String> {
+    fn image_data(&mut self, e: &BytesStart<'_>) -> Result<(), VtiError> {
         let a = |key: &str| attr(e, key);
         if let Some(w) = a("WholeExtent")? {
             self.whole_extent = Some(numbers::<i64, 6>(&w, "WholeExtent")?);
@@ -227,35 +342,33 @@ impl<'a> HeaderParser<'a> {
             let d = numbers::<f64, 9>(&d, "Direction")?;
             let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
             if d.iter().zip(identity).any(|(x, y)| (x - y).abs() > 1e-9) {
-                return Err(format!(
-                    "Direction {d:?} is not the identity: rotated image data \
-                     is not supported"
-                ));
+                return Err(VtiError::Rotated(d));
             }
         }
         Ok(())
     }
 
     /// A point-data `<DataArray>` of the first piece.
-    fn data_array(&mut self, e: &BytesStart<'_>, is_start: bool) -> Result<(), String> {
+    fn data_array(&mut self, e: &BytesStart<'_>, is_start: bool) -> Result<(), VtiError> {
         let a = |key: &str| attr(e, key);
         let name = a("Name")?.unwrap_or_else(|| format!("array{}", self.arrays.len()));
-        let type_name =
-            a("type")?.ok_or_else(|| format!("DataArray '{name}' has no type attribute"))?;
+        let Some(type_name) = a("type")? else {
+            return Err(VtiError::NoType { name });
+        };
         let components = match a("NumberOfComponents")? {
             None => 1,
-            Some(c) => c.trim().parse().map_err(|_| {
-                format!("DataArray '{name}': NumberOfComponents '{c}' is not a count")
-            })?,
+            Some(c) => match c.trim().parse() {
+                Ok(n) => n,
+                Err(_) => return Err(VtiError::BadComponents { name, value: c }),
+            },
         };
         let format = a("format")?.unwrap_or_else(|| "ascii".into());
         let offset = match a("offset")? {
             None => None,
-            Some(o) => Some(
-                o.trim()
-                    .parse()
-                    .map_err(|_| format!("DataArray '{name}': offset '{o}' is not a count"))?,
-            ),
+            Some(o) => match o.trim().parse() {
+                Ok(n) => Some(n),
+                Err(_) => return Err(VtiError::BadOffset { name, value: o }),
+            },
         };
         if is_start {
             self.open_array = Some(self.arrays.len());
@@ -284,26 +397,24 @@ impl<'a> HeaderParser<'a> {
     }
 
     /// The header, once the XML has been read.
-    fn finish(self) -> Result<Header<'a>, String> {
+    fn finish(self) -> Result<Header<'a>, VtiError> {
         if !self.saw_root {
-            return Err("not a VTK XML file: no <VTKFile> element".into());
+            return Err(VtiError::NoVtkFile);
         }
         // VTK's writer asked for N pieces of a non-streaming source writes N copies of the
         // whole extent: any one of them is the data. Pieces that tile the extent are not
         // supported.
         if self.piece_extents.windows(2).any(|w| w[0] != w[1]) {
-            return Err(format!(
-                "has {} pieces with different extents: only single-piece image data is \
-                 supported (merge the pieces in ParaView and save again)",
-                self.piece_extents.len()
-            ));
+            return Err(VtiError::PiecesDiffer {
+                pieces: self.piece_extents.len(),
+            });
         }
         let extent = self
             .piece_extents
             .first()
             .copied()
             .or(self.whole_extent)
-            .ok_or("no Extent on <Piece> or WholeExtent on <ImageData>")?;
+            .ok_or(VtiError::NoExtent)?;
         Ok(Header {
             layout: self.layout,
             extent,
@@ -317,31 +428,28 @@ impl<'a> HeaderParser<'a> {
 }
 
 /// Points per axis and the world position of the extent's first point.
-fn grid(h: &Header<'_>) -> Result<([usize; 3], [f64; 3]), String> {
+fn grid(h: &Header<'_>) -> Result<([usize; 3], [f64; 3]), VtiError> {
     let (extent, spacing) = (h.extent, h.spacing);
     let mut origin = h.origin;
     let mut dims = [0usize; 3];
     for a in 0..3 {
         let (lo, hi) = (extent[2 * a], extent[2 * a + 1]);
         if hi < lo {
-            return Err(format!(
-                "extent {extent:?} is empty along axis {a} (zero dimensions)"
-            ));
+            return Err(VtiError::EmptyExtent { extent, axis: a });
         }
-        dims[a] =
-            usize::try_from(hi - lo + 1).map_err(|_| format!("extent {extent:?} too large"))?;
+        dims[a] = usize::try_from(hi - lo + 1).map_err(|_| VtiError::ExtentTooLarge(extent))?;
         // Point (i, j, k) of the extent sits at origin + (i, j, k) * spacing; index 0 of our
         // grid is the extent's first point.
         origin[a] += lo as f64 * spacing[a];
     }
     dims.iter()
         .try_fold(1usize, |acc, &d| acc.checked_mul(d))
-        .ok_or_else(|| format!("extent {extent:?} too large"))?;
+        .ok_or(VtiError::ExtentTooLarge(extent))?;
     Ok((dims, origin))
 }
 
 /// The array to read: `want`, else the active scalars, else the first point-data array.
-fn select<'h, 'a>(h: &'h Header<'a>, want: Option<&str>) -> Result<&'h ArrayDecl<'a>, String> {
+fn select<'h, 'a>(h: &'h Header<'a>, want: Option<&str>) -> Result<&'h ArrayDecl<'a>, VtiError> {
     let (arrays, cell_names) = (&h.arrays, &h.cell_names);
     let names = || {
         let mut s = arrays
@@ -357,12 +465,12 @@ fn select<'h, 'a>(h: &'h Header<'a>, want: Option<&str>) -> Result<&'h ArrayDecl
     let index = match want {
         Some(w) => arrays.iter().position(|a| a.name == w).ok_or_else(|| {
             if cell_names.iter().any(|c| c == w) {
-                format!("array '{w}' is cell data; only point data can be volume rendered")
+                VtiError::CellData(w.to_string())
             } else {
-                format!(
-                    "no point-data array named '{w}' (point-data arrays: {})",
-                    names()
-                )
+                VtiError::NoArrayNamed {
+                    name: w.to_string(),
+                    available: names(),
+                }
             }
         })?,
         None => h
@@ -372,12 +480,9 @@ fn select<'h, 'a>(h: &'h Header<'a>, want: Option<&str>) -> Result<&'h ArrayDecl
             .or(if arrays.is_empty() { None } else { Some(0) })
             .ok_or_else(|| {
                 if cell_names.is_empty() {
-                    "no point-data arrays to render".to_string()
+                    VtiError::NoPointArrays
                 } else {
-                    format!(
-                        "no point-data arrays to render (cell-data arrays: {})",
-                        cell_names.join(", ")
-                    )
+                    VtiError::OnlyCellArrays(cell_names.join(", "))
                 }
             })?,
     };
@@ -391,25 +496,23 @@ struct Appended<'a> {
     data: &'a [u8],
 }
 
-fn appended_section(tail: &[u8]) -> Result<Appended<'_>, String> {
+fn appended_section(tail: &[u8]) -> Result<Appended<'_>, VtiError> {
     let close = tail
         .iter()
         .position(|&b| b == b'>')
-        .ok_or("<AppendedData> tag is not closed")?;
-    let tag = std::str::from_utf8(&tail[..=close])
-        .map_err(|_| "<AppendedData> tag is not valid text".to_string())?;
+        .ok_or(VtiError::AppendedNotClosed)?;
+    let tag = std::str::from_utf8(&tail[..=close]).map_err(|_| VtiError::AppendedNotText)?;
     let mut r = Reader::from_str(tag);
     let encoding = match r.read_event() {
         Ok(Event::Start(e)) | Ok(Event::Empty(e)) => attr(&e, "encoding")?,
-        _ => return Err(format!("malformed tag '{tag}'")),
+        _ => return Err(VtiError::MalformedTag(tag.to_string())),
     };
     let base64 = match encoding.as_deref() {
         Some("raw") => false,
         Some("base64") => true,
         other => {
-            return Err(format!(
-                "<AppendedData> encoding '{}' is not raw or base64",
-                other.unwrap_or("(missing)")
+            return Err(VtiError::AppendedEncoding(
+                other.unwrap_or("(missing)").to_string(),
             ))
         }
     };
@@ -417,7 +520,7 @@ fn appended_section(tail: &[u8]) -> Result<Appended<'_>, String> {
     let underscore = after
         .iter()
         .position(|&b| b == b'_')
-        .ok_or("<AppendedData> has no '_' marker before its data")?;
+        .ok_or(VtiError::NoMarker)?;
     let mut data = &after[underscore + 1..];
     if base64 {
         if let Some(end) = find(data, b"</AppendedData") {
@@ -433,23 +536,15 @@ fn read_array(
     n: usize,
     layout: Layout,
     appended: Option<&Appended<'_>>,
-) -> Result<TypedBuffer, String> {
+) -> Result<TypedBuffer, ArrayError> {
     if decl.components != 1 {
-        return Err(format!(
-            "has {} components: only single-component scalars can be rendered (pick another \
-             with --array)",
-            decl.components
-        ));
+        return Err(ArrayError::Components(decl.components));
     }
-    let ty: ScalarType = decl.type_name.parse().map_err(|_| {
-        format!(
-            "type '{}' is not a numeric type (expected Int8 … UInt64, Float32, Float64)",
-            decl.type_name
-        )
-    })?;
-    let nbytes = n
-        .checked_mul(ty.size())
-        .ok_or_else(|| "size overflows".to_string())?;
+    let ty: ScalarType = decl
+        .type_name
+        .parse()
+        .map_err(|_| ArrayError::UnknownType(decl.type_name.clone()))?;
+    let nbytes = n.checked_mul(ty.size()).ok_or(ArrayError::SizeOverflows)?;
     // ASCII values are parsed into f64 first.
     let held = if decl.format == "ascii" { 8 } else { ty.size() };
     crate::memory::check(
@@ -457,29 +552,26 @@ fn read_array(
         u64::try_from(n).ok(),
         held as u64,
         "the extent is larger than fits",
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     match decl.format.as_str() {
         "ascii" => {
             let text: &str = &decl.text;
             let mut values = Vec::with_capacity(n);
             for (i, tok) in text.split_ascii_whitespace().enumerate() {
                 if i == n {
-                    return Err(format!("holds more than the {n} values its extent needs"));
+                    return Err(ArrayError::TooManyValues(n));
                 }
-                let v: f64 = tok.parse().map_err(|_| {
-                    format!(
-                        "value {i} '{}' is not a number",
-                        tok.chars().take(40).collect::<String>()
-                    )
+                let v: f64 = tok.parse().map_err(|_| ArrayError::NotANumber {
+                    index: i,
+                    text: tok.chars().take(40).collect(),
                 })?;
                 values.push(v);
             }
             if values.len() != n {
-                return Err(format!(
-                    "holds {} values but the extent needs {n}",
-                    values.len()
-                ));
+                return Err(ArrayError::ValueCount {
+                    found: values.len(),
+                    needed: n,
+                });
             }
             TypedBuffer::check_text_values(&values, ty)?;
             Ok(TypedBuffer::from_f64_as(values, ty))
@@ -490,15 +582,11 @@ fn read_array(
             Ok(TypedBuffer::new(ty, layout.order, data))
         }
         "appended" => {
-            let app = appended.ok_or("format is appended but the file has no <AppendedData>")?;
-            let offset = decl
-                .offset
-                .ok_or("appended array has no offset attribute")?;
-            let start = app.data.get(offset..).ok_or_else(|| {
-                format!(
-                    "offset {offset} is past the end of the appended data ({} bytes; truncated?)",
-                    app.data.len()
-                )
+            let app = appended.ok_or(ArrayError::NoAppendedData)?;
+            let offset = decl.offset.ok_or(ArrayError::NoOffset)?;
+            let start = app.data.get(offset..).ok_or(ArrayError::OffsetPastEnd {
+                offset,
+                len: app.data.len(),
             })?;
             let data = if app.base64 {
                 unpack(&base64_streams(start)?, layout, nbytes)?
@@ -507,20 +595,21 @@ fn read_array(
             };
             Ok(TypedBuffer::new(ty, layout.order, data))
         }
-        f => Err(format!(
-            "unknown format '{f}' (expected ascii, binary or appended)"
-        )),
+        f => Err(ArrayError::UnknownFormat(f.to_string())),
     }
 }
 
 /// An attribute's unescaped value.
-fn attr(e: &BytesStart<'_>, key: &str) -> Result<Option<String>, String> {
+fn attr(e: &BytesStart<'_>, key: &str) -> Result<Option<String>, VtiError> {
     for a in e.attributes() {
-        let a = a.map_err(|err| format!("malformed attribute: {err}"))?;
+        let a = a.map_err(VtiError::MalformedAttribute)?;
         if a.key.as_ref() == key {
             let v = a
                 .normalized_value(quick_xml::XmlVersion::Implicit1_0)
-                .map_err(|err| format!("malformed attribute {key}: {err}"))?;
+                .map_err(|error| VtiError::MalformedAttributeValue {
+                    key: key.to_string(),
+                    error,
+                })?;
             return Ok(Some(v.into_owned()));
         }
     }
@@ -528,14 +617,21 @@ fn attr(e: &BytesStart<'_>, key: &str) -> Result<Option<String>, String> {
 }
 
 /// Exactly `N` whitespace-separated numbers.
-fn numbers<T: std::str::FromStr, const N: usize>(s: &str, what: &str) -> Result<[T; N], String> {
+fn numbers<T: std::str::FromStr, const N: usize>(
+    s: &str,
+    what: &'static str,
+) -> Result<[T; N], VtiError> {
+    let err = || VtiError::NotNumbers {
+        what,
+        text: s.to_string(),
+        count: N,
+    };
     let v: Vec<T> = s
         .split_ascii_whitespace()
         .map(|x| x.parse::<T>())
         .collect::<Result<_, _>>()
-        .map_err(|_| format!("{what} '{s}' is not {N} numbers"))?;
-    v.try_into()
-        .map_err(|_| format!("{what} '{s}' is not {N} numbers"))
+        .map_err(|_| err())?;
+    v.try_into().map_err(|_| err())
 }
 
 /// First occurrence of `needle` in `hay`.

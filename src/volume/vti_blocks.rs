@@ -12,6 +12,59 @@ use base64::Engine;
 
 use super::ByteOrder;
 
+/// Why a binary array's bytes could not be decoded. Each message is one line; the reader adds
+/// the file and array names.
+#[derive(Debug, thiserror::Error)]
+pub(super) enum BlockError {
+    #[error("base64 data has {chars} characters, not a multiple of 4 (truncated?)")]
+    Base64Length { chars: usize },
+    #[error("invalid base64 data: {0}")]
+    Base64(base64::DecodeError),
+    #[error("the data ends inside its block header (truncated?)")]
+    HeaderTruncated,
+    #[error("header value {value} is too large")]
+    HeaderValueTooLarge { value: u64 },
+    #[error("its header says {declared} bytes but the extent needs {needed}")]
+    LengthMismatch { declared: usize, needed: usize },
+    #[error("needs {declared} bytes but only {available} follow its header (truncated?)")]
+    DataTruncated { declared: usize, available: usize },
+    #[error("block header sizes overflow")]
+    BlockSizesOverflow,
+    #[error("its block header says {declared} bytes but the extent needs {needed}")]
+    BlockTotalMismatch { declared: usize, needed: usize },
+    /// The declared size does not fit in memory.
+    #[error(transparent)]
+    Memory(#[from] crate::memory::MemoryError),
+    #[error("compressed block {block} of {nblocks} is cut short (truncated?)")]
+    BlockTruncated { block: usize, nblocks: usize },
+    /// The inflate error is part of the message (not a `source`), like every reader message.
+    #[error("block {block} of {nblocks}: {error}")]
+    Inflate {
+        block: usize,
+        nblocks: usize,
+        error: InflateError,
+    },
+}
+
+/// Why one compressed block could not be decompressed.
+#[derive(Debug, thiserror::Error)]
+pub(super) enum InflateError {
+    #[error("uncompressed data has no blocks")]
+    NotCompressed,
+    #[error("zlib: {0}")]
+    Zlib(flate2::DecompressError),
+    #[error("zlib stream does not end within {want} bytes")]
+    ZlibNotEnded { want: usize },
+    #[error("lz4: {0}")]
+    Lz4(lz4_flex::block::DecompressError),
+    #[error("lzma: decompresses to more than {want} bytes")]
+    LzmaTooLong { want: usize },
+    #[error("lzma: {0}")]
+    Lzma(lzma_rs::error::Error),
+    #[error("decompressed to {got} bytes, expected {want}")]
+    WrongSize { got: usize, want: usize },
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Compressor {
     None,
@@ -30,17 +83,14 @@ pub(super) struct Layout {
 
 /// Decode base64 text that may be several padded streams back to back (VTK encodes the
 /// header and the data of a compressed array separately). Whitespace is ignored.
-pub(super) fn base64_streams(text: &[u8]) -> Result<Vec<u8>, String> {
+pub(super) fn base64_streams(text: &[u8]) -> Result<Vec<u8>, BlockError> {
     let clean: Vec<u8> = text
         .iter()
         .copied()
         .filter(|b| !b.is_ascii_whitespace())
         .collect();
     if !clean.len().is_multiple_of(4) {
-        return Err(format!(
-            "base64 data has {} characters, not a multiple of 4 (truncated?)",
-            clean.len()
-        ));
+        return Err(BlockError::Base64Length { chars: clean.len() });
     }
     let engine = base64::engine::general_purpose::STANDARD;
     let mut out = Vec::with_capacity(clean.len() / 4 * 3);
@@ -49,47 +99,46 @@ pub(super) fn base64_streams(text: &[u8]) -> Result<Vec<u8>, String> {
         if clean[g + 3] == b'=' {
             engine
                 .decode_vec(&clean[start..g + 4], &mut out)
-                .map_err(|e| format!("invalid base64 data: {e}"))?;
+                .map_err(BlockError::Base64)?;
             start = g + 4;
         }
     }
     engine
         .decode_vec(&clean[start..], &mut out)
-        .map_err(|e| format!("invalid base64 data: {e}"))?;
+        .map_err(BlockError::Base64)?;
     Ok(out)
 }
 
 /// One header integer at `at`.
-fn header_int(stream: &[u8], at: usize, layout: Layout) -> Result<usize, String> {
+fn header_int(stream: &[u8], at: usize, layout: Layout) -> Result<usize, BlockError> {
     let h = layout.header_size;
-    let b = stream
-        .get(at..at + h)
-        .ok_or("the data ends inside its block header (truncated?)")?;
+    let b = stream.get(at..at + h).ok_or(BlockError::HeaderTruncated)?;
     let v = match (h, layout.order) {
         (4, ByteOrder::Little) => u32::from_le_bytes(b.try_into().expect("4 bytes")) as u64,
         (4, ByteOrder::Big) => u32::from_be_bytes(b.try_into().expect("4 bytes")) as u64,
         (_, ByteOrder::Little) => u64::from_le_bytes(b.try_into().expect("8 bytes")),
         (_, ByteOrder::Big) => u64::from_be_bytes(b.try_into().expect("8 bytes")),
     };
-    usize::try_from(v).map_err(|_| format!("header value {v} is too large"))
+    usize::try_from(v).map_err(|_| BlockError::HeaderValueTooLarge { value: v })
 }
 
 /// Header + (compressed) blocks → exactly `nbytes` of array data.
-pub(super) fn unpack(stream: &[u8], layout: Layout, nbytes: usize) -> Result<Vec<u8>, String> {
+pub(super) fn unpack(stream: &[u8], layout: Layout, nbytes: usize) -> Result<Vec<u8>, BlockError> {
     let h = layout.header_size;
     if layout.compressor == Compressor::None {
         let len = header_int(stream, 0, layout)?;
         if len != nbytes {
-            return Err(format!(
-                "its header says {len} bytes but the extent needs {nbytes}"
-            ));
+            return Err(BlockError::LengthMismatch {
+                declared: len,
+                needed: nbytes,
+            });
         }
-        let data = stream.get(h..h + len).ok_or_else(|| {
-            format!(
-                "needs {len} bytes but only {} follow its header (truncated?)",
-                stream.len().saturating_sub(h)
-            )
-        })?;
+        let data = stream
+            .get(h..h + len)
+            .ok_or_else(|| BlockError::DataTruncated {
+                declared: len,
+                available: stream.len().saturating_sub(h),
+            })?;
         return Ok(data.to_vec());
     }
 
@@ -101,20 +150,20 @@ pub(super) fn unpack(stream: &[u8], layout: Layout, nbytes: usize) -> Result<Vec
         _ => (nblocks - 1)
             .checked_mul(block)
             .and_then(|t| t.checked_add(if last == 0 { block } else { last }))
-            .ok_or("block header sizes overflow")?,
+            .ok_or(BlockError::BlockSizesOverflow)?,
     };
     if total != nbytes {
-        return Err(format!(
-            "its block header says {total} bytes but the extent needs {nbytes}"
-        ));
+        return Err(BlockError::BlockTotalMismatch {
+            declared: total,
+            needed: nbytes,
+        });
     }
     crate::memory::check(
         "the array's decompressed data",
         u64::try_from(total).ok(),
         1,
         "the file declares more data than fits",
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     let mut sizes = Vec::with_capacity(nblocks.min(1 << 20));
     for b in 0..nblocks {
         sizes.push(header_int(stream, (3 + b) * h, layout)?);
@@ -122,14 +171,17 @@ pub(super) fn unpack(stream: &[u8], layout: Layout, nbytes: usize) -> Result<Vec
     let mut pos = (3 + nblocks) * h;
     let mut out = vec![0u8; total];
     for (b, &csize) in sizes.iter().enumerate() {
-        let input = stream.get(pos..pos.saturating_add(csize)).ok_or_else(|| {
-            format!("compressed block {b} of {nblocks} is cut short (truncated?)")
-        })?;
+        let input = stream
+            .get(pos..pos.saturating_add(csize))
+            .ok_or(BlockError::BlockTruncated { block: b, nblocks })?;
         pos += csize;
         let start = b * block;
         let dst = &mut out[start..(start + block).min(total)];
-        inflate(layout.compressor, input, dst)
-            .map_err(|m| format!("block {b} of {nblocks}: {m}"))?;
+        inflate(layout.compressor, input, dst).map_err(|error| BlockError::Inflate {
+            block: b,
+            nblocks,
+            error,
+        })?;
     }
     Ok(out)
 }
@@ -158,22 +210,22 @@ impl std::io::Write for Bounded<'_> {
 }
 
 /// Decompress one block into exactly `dst.len()` bytes.
-fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), String> {
+fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), InflateError> {
     let want = dst.len();
     let got = match c {
-        Compressor::None => return Err("uncompressed data has no blocks".into()),
+        Compressor::None => return Err(InflateError::NotCompressed),
         Compressor::Zlib => {
             let mut z = flate2::Decompress::new(true);
             let status = z
                 .decompress(input, dst, flate2::FlushDecompress::Finish)
-                .map_err(|e| format!("zlib: {e}"))?;
+                .map_err(InflateError::Zlib)?;
             if status != flate2::Status::StreamEnd {
-                return Err(format!("zlib stream does not end within {want} bytes"));
+                return Err(InflateError::ZlibNotEnded { want });
             }
             z.total_out() as usize
         }
         Compressor::Lz4 => {
-            lz4_flex::block::decompress_into(input, dst).map_err(|e| format!("lz4: {e}"))?
+            lz4_flex::block::decompress_into(input, dst).map_err(InflateError::Lz4)?
         }
         Compressor::Lzma => {
             // VTK's LZMA compressor writes .xz streams (lzma_easy_buffer_encode).
@@ -185,14 +237,14 @@ fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), String> {
             };
             let r = lzma_rs::xz_decompress(&mut std::io::Cursor::new(input), &mut out);
             if out.over {
-                return Err(format!("lzma: decompresses to more than {want} bytes"));
+                return Err(InflateError::LzmaTooLong { want });
             }
-            r.map_err(|e| format!("lzma: {e}"))?;
+            r.map_err(InflateError::Lzma)?;
             out.len
         }
     };
     if got != want {
-        return Err(format!("decompressed to {got} bytes, expected {want}"));
+        return Err(InflateError::WrongSize { got, want });
     }
     Ok(())
 }
@@ -237,7 +289,9 @@ mod tests {
         let mut xz = Vec::new();
         lzma_rs::xz_compress(&mut &vec![0u8; 1 << 20][..], &mut xz).unwrap();
         let mut dst = vec![0u8; 512];
-        let e = inflate(Compressor::Lzma, &xz, &mut dst).unwrap_err();
+        let e = inflate(Compressor::Lzma, &xz, &mut dst)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("more than 512 bytes"), "{e}");
     }
 }
