@@ -14,50 +14,11 @@ use t2tf::clip::packed::{with_engine, Engine};
 use t2tf::clip::{cosine_grad, Activation, Clip, ClipError, TensorSource};
 use t2tf::image::Image;
 
-#[derive(Deserialize)]
-struct TextCase {
-    caption: String,
-    ids: Vec<u32>,
-    embedding: Vec<f32>,
-}
-
-#[derive(Deserialize)]
-struct Golden {
-    texts: Vec<TextCase>,
-    logit_scale: f32,
-    /// [B][H][W][3]
-    images: Vec<Vec<Vec<Vec<f32>>>>,
-    image_embeddings: Vec<Vec<f32>>,
-    grad_pairs: Vec<usize>,
-    grad_images: Vec<Vec<Vec<Vec<f32>>>>,
-}
+// The golden-file format, the parity criterion (max |rust − reference| ≤ TOL · max |reference|)
+// and its helpers are clip_golden's.
+use crate::clip_golden::{rel_err, to_image, Golden, TOKENIZER, TOL};
 
 const DIR: &str = "tests/fixtures/clip/odd_shapes";
-const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
-
-/// Parity criterion of tests/clip/clip_golden.rs: max |rust − reference| ≤ TOL · max |reference|
-/// over the whole vector; both sides compute in f32 from identical weights and differ only in
-/// summation order.
-const TOL: f64 = 1e-4;
-
-fn rel_err(got: &[f32], want: &[f32]) -> f64 {
-    assert_eq!(got.len(), want.len());
-    let scale = want.iter().fold(0.0f64, |m, &v| m.max(v.abs() as f64));
-    let diff = got
-        .iter()
-        .zip(want)
-        .fold(0.0f64, |m, (&a, &b)| m.max((a as f64 - b as f64).abs()));
-    diff / scale.max(1e-30)
-}
-
-fn to_image(nested: &[Vec<Vec<f32>>]) -> Image {
-    let (h, w) = (nested.len(), nested[0].len());
-    Image {
-        width: w,
-        height: h,
-        data: nested.iter().flatten().flatten().copied().collect(),
-    }
-}
 
 fn golden() -> Golden {
     serde_json::from_str(&std::fs::read_to_string(format!("{DIR}/golden.json")).unwrap()).unwrap()

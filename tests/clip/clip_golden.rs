@@ -10,32 +10,34 @@ use t2tf::clip::packed::{with_engine, Engine};
 use t2tf::clip::{cosine, cosine_grad, Clip};
 use t2tf::image::Image;
 
+/// A golden file written by transformers (`tests/fixtures/clip/*/golden.json`); also read by
+/// `clip_families`.
 #[derive(Deserialize)]
-struct TextCase {
-    caption: String,
-    ids: Vec<u32>,
-    embedding: Vec<f32>,
+pub(crate) struct TextCase {
+    pub(crate) caption: String,
+    pub(crate) ids: Vec<u32>,
+    pub(crate) embedding: Vec<f32>,
 }
 
 #[derive(Deserialize)]
-struct Golden {
-    texts: Vec<TextCase>,
-    logit_scale: f32,
+pub(crate) struct Golden {
+    pub(crate) texts: Vec<TextCase>,
+    pub(crate) logit_scale: f32,
     /// [B][H][W][3]
-    images: Vec<Vec<Vec<Vec<f32>>>>,
-    image_embeddings: Vec<Vec<f32>>,
-    grad_pairs: Vec<usize>,
-    grad_images: Vec<Vec<Vec<Vec<f32>>>>,
+    pub(crate) images: Vec<Vec<Vec<Vec<f32>>>>,
+    pub(crate) image_embeddings: Vec<Vec<f32>>,
+    pub(crate) grad_pairs: Vec<usize>,
+    pub(crate) grad_images: Vec<Vec<Vec<Vec<f32>>>>,
 }
 
-const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
+pub(crate) const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
 
 /// Parity criterion: max |rust − reference| ≤ TOL · max |reference| over the whole vector.
 /// Both sides compute in f32 from identical weights; the differences come from summation
 /// order (GEMM blocking vs PyTorch's kernels), ~1e-6 relative per layer.
-const TOL: f64 = 1e-4;
+pub(crate) const TOL: f64 = 1e-4;
 
-fn rel_err(got: &[f32], want: &[f32]) -> f64 {
+pub(crate) fn rel_err(got: &[f32], want: &[f32]) -> f64 {
     assert_eq!(got.len(), want.len());
     let scale = want.iter().fold(0.0f64, |m, &v| m.max(v.abs() as f64));
     let diff = got
@@ -45,7 +47,7 @@ fn rel_err(got: &[f32], want: &[f32]) -> f64 {
     diff / scale.max(1e-30)
 }
 
-fn to_image(nested: &[Vec<Vec<f32>>]) -> Image {
+pub(crate) fn to_image(nested: &[Vec<Vec<f32>>]) -> Image {
     let (h, w) = (nested.len(), nested[0].len());
     Image {
         width: w,

@@ -6,7 +6,9 @@
 
 use crate::paraview_util;
 
-use paraview_util::{assert_volume_only_inside, floats, paraview_available, psnr, pvpython, repo};
+use paraview_util::{
+    assert_volume_only_inside, floats, paraview_available, projected_box, psnr, pvpython, repo,
+};
 use std::path::Path;
 
 use t2tf::camera::ParaViewCamera;
@@ -162,49 +164,6 @@ fn presets_import_and_apply_exactly() {
             assert!((q[c + 1] - want[c]).abs() < 1e-12, "XML colour at {}", q[0]);
         }
     }
-}
-
-/// Pixel rectangle (x0, y0, x1, y1) covering the projected box for a pinhole camera with
-/// vertical field of view `view.view_angle` and a `w`×`h` image.
-fn projected_box(v: &Volume, view: &ParaViewCamera, w: usize, h: usize) -> [f64; 4] {
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let norm = |a: [f64; 3]| {
-        let l = dot(a, a).sqrt();
-        a.map(|x| x / l)
-    };
-    let f = norm(sub(view.focal_point, view.position));
-    let r = norm(cross(f, view.view_up));
-    let u = cross(r, f);
-    let t = (view.view_angle.to_radians() / 2.0).tan();
-    let aspect = w as f64 / h as f64;
-    let (o, e) = (v.geometry.origin, v.geometry.extent());
-    let mut b = [
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-    ];
-    for c in 0..8 {
-        let p = [
-            o[0] + e[0] * (c & 1) as f64,
-            o[1] + e[1] * ((c >> 1) & 1) as f64,
-            o[2] + e[2] * ((c >> 2) & 1) as f64,
-        ];
-        let d = sub(p, view.position);
-        let z = dot(d, f);
-        let px = (dot(d, r) / (z * t * aspect) + 1.0) / 2.0 * w as f64;
-        let py = (1.0 - dot(d, u) / (z * t)) / 2.0 * h as f64;
-        b = [b[0].min(px), b[1].min(py), b[2].max(px), b[3].max(py)];
-    }
-    b
 }
 
 #[test]

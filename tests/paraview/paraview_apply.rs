@@ -10,7 +10,7 @@ use crate::paraview_util;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use paraview_util::{paraview_available, pvpython_output, repo};
+use paraview_util::{paraview_available, projected_box, pvpython_output, repo};
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::write_all;
 use t2tf::image::Image;
@@ -77,39 +77,14 @@ fn vec3(v: &serde_json::Value) -> [f64; 3] {
     [a[0], a[1], a[2]]
 }
 
-/// Pixel rectangle (x0, y0, x1, y1) covering the volume's box as seen by the printed
-/// pinhole camera in a `w`×`h` image.
-fn projected_box(v: &Volume, camera: &serde_json::Value, w: usize, h: usize) -> [f64; 4] {
-    let (pos, focal, up) = (
-        vec3(&camera["position"]),
-        vec3(&camera["focal_point"]),
-        vec3(&camera["view_up"]),
-    );
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let unit = |a: [f64; 3]| a.map(|x| x / dot(a, a).sqrt());
-    let f = unit(sub(focal, pos));
-    let r = unit(cross(f, up));
-    let u = cross(r, f);
-    let t = (camera["view_angle"].as_f64().unwrap().to_radians() / 2.0).tan();
-    let (o, e) = (v.geometry.origin, v.geometry.extent());
-    let mut b = [f64::MAX, f64::MAX, f64::MIN, f64::MIN];
-    for c in 0..8 {
-        let p: [f64; 3] = std::array::from_fn(|a| o[a] + e[a] * ((c >> a) & 1) as f64);
-        let d = sub(p, pos);
-        let z = dot(d, f);
-        let px = (dot(d, r) / (z * t * w as f64 / h as f64) + 1.0) / 2.0 * w as f64;
-        let py = (1.0 - dot(d, u) / (z * t)) / 2.0 * h as f64;
-        b = [b[0].min(px), b[1].min(py), b[2].max(px), b[3].max(py)];
+/// The printed camera's JSON as a `ParaViewCamera`.
+fn camera_of(camera: &serde_json::Value) -> ParaViewCamera {
+    ParaViewCamera {
+        position: vec3(&camera["position"]),
+        focal_point: vec3(&camera["focal_point"]),
+        view_up: vec3(&camera["view_up"]),
+        view_angle: camera["view_angle"].as_f64().unwrap(),
     }
-    b
 }
 
 /// Fraction of the pixels well inside `b` that differ from the background `bg`.
@@ -163,7 +138,7 @@ fn helper_shows_a_raw_volume_by_its_name_and_by_flags() {
 
     let (img, camera) = shot("named.png", &repo().join(NEGHIP), &[]);
     assert_eq!((img.width, img.height), (w, h));
-    let b = projected_box(&v, &camera, w, h);
+    let b = projected_box(&v, &camera_of(&camera), w, h);
     // The top-right corner is background (the orientation axes sit bottom left).
     let bg = img.pixel(w - 1, 0);
     let frac = shown_inside(&img, b, bg);

@@ -13,7 +13,9 @@
 
 use crate::paraview_util;
 
-use paraview_util::{assert_volume_only_inside, floats, paraview_available, psnr, pvpython, repo};
+use paraview_util::{
+    assert_volume_only_inside, floats, paraview_available, projected_box, psnr, pvpython, repo,
+};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -51,36 +53,6 @@ fn script_float(script: &str, name: &str) -> f64 {
         .unwrap_or_else(|| panic!("script assigns no {name}"));
     line.parse()
         .unwrap_or_else(|e| panic!("{name} = {line}: {e}"))
-}
-
-/// Pixel rectangle (x0, y0, x1, y1) covering the projected box for `cam` and a `w`×`h` image
-/// (our pinhole model; ParaView's view angle is vertical, as ours).
-fn projected_box(v: &Volume, cam: &Camera, w: usize, h: usize) -> [f64; 4] {
-    let f = (cam.focal_point - cam.position).normalize();
-    let r = f.cross(cam.view_up).normalize();
-    let u = r.cross(f);
-    let t = (cam.view_angle_deg.to_radians() / 2.0).tan();
-    let aspect = w as f64 / h as f64;
-    let (o, e) = (v.geometry.origin, v.geometry.extent());
-    let mut b = [
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-    ];
-    for c in 0..8 {
-        let p = glam::DVec3::new(
-            o[0] + e[0] * (c & 1) as f64,
-            o[1] + e[1] * ((c >> 1) & 1) as f64,
-            o[2] + e[2] * ((c >> 2) & 1) as f64,
-        );
-        let d = p - cam.position;
-        let z = d.dot(f);
-        let px = (d.dot(r) / (z * t * aspect) + 1.0) / 2.0 * w as f64;
-        let py = (1.0 - d.dot(u) / (z * t)) / 2.0 * h as f64;
-        b = [b[0].min(px), b[1].min(py), b[2].max(px), b[3].max(py)];
-    }
-    b
 }
 
 /// Our render of `volume` with `cp`, `cam`, a constant background, at a step of `step` voxels
@@ -268,7 +240,7 @@ fn optimizer_output_opens_in_paraview_and_matches_our_render() {
     if let Ok(keep) = std::env::var("T2TF_PARAVIEW_SHOT") {
         std::fs::copy(&shot, keep).unwrap();
     }
-    let b = projected_box(&volume, &cam, SIZE, SIZE);
+    let b = projected_box(&volume, &cam.paraview(), SIZE, SIZE);
     assert_volume_only_inside(&img, b, bg);
 
     // (2) Against our renderer, same camera and background. Five random-CLIP steps at the

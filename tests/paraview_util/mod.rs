@@ -12,7 +12,13 @@ pub mod server;
 
 /// Whether pvpython and xvfb-run are here; panics if they are required but missing.
 pub fn paraview_available(test: &str) -> bool {
-    let found = ["pvpython", "xvfb-run"].iter().all(|exe| {
+    tools_available(test, &["pvpython", "xvfb-run"])
+}
+
+/// Whether every program in `exes` is on PATH; panics if one is missing while
+/// T2TF_REQUIRE_PARAVIEW=1 (CI), else says the test is skipped.
+pub fn tools_available(test: &str, exes: &[&str]) -> bool {
+    let found = exes.iter().all(|exe| {
         Command::new("sh")
             .args(["-c", &format!("command -v {exe}")])
             .output()
@@ -21,13 +27,17 @@ pub fn paraview_available(test: &str) -> bool {
     });
     if !found {
         if std::env::var("T2TF_REQUIRE_PARAVIEW").as_deref() == Ok("1") {
-            panic!("{test}: pvpython/xvfb-run not found but T2TF_REQUIRE_PARAVIEW=1");
+            panic!(
+                "{test}: {} not found but T2TF_REQUIRE_PARAVIEW=1",
+                exes.join("/")
+            );
         }
         // Straight to stderr: the test harness captures eprintln! of passing tests.
         use std::io::Write;
         let _ = writeln!(
             std::io::stderr(),
-            "{test}: SKIPPED, pvpython or xvfb-run not found (set T2TF_REQUIRE_PARAVIEW=1 to fail)"
+            "{test}: SKIPPED, {} not found (set T2TF_REQUIRE_PARAVIEW=1 to fail)",
+            exes.join(" or ")
         );
     }
     found
@@ -128,4 +138,41 @@ pub fn assert_volume_only_inside(img: &Image, b: [f64; 4], bg: [f64; 3]) {
     let frac = inside_differs as f64 / inside as f64;
     eprintln!("projected box {b:?}: {inside_differs}/{inside} inside pixels show the volume");
     assert!(frac > 0.3, "only {frac} of the box shows the volume");
+}
+
+/// Pixel rectangle (x0, y0, x1, y1) covering the volume's box as seen by `cam` (a pinhole with
+/// a vertical view angle, as ParaView's and ours) in a `w`×`h` image.
+pub fn projected_box(
+    v: &t2tf::volume::Volume,
+    cam: &t2tf::camera::ParaViewCamera,
+    w: usize,
+    h: usize,
+) -> [f64; 4] {
+    use glam::DVec3;
+    let (pos, focal, up) = (
+        DVec3::from(cam.position),
+        DVec3::from(cam.focal_point),
+        DVec3::from(cam.view_up),
+    );
+    let f = (focal - pos).normalize();
+    let r = f.cross(up).normalize();
+    let u = r.cross(f);
+    let t = (cam.view_angle.to_radians() / 2.0).tan();
+    let aspect = w as f64 / h as f64;
+    let (o, e) = (v.geometry.origin, v.geometry.extent());
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for c in 0..8 {
+        let corner: [f64; 3] = std::array::from_fn(|a| o[a] + e[a] * ((c >> a) & 1) as f64);
+        let d = DVec3::from(corner) - pos;
+        let z = d.dot(f);
+        let px = (d.dot(r) / (z * t * aspect) + 1.0) / 2.0 * w as f64;
+        let py = (1.0 - d.dot(u) / (z * t)) / 2.0 * h as f64;
+        b = [b[0].min(px), b[1].min(py), b[2].max(px), b[3].max(py)];
+    }
+    b
 }

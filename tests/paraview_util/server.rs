@@ -9,24 +9,7 @@ use std::time::{Duration, Instant};
 /// Whether `mpiexec` and `pvserver` are here; panics if they are missing while
 /// T2TF_REQUIRE_PARAVIEW=1 (on Debian, `mpiexec` comes from the openmpi-bin package).
 pub fn pvserver_available(test: &str) -> bool {
-    let found = ["mpiexec", "pvserver"].iter().all(|exe| {
-        Command::new("sh")
-            .args(["-c", &format!("command -v {exe}")])
-            .output()
-            .map(|o| o.status.success())
-            .unwrap_or(false)
-    });
-    if !found {
-        if std::env::var("T2TF_REQUIRE_PARAVIEW").as_deref() == Ok("1") {
-            panic!("{test}: mpiexec/pvserver not found but T2TF_REQUIRE_PARAVIEW=1");
-        }
-        use std::io::Write;
-        let _ = writeln!(
-            std::io::stderr(),
-            "{test}: SKIPPED, mpiexec or pvserver not found (set T2TF_REQUIRE_PARAVIEW=1 to fail)"
-        );
-    }
-    found
+    super::tools_available(test, &["mpiexec", "pvserver"])
 }
 
 /// A running `xvfb-run -a mpiexec -n N pvserver --server-port=PORT`; dropping it stops the
