@@ -198,20 +198,9 @@ fn held_out_views(s: &Settings) -> Vec<View> {
         .collect()
 }
 
+/// PSNR (dB) of the views pooled: `t2tf::image::psnr` of the views side by side.
 fn psnr(a: &[Image], b: &[Image]) -> f64 {
-    let (mut se, mut n) = (0.0f64, 0usize);
-    for (x, y) in a.iter().zip(b) {
-        for (p, q) in x.data.iter().zip(&y.data) {
-            se += ((p - q) as f64).powi(2);
-            n += 1;
-        }
-    }
-    let mse = se / n.max(1) as f64;
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        10.0 * (1.0 / mse).log10()
-    }
+    t2tf::image::psnr(&Image::grid(a, a.len()), &Image::grid(b, b.len()))
 }
 
 /// RMS differences of (ParaView opacity at unit distance u, rgb) over 256 values of [0, 1].

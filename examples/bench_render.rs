@@ -344,15 +344,13 @@ impl Run {
         self.rendered.iter().map(|r| r.samples).sum()
     }
 
+    /// PSNR (dB) of the views pooled: `t2tf::image::psnr` of the views side by side.
     fn psnr(&self, reference: &Run) -> f64 {
-        let (mut se, mut n) = (0.0f64, 0usize);
-        for (a, b) in self.rendered.iter().zip(&reference.rendered) {
-            for (x, y) in a.image.data.iter().zip(&b.image.data) {
-                se += ((x - y) as f64).powi(2);
-                n += 1;
-            }
-        }
-        -10.0 * (se / n as f64).max(1e-30).log10()
+        let side_by_side = |run: &Run| {
+            let views: Vec<Image> = run.rendered.iter().map(|r| r.image.clone()).collect();
+            Image::grid(&views, views.len())
+        };
+        t2tf::image::psnr(&side_by_side(self), &side_by_side(reference))
     }
 
     fn grad_error(&self, reference: &Run) -> f64 {

@@ -159,18 +159,9 @@ pub fn cameras(volume: &Volume) -> anyhow::Result<Vec<Camera>> {
         .collect()
 }
 
+/// PSNR (dB) of the views pooled: `t2tf::image::psnr` of the views side by side.
 fn psnr(a: &[Image], b: &[Image]) -> f64 {
-    let (mut se, mut n) = (0.0f64, 0usize);
-    for (a, b) in a.iter().zip(b) {
-        for (x, y) in a.data.iter().zip(&b.data) {
-            se += ((x.clamp(0.0, 1.0) - y.clamp(0.0, 1.0)) as f64).powi(2);
-            n += 1;
-        }
-    }
-    if se == 0.0 {
-        return f64::INFINITY;
-    }
-    10.0 * (n as f64 / se).log10()
+    t2tf::image::psnr(&Image::grid(a, a.len()), &Image::grid(b, b.len()))
 }
 
 fn render_all(

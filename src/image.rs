@@ -211,6 +211,37 @@ impl Image {
     }
 }
 
+/// The mean squared error [`psnr`] floors at: 1e-20, so its ceiling is 200 dB. Equal images
+/// get a finite PSNR, which means over views and report.json (JSON has no infinity) can carry;
+/// the ceiling lies far above any two renders that differ at all in their rounding (one f32
+/// ulp at 1.0 on every channel is 138 dB), so it never hides a measured difference.
+const PSNR_MSE_FLOOR: f64 = 1e-20;
+
+/// The PSNR of t2tf: `a` against `b` in dB, peak 1 (images are RGB in [0, 1]), from the mean
+/// squared error over every channel of every pixel, floored at 1e-20: equal images give
+/// 200 dB, not infinity, so means over views and JSON stay finite, and no two renders that
+/// differ at all come near it (one f32 ulp at 1.0 on every channel is 138 dB). Several views are compared either as the mean of this per view
+/// (`optimize::recover::psnr`, the recovery test's measure) or pooled, as the PSNR of the
+/// views side by side (`Image::grid(views, views.len())`, what the benchmarks print).
+///
+/// # Panics
+/// If the two images differ in size (a caller's bug, not an input error).
+pub fn psnr(a: &Image, b: &Image) -> f64 {
+    assert_eq!(
+        (a.width, a.height, a.data.len()),
+        (b.width, b.height, b.data.len()),
+        "psnr: images of different sizes"
+    );
+    let mse = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(&x, &y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        / a.data.len().max(1) as f64;
+    -10.0 * mse.max(PSNR_MSE_FLOOR).log10()
+}
+
 /// Bilinear resampling of a `w`×`h` grid of `channels` interleaved values to `nw`×`nh`, pixel
 /// centres aligned (source coordinate (x + ½)·w/nw − ½, clamped at the edges: PyTorch's
 /// `interpolate(mode="bilinear", align_corners=False)` without antialiasing). Used to render
@@ -288,6 +319,19 @@ fn taps(n: usize, nn: usize) -> Vec<(usize, usize, f32)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn psnr_is_20_db_for_a_tenth_everywhere_and_200_for_equal_images() {
+        let (a, b) = (Image::filled(3, 2, [0.5; 3]), Image::filled(3, 2, [0.6; 3]));
+        assert!((psnr(&a, &b) - 20.0).abs() < 1e-5, "{}", psnr(&a, &b));
+        assert_eq!(psnr(&a, &a), 200.0);
+        // Pooled over views (the benchmarks' measure): one view off by 0.1, one equal.
+        let pooled = psnr(
+            &Image::grid(&[a.clone(), a.clone()], 2),
+            &Image::grid(&[b, a], 2),
+        );
+        assert!((pooled - 23.0103).abs() < 1e-3, "{pooled}");
+    }
 
     #[test]
     fn png_round_trip_is_exact_at_8_bit() {

@@ -7,7 +7,7 @@
 use crate::paraview_util;
 
 use paraview_util::{
-    assert_volume_only_inside, floats, paraview_available, projected_box, psnr, pvpython, repo,
+    assert_volume_only_inside, floats, paraview_available, projected_box, pvpython, repo,
 };
 use std::path::Path;
 

@@ -14,14 +14,14 @@
 use crate::paraview_util;
 
 use paraview_util::{
-    assert_volume_only_inside, floats, paraview_available, projected_box, psnr, pvpython, repo,
+    assert_volume_only_inside, floats, paraview_available, projected_box, pvpython, repo,
 };
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use t2tf::camera::{Camera, Orbit, UpAxis};
 use t2tf::formats::{load_tf, write_all};
-use t2tf::image::Image;
+use t2tf::image::{psnr, Image};
 use t2tf::render::{self, RenderOptions};
 use t2tf::tf::ControlPoints;
 use t2tf::volume::{load, ReadOptions, Volume};

@@ -19,10 +19,10 @@ use crate::paraview_util;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use paraview_util::{paraview_available, psnr, pvpython, repo};
+use paraview_util::{paraview_available, pvpython, repo};
 use serde_json::{json, Value};
 use t2tf::camera::{Camera, Orbit, UpAxis};
-use t2tf::image::Image;
+use t2tf::image::{psnr, Image};
 use t2tf::volume::{load, ReadOptions};
 
 /// Side of the screenshots and renders.

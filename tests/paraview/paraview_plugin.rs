@@ -16,7 +16,7 @@ use crate::paraview_util;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use paraview_util::{floats, paraview_available, psnr, repo, server, PVPYTHON};
+use paraview_util::{floats, paraview_available, repo, server, PVPYTHON};
 use t2tf::image::Image;
 
 const NEGHIP: &str = "../shared/data/volumes/neghip_64x64x64_uint8.raw";

@@ -92,19 +92,6 @@ pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// PSNR in dB between two images of the same size (RGB in [0, 1]).
-pub fn psnr(a: &Image, b: &Image) -> f64 {
-    assert_eq!((a.width, a.height), (b.width, b.height));
-    let mse = a
-        .data
-        .iter()
-        .zip(&b.data)
-        .map(|(x, y)| ((x - y) as f64).powi(2))
-        .sum::<f64>()
-        / a.data.len() as f64;
-    10.0 * (1.0 / mse.max(1e-20)).log10()
-}
-
 pub fn floats(v: &serde_json::Value) -> Vec<f64> {
     v.as_array()
         .expect("array")
