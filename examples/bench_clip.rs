@@ -13,7 +13,7 @@
 //!      seconds long), and the same captions in 256-caption calls in file order.
 //!
 //! Run from the repository root (the tokenizer is read from ../shared/data/clip):
-//!     cargo run --release --example bench_clip [-- --reps N] [--image-only] [--pool]
+//!     cargo run --release --features bench --example bench_clip [-- --reps N] [--image-only] [--pool]
 //!         [--pool-only] [--only crate|avx2|avx512f|bf16] [--engine packed|crate]
 //! `--image-only` runs just the image loop (for profilers); `--pool` adds section 5,
 //! `--pool-only` runs only it; `--only` keeps one setup (and `--engine` is `--only` for the
@@ -22,7 +22,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use t2tf::clip::matmul::{matmul, Mat, Op};
+use t2tf::bench::{best_kernel, matmul, Mat, Op};
 use t2tf::clip::packed::{self, Engine, Kernel, Precision};
 use t2tf::clip::{cosine_grad, Clip, ClipConfig, ClipError, ClipTokenizer, RandomSource};
 use t2tf::image::Image;
@@ -248,9 +248,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let only = match arg("--engine").as_deref() {
         None => arg("--only"),
         Some("crate") => Some("crate".to_string()),
-        Some("packed") => {
-            Kernel::best(Precision::F32).map(|k| Setup::Packed(k).short().to_string())
-        }
+        Some("packed") => best_kernel(Precision::F32).map(|k| Setup::Packed(k).short().to_string()),
         Some(e) => return Err(format!("--engine {e}: expected packed or crate").into()),
     };
     if let Some(only) = &only {
@@ -492,7 +490,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // crate), relative L2 error, worst of the 3 views / 8 captions.
     let reference = run
         .iter()
-        .position(|s| Some(*s) == Kernel::best(Precision::F32).map(Setup::Packed))
+        .position(|s| Some(*s) == best_kernel(Precision::F32).map(Setup::Packed))
         .unwrap_or(0);
     let (emb32, cache32) = models[reference].encode_images(&views)?;
     let d: Vec<Vec<f32>> = emb32.iter().map(|e| cosine_grad(e, &target)).collect();

@@ -12,7 +12,7 @@
 //! once and shared by all rows, as the on-disk cache makes it for repeated CLI runs.
 //!
 //! Run from the repository root (volume and tokenizer are read from ../shared/data):
-//!     cargo run --release --example bench_optimize -- [FLAGS]
+//!     cargo run --release --features bench --example bench_optimize -- [FLAGS]
 //! Flags (the full table is CPU heavy; run subsets):
 //!     --steps-list 50,100,200,300   steps of the steps × views grid (default: this list)
 //!     --views-list 1,3              views of the grid (default: this list)
@@ -411,7 +411,7 @@ fn main() -> anyhow::Result<()> {
             p.name()
         ),
     };
-    let (pool_emb, cached) = captions::cached_embeddings(
+    let (pool_emb, cached) = t2tf::bench::cached_embeddings(
         captions::cache_dir().as_deref(),
         key.as_bytes(),
         pool.captions(),
@@ -590,7 +590,7 @@ fn main() -> anyhow::Result<()> {
     }
     if let Some(d) = &out {
         std::fs::create_dir_all(d)?;
-        t2tf::optimize::driver::tile(&r0.held_out).save_png(&d.join("reference.png"))?;
+        t2tf::bench::tile(&r0.held_out).save_png(&d.join("reference.png"))?;
     }
 
     println!(
@@ -618,8 +618,7 @@ fn main() -> anyhow::Result<()> {
         let r = run(row)?;
         line(row, &r);
         if let Some(d) = &out {
-            t2tf::optimize::driver::tile(&r.held_out)
-                .save_png(&d.join(format!("row{}.png", i + 1)))?;
+            t2tf::bench::tile(&r.held_out).save_png(&d.join(format!("row{}.png", i + 1)))?;
         }
     }
     println!("\nload average at the end: {}", load_avg());

@@ -1,7 +1,7 @@
 //! Renderer speed against error (issue 4). Not a timed test: prints a Markdown table.
 //!
 //! ```text
-//! cargo run --release --example bench_render [-- --out DIR] [--quick] [--speed]
+//! cargo run --release --features bench --example bench_render [-- --out DIR] [--quick] [--speed]
 //! ```
 //!
 //! Volume: `../shared/data/volumes/aneurism_256x256x256_uint8.raw`, and a 512³ trilinear
@@ -395,15 +395,10 @@ impl Scene {
     ) -> anyhow::Result<LutGrad> {
         let mut grad = LutGrad::zeros(lut.entries.len());
         for (c, r) in self.cameras.iter().zip(rendered) {
-            grad.add(&render::backward_from(
-                v,
-                lut,
-                c,
-                r,
-                opts,
-                &self.d_image,
-                &self.d_t,
-            )?);
+            t2tf::bench::add_grad(
+                &mut grad,
+                &render::backward_from(v, lut, c, r, opts, &self.d_image, &self.d_t)?,
+            );
         }
         Ok(grad)
     }

@@ -2,7 +2,7 @@
 //! the optimizer's preview.png. Not a timed test: prints a Markdown table.
 //!
 //! ```text
-//! cargo run --release --example bench_render_defaults [-- --size N]
+//! cargo run --release --features bench --example bench_render_defaults [-- --size N]
 //! ```
 //!
 //! Every shared volume (`../shared/data/volumes/`) plus a wide-range 16-bit CT made here

@@ -52,12 +52,18 @@ if [[ -n "${THREADS:-}" ]]; then
     threads_args=(--threads "$THREADS")
 fi
 
+# The benchmarks need the `bench` feature since issue #16; a tree from before it has none.
+bench_features() {
+    if grep -q '^bench = ' "$1/Cargo.toml"; then
+        echo "--features=bench"
+    fi
+}
 echo "building before ..." >&2
 (cd "$before_tree" && CARGO_TARGET_DIR="$work/target-before" \
-    cargo build --release --quiet --example bench_optimize)
+    cargo build --release --quiet $(bench_features "$before_tree") --example bench_optimize)
 echo "building after ..." >&2
 (cd "$repo" && CARGO_TARGET_DIR="$work/target-after" \
-    cargo build --release --quiet --example bench_optimize)
+    cargo build --release --quiet --features bench --example bench_optimize)
 before_bin="$work/target-before/release/examples/bench_optimize"
 after_bin="$work/target-after/release/examples/bench_optimize"
 

@@ -36,8 +36,8 @@ mod encoder;
 mod layers;
 /// Finding a model's files (a directory or the Hugging Face Hub).
 pub mod load;
-/// Products by the `gemm` crate.
-pub mod matmul;
+/// Products by the `gemm` crate (public only through `crate::bench`, for `bench_clip`).
+pub(crate) mod matmul;
 /// Weights packed at load for the hand-written micro-kernels, and the engine and precision
 /// settings.
 pub mod packed;

@@ -224,7 +224,7 @@ fn decode(bytes: &[u8], key: &[u8; 32], count: usize) -> Option<Vec<Vec<f32>>> {
     Some(values.chunks_exact(dim).map(<[f32]>::to_vec).collect())
 }
 
-/// How [`cached_embeddings`] got its result.
+/// How the caption cache (`cached_embeddings`) got its result.
 #[derive(Clone, Debug, PartialEq)]
 pub enum CacheOutcome {
     /// Read from the cache file.
@@ -239,7 +239,7 @@ pub enum CacheOutcome {
 /// The embeddings of `captions` under the model with hash `model_hash`: from the cache in
 /// `dir` when a matching file is there, else from `compute` (then stored atomically).
 /// A cache file that does not match is recomputed and replaced, never an error.
-pub fn cached_embeddings<E>(
+pub(crate) fn cached_embeddings<E>(
     dir: Option<&Path>,
     model_hash: &[u8],
     captions: &[String],

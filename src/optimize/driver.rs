@@ -283,7 +283,7 @@ fn score_and_preview<R: Renderer, E: ImageEncoder, T, P: Parameterization>(
 }
 
 /// Images side by side in rows of ⌈√n⌉ (see `Image::grid`).
-pub fn tile(images: &[Image]) -> Image {
+pub(crate) fn tile(images: &[Image]) -> Image {
     let cols = (images.len() as f64).sqrt().ceil() as usize;
     Image::grid(images, cols)
 }

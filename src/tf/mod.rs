@@ -88,7 +88,7 @@ impl LutGrad {
     }
 
     /// Add another gradient entry-wise (reduction of per-thread or per-view gradients).
-    pub fn add(&mut self, other: &LutGrad) {
+    pub(crate) fn add(&mut self, other: &LutGrad) {
         for (a, b) in self.entries.iter_mut().zip(&other.entries) {
             for c in 0..4 {
                 a[c] += b[c];

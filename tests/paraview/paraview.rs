@@ -13,7 +13,7 @@ use std::path::Path;
 
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::{to_paraview_json, to_paraview_xml, write_all, ExportTf};
-use t2tf::image::Image;
+use t2tf::image::{psnr, Image};
 use t2tf::tf::ControlPoints;
 use t2tf::volume::{
     ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use paraview_util::{floats, paraview_available, repo, server, PVPYTHON};
-use t2tf::image::Image;
+use t2tf::image::{psnr, Image};
 
 const NEGHIP: &str = "../shared/data/volumes/neghip_64x64x64_uint8.raw";
 /// The `.vti` test's volume: 16-bit, so ParaView's volume texture holds its values exactly

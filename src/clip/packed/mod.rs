@@ -257,7 +257,7 @@ impl Kernel {
 
     /// The fastest kernel for `precision` on this CPU (f32: always one, `Portable` at worst;
     /// bf16: only a native one).
-    pub fn best(precision: Precision) -> Option<Kernel> {
+    pub(crate) fn best(precision: Precision) -> Option<Kernel> {
         let order: &[Kernel] = match precision {
             Precision::F32 => &[Kernel::Avx512F, Kernel::Avx2Fma, Kernel::Portable],
             Precision::Bf16 => &[Kernel::Avx512Bf16],
