@@ -43,80 +43,87 @@ fn pool() -> CaptionPool {
     )
 }
 
-fn histogram() -> Vec<u64> {
-    let mut h = vec![100u64; 256];
-    h[0] = 50_000;
-    h
+/// What every driver test starts from: the toy fixture, a pool of 40 captions, a text
+/// encoder that knows them, the prompt and the user's negative, and a histogram with one
+/// large empty bin.
+struct Setup {
+    f: Fixture,
+    p: CaptionPool,
+    t: ToyText,
+    user: Vec<String>,
+    hist: Vec<u64>,
 }
 
-#[allow(clippy::too_many_arguments)]
-fn run(
-    f: &Fixture,
-    t: &ToyText,
-    s: &Settings,
-    positive: Positive,
-    user: &[String],
-    pool: &CaptionPool,
-    cache: Option<(&Path, &[u8])>,
-    hist: &[u64],
-) -> Result<Finished, OptimizeError> {
-    let s = s.validate()?;
-    let job = Job {
-        settings: &s,
-        positive,
-        user_negatives: user,
-        pool,
-        cache,
-        histogram: hist,
-        logit_scale: 100.0,
-        preview_views: 4,
-    };
-    let models = Models {
-        renderer: &f.toy,
-        image_encoder: &f.enc,
-        text_encoder: t,
-        tf: &TanhTf,
-    };
-    driver::run_job(&job, &models, &AtomicBool::new(false), &mut |_, _| {})
+impl Setup {
+    fn new() -> Setup {
+        let f = Fixture::new();
+        let p = pool();
+        let t = text(&f, &p);
+        Setup {
+            f,
+            p,
+            t,
+            user: vec!["a blank image".to_string()],
+            hist: histogram(),
+        }
+    }
+
+    /// A run with the setup's user negative and histogram.
+    fn run(
+        &self,
+        s: &Settings,
+        positive: Positive,
+        cache: Option<(&Path, &[u8])>,
+    ) -> Result<Finished, OptimizeError> {
+        self.run_with(s, positive, &self.user, cache, &self.hist)
+    }
+
+    /// A run through `driver::run_job` with these user negatives and this histogram.
+    fn run_with(
+        &self,
+        s: &Settings,
+        positive: Positive,
+        user: &[String],
+        cache: Option<(&Path, &[u8])>,
+        hist: &[u64],
+    ) -> Result<Finished, OptimizeError> {
+        let s = s.validate()?;
+        let job = Job {
+            settings: &s,
+            positive,
+            user_negatives: user,
+            pool: &self.p,
+            cache,
+            histogram: hist,
+            logit_scale: 100.0,
+            preview_views: 4,
+        };
+        let models = Models {
+            renderer: &self.f.toy,
+            image_encoder: &self.f.enc,
+            text_encoder: &self.t,
+            tf: &TanhTf,
+        };
+        driver::run_job(&job, &models, &AtomicBool::new(false), &mut |_, _| {})
+    }
 }
 
 #[test]
 fn full_run_writes_every_output_and_caches_the_pool() {
-    let f = Fixture::new();
-    let p = pool();
-    let t = text(&f, &p);
+    let setup = Setup::new();
+    let (f, t, hist) = (&setup.f, &setup.t, &setup.hist);
     let s = settings();
-    let user = vec!["a blank image".to_string()];
     let cache = tempfile::tempdir().unwrap();
-    let hist = histogram();
     let key: &[u8] = b"toy weights";
 
     let zero = Settings {
         steps: 0,
         ..s.clone()
     };
-    let before = run(
-        &f,
-        &t,
-        &zero,
-        Positive::Prompt(PROMPT),
-        &user,
-        &p,
-        None,
-        &hist,
-    )
-    .unwrap();
-    let done = run(
-        &f,
-        &t,
-        &s,
-        Positive::Prompt(PROMPT),
-        &user,
-        &p,
-        Some((cache.path(), key)),
-        &hist,
-    )
-    .unwrap();
+    let before = setup.run(&zero, Positive::Prompt(PROMPT), None).unwrap();
+    let done = setup
+        .run(&s, Positive::Prompt(PROMPT), Some((cache.path(), key)))
+        .unwrap();
     assert!(
         matches!(done.cache, Some(CacheOutcome::Stored(_))),
         "{:?}",
@@ -137,17 +144,9 @@ fn full_run_writes_every_output_and_caches_the_pool() {
 
     // Second run: the pool comes from the cache; only prompt and user negative are encoded.
     let texts_before = t.texts.get();
-    let again = run(
-        &f,
-        &t,
-        &s,
-        Positive::Prompt(PROMPT),
-        &user,
-        &p,
-        Some((cache.path(), key)),
-        &hist,
-    )
-    .unwrap();
+    let again = setup
+        .run(&s, Positive::Prompt(PROMPT), Some((cache.path(), key)))
+        .unwrap();
     assert!(
         matches!(again.cache, Some(CacheOutcome::Hit(_))),
         "{:?}",
@@ -169,7 +168,7 @@ fn full_run_writes_every_output_and_caches_the_pool() {
     let curve = Curve::Opacity {
         unit_over_length: 0.01,
     };
-    driver::write_outputs(&dir, &mut report, &done, &hist, curve).unwrap();
+    driver::write_outputs(&dir, &mut report, &done, hist, curve).unwrap();
     let tf = Image::load_png(&dir.join("tf.png")).unwrap();
     assert_eq!((tf.width, tf.height), (512, 256));
     let preview = Image::load_png(&dir.join("preview.png")).unwrap();
@@ -222,9 +221,8 @@ fn full_run_writes_every_output_and_caches_the_pool() {
 
 #[test]
 fn reference_image_mode_moves_towards_the_picture() {
-    let f = Fixture::new();
-    let p = pool();
-    let t = text(&f, &p);
+    let setup = Setup::new();
+    let (f, t) = (&setup.f, &setup.t);
     let s = settings();
     // The target's render at twice the size (a user's picture is larger than CLIP's input):
     // the driver has the encoder prepare it (the toy's box filter undoes the doubling).
@@ -238,34 +236,12 @@ fn reference_image_mode_moves_towards_the_picture() {
             picture.set_pixel(x, y, small.pixel(x / 2, y / 2));
         }
     }
-    let user = vec!["a blank image".to_string()];
-    let hist = histogram();
     let zero = Settings {
         steps: 0,
         ..s.clone()
     };
-    let before = run(
-        &f,
-        &t,
-        &zero,
-        Positive::Image(&picture),
-        &user,
-        &p,
-        None,
-        &hist,
-    )
-    .unwrap();
-    let done = run(
-        &f,
-        &t,
-        &s,
-        Positive::Image(&picture),
-        &user,
-        &p,
-        None,
-        &hist,
-    )
-    .unwrap();
+    let before = setup.run(&zero, Positive::Image(&picture), None).unwrap();
+    let done = setup.run(&s, Positive::Image(&picture), None).unwrap();
     assert_eq!(done.scores[0].caption, "reference image");
     let margin = |r: &Finished| r.scores[0].logit - r.scores[1].logit;
     // At the start the blank image wins (its flat render is closer to everything); at the
@@ -278,34 +254,30 @@ fn reference_image_mode_moves_towards_the_picture() {
 
 #[test]
 fn hard_cases() {
-    let f = Fixture::new();
-    let p = pool();
-    let t = text(&f, &p);
+    let setup = Setup::new();
     let s = settings();
-    let user = vec!["a blank image".to_string()];
-    let hist = histogram();
     // Empty prompt.
-    let e = run(&f, &t, &s, Positive::Prompt("  "), &user, &p, None, &hist).unwrap_err();
+    let e = setup.run(&s, Positive::Prompt("  "), None).unwrap_err();
     assert!(e.to_string().contains("--prompt"), "{e}");
     // Zero negatives: no pool draws and no user negatives.
     let s0 = Settings {
         negatives_per_step: 0,
         ..s.clone()
     };
-    let e = run(&f, &t, &s0, Positive::Prompt(PROMPT), &[], &p, None, &hist).unwrap_err();
+    let e = setup
+        .run_with(&s0, Positive::Prompt(PROMPT), &[], None, &setup.hist)
+        .unwrap_err();
     assert!(matches!(e, OptimizeError::NoNegatives), "{e}");
     // An empty user negative reaches the text encoder's error, named as the encoder's.
-    let e = run(
-        &f,
-        &t,
-        &s,
-        Positive::Prompt(PROMPT),
-        &[String::new()],
-        &p,
-        None,
-        &hist,
-    )
-    .unwrap_err();
+    let e = setup
+        .run_with(
+            &s,
+            Positive::Prompt(PROMPT),
+            &[String::new()],
+            None,
+            &setup.hist,
+        )
+        .unwrap_err();
     assert!(
         e.to_string().contains("image encoder") || e.to_string().contains("empty"),
         "{e}"
@@ -318,44 +290,26 @@ fn hard_cases() {
         steps: 10,
         ..s.clone()
     };
-    let r = run(
-        &f,
-        &t,
-        &short,
-        Positive::Prompt(PROMPT),
-        &user,
-        &p,
-        None,
-        &one,
-    )
-    .unwrap();
+    let r = setup
+        .run_with(&short, Positive::Prompt(PROMPT), &setup.user, None, &one)
+        .unwrap();
     assert!(r.outcome.params.iter().all(|x| x.is_finite()));
     assert!(r.scores.iter().all(|sc| sc.cosine.is_finite()));
     // An empty histogram (all voxels NaN never gets this far, but the driver must not panic).
-    let e = run(
-        &f,
-        &t,
-        &short,
-        Positive::Prompt(PROMPT),
-        &user,
-        &p,
-        None,
-        &[0; 256],
-    )
-    .unwrap_err();
+    let e = setup
+        .run_with(
+            &short,
+            Positive::Prompt(PROMPT),
+            &setup.user,
+            None,
+            &[0; 256],
+        )
+        .unwrap_err();
     assert!(e.to_string().contains("histogram"), "{e}");
     // Steps = 0: the initialization, scored and previewed.
-    let z = run(
-        &f,
-        &t,
-        &Settings { steps: 0, ..s },
-        Positive::Prompt(PROMPT),
-        &user,
-        &p,
-        None,
-        &hist,
-    )
-    .unwrap();
+    let z = setup
+        .run(&Settings { steps: 0, ..s }, Positive::Prompt(PROMPT), None)
+        .unwrap();
     assert!(z.outcome.steps.is_empty());
     assert_eq!((z.preview.width, z.preview.height), (2 * SIDE, 2 * SIDE));
 }

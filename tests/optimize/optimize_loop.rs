@@ -11,8 +11,8 @@ use optimize_toy::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use t2tf::optimize::{
-    self, schedule, Background, OptimizeError, Parameterization, PhaseTimes, Problem, Renderer,
-    Settings, Targets, ValidSettings, View,
+    self, schedule, Background, OptimizeError, Outcome, Parameterization, PhaseTimes, Problem,
+    Renderer, Settings, Targets, ValidSettings, View,
 };
 use t2tf::tf::ControlPoints;
 
@@ -29,6 +29,16 @@ fn problem<'a>(
         targets,
         settings: s,
     }
+}
+
+/// `optimize::optimize` on the toy problem with the fixture's targets, without progress.
+fn run(
+    f: &Fixture,
+    s: &ValidSettings,
+    start: Vec<f64>,
+    stop: &AtomicBool,
+) -> Result<Outcome, OptimizeError> {
+    optimize::optimize(&problem(f, f.targets(), s), start, stop, &mut |_, _| {})
 }
 
 fn loss_at(f: &Fixture, s: &ValidSettings, plan: &schedule::StepPlan, p: &[f64]) -> f64 {
@@ -141,13 +151,7 @@ fn loss_decreases_and_run_is_deterministic() {
         out.times.render > 0.0 && out.times.clip_forward > 0.0 && out.times.render_backward > 0.0
     );
 
-    let again = optimize::optimize(
-        &problem(&f, f.targets(), &s),
-        start_params(),
-        &stop,
-        &mut |_, _| {},
-    )
-    .unwrap();
+    let again = run(&f, &s, start_params(), &stop).unwrap();
     assert_eq!(out.params, again.params, "same seed must give the same TF");
     let other = Settings {
         seed: 1,
@@ -155,13 +159,7 @@ fn loss_decreases_and_run_is_deterministic() {
     }
     .validate()
     .unwrap();
-    let third = optimize::optimize(
-        &problem(&f, f.targets(), &other),
-        start_params(),
-        &stop,
-        &mut |_, _| {},
-    )
-    .unwrap();
+    let third = run(&f, &other, start_params(), &stop).unwrap();
     assert_ne!(out.params, third.params);
 }
 
@@ -199,13 +197,7 @@ fn zero_steps_returns_the_initialization() {
     }
     .validate()
     .unwrap();
-    let out = optimize::optimize(
-        &problem(&f, f.targets(), &s),
-        start_params(),
-        &AtomicBool::new(false),
-        &mut |_, _| {},
-    )
-    .unwrap();
+    let out = run(&f, &s, start_params(), &AtomicBool::new(false)).unwrap();
     assert_eq!(out.params, start_params());
     assert!(out.steps.is_empty() && !out.interrupted);
 }
@@ -244,25 +236,17 @@ fn hard_cases_are_errors_or_finite() {
     }
     .validate()
     .unwrap();
-    let out =
-        optimize::optimize(&problem(&f, f.targets(), &s), sat, &stop, &mut |_, _| {}).unwrap();
+    let out = run(&f, &s, sat, &stop).unwrap();
     assert!(out.params.iter().all(|p| p.is_finite()));
     assert!(out.steps.iter().all(|l| l.total.is_finite()));
     // A renderer that starts returning NaN: an error naming the problem, never NaN params.
     f.toy.nan_after = Some(f.toy.calls.get() + 4);
-    let e = optimize::optimize(
-        &problem(&f, f.targets(), &s),
-        start_params(),
-        &stop,
-        &mut |_, _| {},
-    )
-    .unwrap_err();
+    let e = run(&f, &s, start_params(), &stop).unwrap_err();
     assert!(e.to_string().contains("non-finite"), "{e}");
     // Non-finite starting parameters.
     let mut bad = start_params();
     bad[2] = f64::NAN;
-    let e =
-        optimize::optimize(&problem(&f, f.targets(), &s), bad, &stop, &mut |_, _| {}).unwrap_err();
+    let e = run(&f, &s, bad, &stop).unwrap_err();
     assert!(
         e.to_string().contains("initial parameter at index 2"),
         "{e}"
@@ -273,8 +257,7 @@ fn hard_cases_are_errors_or_finite() {
 fn initialization_reaches_rho_on_a_renderer() {
     let f = Fixture::new();
     let s = settings().validate().unwrap();
-    let mut hist = vec![100u64; 256];
-    hist[0] = 50_000;
+    let hist = histogram();
     let (params, found) = optimize::initialize(&f.toy, &TanhTf, &hist, &s).unwrap();
     assert!(found.reached);
     let lut = TanhTf.control_points(&params).unwrap().to_lut(LUT_N);
@@ -296,24 +279,7 @@ fn initialization_reaches_rho_on_a_renderer() {
 #[test]
 fn final_scores_rank_the_target_first() {
     let f = Fixture::new();
-    let target = ControlPoints {
-        x: TanhTf::x(),
-        sigma: vec![5.0, 200.0, 20.0, 150.0, 0.0],
-        rgb: vec![
-            [0.9, 0.1, 0.1],
-            [0.8, 0.7, 0.1],
-            [0.1, 0.9, 0.2],
-            [0.1, 0.2, 0.9],
-            [0.5; 3],
-        ],
-    };
-    let views = [View {
-        yaw: 0.3,
-        pitch: 0.0,
-        distance: 3.0,
-        background: Background::Gray { level: 0.5 },
-        seed: 0,
-    }];
+    let (target, views) = (target(), [target_view()]);
     let classes: Vec<&[f32]> = vec![&f.positive, &f.pool[0], &f.user[0]];
     let images: Vec<_> = views
         .iter()

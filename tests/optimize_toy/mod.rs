@@ -323,25 +323,8 @@ impl Fixture {
         let toy = Toy::new(1);
         let enc = LinearEncoder::new(2);
         // The positive is the embedding of a target TF's render: reachable by construction.
-        let target = ControlPoints {
-            x: TanhTf::x(),
-            sigma: vec![5.0, 200.0, 20.0, 150.0, 0.0],
-            rgb: vec![
-                [0.9, 0.1, 0.1],
-                [0.8, 0.7, 0.1],
-                [0.1, 0.9, 0.2],
-                [0.1, 0.2, 0.9],
-                [0.5; 3],
-            ],
-        };
-        let v = View {
-            yaw: 0.3,
-            pitch: 0.0,
-            distance: 3.0,
-            background: Background::Gray { level: 0.5 },
-            seed: 0,
-        };
-        let (im, _, _) = toy.render(&target.to_lut(LUT_N), &v).unwrap();
+        let v = target_view();
+        let (im, _, _) = toy.render(&target().to_lut(LUT_N), &v).unwrap();
         let positive = enc.encode(&[im]).unwrap().0.remove(0);
         // Negatives are renders too (random TFs, and a blank one as the user's "a blank
         // image"), so telling the prompt apart takes a TF close to the target.
@@ -396,6 +379,14 @@ pub fn settings() -> Settings {
         control_points: K,
         ..Settings::default()
     }
+}
+
+/// A histogram with one large bin (bin 0, the air around a volume) over a flat rest: what
+/// the initialization and the driver tests start from.
+pub fn histogram() -> Vec<u64> {
+    let mut h = vec![100u64; 256];
+    h[0] = 50_000;
+    h
 }
 
 pub fn start_params() -> Vec<f64> {
