@@ -262,6 +262,8 @@ pub(crate) fn resize_bilinear(
     out
 }
 
+// Mirrors `resize_bilinear` (the same corners, gathered there and scattered here); kept as two
+// functions so each reads as the formula it is.
 /// The transpose of [`resize_bilinear`]: the gradient with respect to the `w`×`h` source of
 /// a loss whose gradient with respect to the `nw`×`nh` result is `d`.
 pub(crate) fn resize_bilinear_adjoint(

@@ -459,6 +459,50 @@ mod tests {
         )
     }
 
+    /// Attention of width `d` with `heads` heads (weights from `seed` and `seed + 1`) on three
+    /// sequences of 3, 1 and 4 tokens.
+    fn setup(d: usize, seed: usize, heads: usize, causal: bool) -> (Attention, Segments) {
+        let att = Attention {
+            qkv: lin(3 * d, d, seed),
+            out: lin(d, d, seed + 1),
+            num_heads: heads,
+        };
+        let seg = Segments {
+            spans: vec![(0, 3), (3, 1), (4, 4)],
+            causal,
+        };
+        (att, seg)
+    }
+
+    /// `n` deterministic values ((i · mul mod modulus) − offset) / scale.
+    fn pattern(n: usize, mul: usize, modulus: usize, offset: f32, scale: f32) -> Vec<f32> {
+        (0..n)
+            .map(|i| ((i * mul % modulus) as f32 - offset) / scale)
+            .collect()
+    }
+
+    /// `dx` against central differences of `loss` at `x` (h = 1e-2; the tolerance is argued at
+    /// the test below).
+    fn assert_matches_differences(
+        x: &[f32],
+        dx: &[f32],
+        loss: impl Fn(&[f32]) -> f64,
+        causal: bool,
+    ) {
+        let h = 1e-2f32;
+        for i in 0..x.len() {
+            let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+            xp[i] += h;
+            xm[i] -= h;
+            let fd = (loss(&xp) - loss(&xm)) / (2.0 * h as f64);
+            assert!(
+                (dx[i] as f64 - fd).abs() <= 2e-3 * (1.0 + fd.abs()),
+                "causal={causal} i={i}: {} vs {fd}",
+                dx[i]
+            );
+        }
+    }
+
     /// Finite differences of `sum(w ⊙ attn(x))` for causal packed segments of different
     /// lengths. Central differences with h = 1e-2 in f64 of an f32 forward: f32 round-off
     /// (~1e-7 relative on O(1) outputs) / h ≈ 1e-5 plus O(h²) truncation, so 2e-3 relative.
@@ -466,40 +510,17 @@ mod tests {
     fn backward_matches_finite_differences() {
         let d = 6;
         for causal in [false, true] {
-            let att = Attention {
-                qkv: lin(3 * d, d, 1),
-                out: lin(d, d, 2),
-                num_heads: 2,
-            };
-            let seg = Segments {
-                spans: vec![(0, 3), (3, 1), (4, 4)],
-                causal,
-            };
+            let (att, seg) = setup(d, 1, 2, causal);
             let t = seg.total();
-            let x: Vec<f32> = (0..t * d)
-                .map(|i| ((i * 37 % 23) as f32 - 11.0) / 8.0)
-                .collect();
-            let w: Vec<f32> = (0..t * d)
-                .map(|i| ((i * 11 % 17) as f32 - 8.0) / 8.0)
-                .collect();
+            let x = pattern(t * d, 37, 23, 11.0, 8.0);
+            let w = pattern(t * d, 11, 17, 8.0, 8.0);
             let loss = |x: &[f32]| -> f64 {
                 let (y, _) = att.forward(x, &seg, false);
                 y.iter().zip(&w).map(|(a, b)| *a as f64 * *b as f64).sum()
             };
             let (_, s) = att.forward(&x, &seg, true);
             let dx = att.backward(&w, &seg, &s.unwrap());
-            let h = 1e-2f32;
-            for i in 0..x.len() {
-                let (mut xp, mut xm) = (x.clone(), x.clone());
-                xp[i] += h;
-                xm[i] -= h;
-                let fd = (loss(&xp) - loss(&xm)) / (2.0 * h as f64);
-                assert!(
-                    (dx[i] as f64 - fd).abs() <= 2e-3 * (1.0 + fd.abs()),
-                    "causal={causal} i={i}: {} vs {fd}",
-                    dx[i]
-                );
-            }
+            assert_matches_differences(&x, &dx, loss, causal);
         }
     }
 
@@ -509,20 +530,10 @@ mod tests {
     fn pooled_matches_full_and_finite_differences() {
         let d = 6;
         for causal in [false, true] {
-            let att = Attention {
-                qkv: lin(3 * d, d, 3),
-                out: lin(d, d, 4),
-                num_heads: 3,
-            };
-            let seg = Segments {
-                spans: vec![(0, 3), (3, 1), (4, 4)],
-                causal,
-            };
+            let (att, seg) = setup(d, 3, 3, causal);
             let rows = [2usize, 0, if causal { 3 } else { 1 }];
             let t = seg.total();
-            let x: Vec<f32> = (0..t * d)
-                .map(|i| ((i * 29 % 19) as f32 - 9.0) / 7.0)
-                .collect();
+            let x = pattern(t * d, 29, 19, 9.0, 7.0);
             let (full, _) = att.forward(&x, &seg, false);
             let (pooled, s) = att.forward_pooled(&x, &seg, &rows, true);
             for (k, (&(start, _), &r)) in seg.spans.iter().zip(&rows).enumerate() {
@@ -531,26 +542,13 @@ mod tests {
                     assert!((a - b).abs() < 1e-5, "causal={causal} seq {k}: {a} vs {b}");
                 }
             }
-            let w: Vec<f32> = (0..3 * d)
-                .map(|i| ((i * 7 % 11) as f32 - 5.0) / 5.0)
-                .collect();
+            let w = pattern(3 * d, 7, 11, 5.0, 5.0);
             let loss = |x: &[f32]| -> f64 {
                 let (y, _) = att.forward_pooled(x, &seg, &rows, false);
                 y.iter().zip(&w).map(|(a, b)| *a as f64 * *b as f64).sum()
             };
             let dx = att.backward_pooled(&w, &seg, &rows, &s.unwrap());
-            let h = 1e-2f32;
-            for i in 0..x.len() {
-                let (mut xp, mut xm) = (x.clone(), x.clone());
-                xp[i] += h;
-                xm[i] -= h;
-                let fd = (loss(&xp) - loss(&xm)) / (2.0 * h as f64);
-                assert!(
-                    (dx[i] as f64 - fd).abs() <= 2e-3 * (1.0 + fd.abs()),
-                    "causal={causal} i={i}: {} vs {fd}",
-                    dx[i]
-                );
-            }
+            assert_matches_differences(&x, &dx, loss, causal);
         }
     }
 

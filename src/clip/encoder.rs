@@ -59,6 +59,8 @@ impl EncoderLayer {
         self.fc1.forward_act(n2, rows, self.act, save)
     }
 
+    // Same signature as `Attention::forward_pooled` and the tower's: every level of the pooled
+    // path takes the segments and the pooled rows; each does its own level's work.
     /// The layer's output at one token per sequence only (`rows[s]` within sequence s):
     /// `x: [T, D]` → `[S, D]`. Exact for a last layer whose other outputs are discarded.
     pub fn forward_pooled(

@@ -197,6 +197,8 @@ impl Linear {
         packed::gemm_new_post(dy, k, rows, bwd, 0..k, 0..n, None, Some(&post))
     }
 
+    // `backward`/`backward_part` mirror `forward`/`forward_part` above: the same split of a
+    // stacked projection, in the transposed direction.
     /// `dy: [rows, out]` → `dx = dy W: [rows, in]`.
     pub fn backward(&self, dy: &[f32], rows: usize) -> Vec<f32> {
         debug_assert_eq!(dy.len(), rows * self.out_dim);
@@ -353,6 +355,8 @@ const SQRT_2_OVER_PI: f32 = 0.797_884_6;
 const CHUNK: usize = 8192;
 
 /// A `*mut f32` shared by the threads of one product, which write disjoint elements.
+// The same wrapper as packed/mod.rs's `SendPtr`; kept apart so that each `unsafe impl`'s
+// SAFETY argument covers exactly one use.
 #[derive(Clone, Copy)]
 struct SyncPtr(*mut f32);
 // SAFETY: only used in `Linear::forward_act`, where each element is written by one thread.
@@ -745,6 +749,8 @@ mod tests {
     /// length k has error ~√k · 6e-8 relative to Σ|x||w| for these O(1) values.
     #[test]
     fn linear_engines_match_f64_on_odd_shapes() {
+        // The same data generator and odd-shape table as attention/mm.rs's test: each checks
+        // its own product against f64 on them.
         let val = |i: usize, s: usize| ((((i + s) * 2654435761usize) % 2001) as f32 / 1000.0) - 1.0;
         for engine in [Engine::Packed, Engine::Crate] {
             for &(rows, inp, out) in &[

@@ -1,6 +1,6 @@
 //! Matrix products on the `gemm` crate (f32, AVX-512 kernels with the `x86-v4` feature).
 //!
-//! `gemm` was chosen by measurement (../shared/CRATES.md, BENCHMARKS-clip.md): it reaches
+//! `gemm` was chosen by measurement (BENCHMARKS.md "CLIP", "Engine choice"): it reaches
 //! ~315 GFLOPS on both cores for the m = 150 shapes of three batched ViT-B/32 views, where
 //! matrixmultiply stays single-threaded. Operands are row-major slices; a transposed operand is
 //! expressed through strides, so no copy is ever made.
@@ -36,6 +36,25 @@ impl<'a> Mat<'a> {
 /// it saves (attention heads of 50 tokens, for instance, are parallelised one level up).
 const PARALLEL_MIN_MACS: usize = 1 << 20;
 
+/// Row and column strides of `op(x)`, an `rows`×`cols` operand, after checking that the last
+/// element it reaches lies inside `x` (nothing is read when `k` = 0). Panics as
+/// "matmul: NAME too small".
+fn strides(x: Mat, op: Op, (rows, cols): (usize, usize), k: usize, name: &str) -> (isize, isize) {
+    // The stored matrix is op(x) itself or its transpose.
+    let (stored_rows, stored_cols) = match op {
+        Op::N => (rows, cols),
+        Op::T => (cols, rows),
+    };
+    assert!(
+        k == 0 || (x.ld >= stored_cols && x.data.len() >= (stored_rows - 1) * x.ld + stored_cols),
+        "matmul: {name} too small"
+    );
+    match op {
+        Op::N => (x.ld as isize, 1),
+        Op::T => (1, x.ld as isize),
+    }
+}
+
 /// `C = op(A) · op(B)` (or `C += ...` with `accumulate`), `C` being m×n with leading dimension
 /// `ldc`. `op(A)` is m×k, `op(B)` is k×n.
 // BLAS's sgemm signature (C, ldc, A, op, B, op, m, n, k, β ∈ {0, 1}), which the `gemm` crate
@@ -63,38 +82,8 @@ pub fn matmul(
         ldc >= n && c.len() >= last(m, n, ldc),
         "matmul: C too small"
     );
-    let (a_rs, a_cs) = match ta {
-        Op::N => {
-            assert!(
-                k == 0 || (a.ld >= k && a.data.len() >= last(m, k, a.ld)),
-                "matmul: A too small"
-            );
-            (a.ld as isize, 1)
-        }
-        Op::T => {
-            assert!(
-                k == 0 || (a.ld >= m && a.data.len() >= last(k, m, a.ld)),
-                "matmul: A too small"
-            );
-            (1, a.ld as isize)
-        }
-    };
-    let (b_rs, b_cs) = match tb {
-        Op::N => {
-            assert!(
-                k == 0 || (b.ld >= n && b.data.len() >= last(k, n, b.ld)),
-                "matmul: B too small"
-            );
-            (b.ld as isize, 1)
-        }
-        Op::T => {
-            assert!(
-                k == 0 || (b.ld >= k && b.data.len() >= last(n, k, b.ld)),
-                "matmul: B too small"
-            );
-            (1, b.ld as isize)
-        }
-    };
+    let (a_rs, a_cs) = strides(a, ta, (m, k), k, "A");
+    let (b_rs, b_cs) = strides(b, tb, (k, n), k, "B");
     if k == 0 {
         if !accumulate {
             for i in 0..m {
@@ -162,6 +151,8 @@ mod tests {
 
     #[test]
     fn all_transpose_combinations_match_naive() {
+        // Deterministic operands as in attention.rs's tests: a table of shapes against a
+        // naive product, for this module's transposes.
         // Large enough to take the threaded path too.
         for &(m, n, k) in &[(3, 5, 7), (150, 130, 70)] {
             let a: Vec<f32> = (0..m * k)

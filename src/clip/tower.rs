@@ -86,6 +86,8 @@ impl Tower {
         (y, saved)
     }
 
+    // Same signature as `Attention::backward_pooled` (plus `d`): each level of the pooled
+    // backward takes the segments, the pooled rows and its own saved state.
     /// Backward of `forward_pooled` (which must have run with `save`): `dy: [S, D]` →
     /// `dx: [T, D]`. `d` is the width, needed only for a tower without layers.
     pub fn backward_pooled(

@@ -20,6 +20,8 @@ const UNIT_DISTANCE_FIELD: &str = "t2tfScalarOpacityUnitDistance";
 /// VisIt colour tables (`.ct`): one RGB table per file, 8-bit colours and alpha.
 pub(crate) struct VisItCt;
 
+// Shaped like paraview_json.rs's and paraview_xml.rs's impls: one entry of the `TfFormat`
+// table each.
 impl TfFormat for VisItCt {
     fn name(&self) -> &'static str {
         "VisIt colour table"

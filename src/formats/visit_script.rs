@@ -114,6 +114,8 @@ fn vti_head(g: &crate::volume::Geometry, vtk_type: &str, order: ByteOrder) -> St
 
 /// The script's text. `script_name` is the file name it is written under (its usage header
 /// quotes it); `background` is RGB in [0, 1].
+// The same arguments as `paraview_script` (one script writer per tool, called side by side
+// by `write_all`); the bodies write different languages.
 pub fn visit_script(
     tf: &ExportTf,
     volume: &Volume,

@@ -98,6 +98,7 @@ mod tests {
 
     #[test]
     fn defaults_follow_home_and_xdg() {
+        // One (environment, expected cache) case after another: alike by design.
         let s = settings(&[("HOME", "/h")]);
         assert_eq!(s.endpoint, DEFAULT_ENDPOINT);
         assert_eq!(s.cache_dir, Path::new("/h/.cache/huggingface/hub"));

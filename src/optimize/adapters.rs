@@ -123,6 +123,7 @@ impl Renderer for VolumeRenderer<'_> {
         Ok(BACKEND.forward(&prepared, lut, &shot)?.0.image)
     }
 
+    // The signature of `Renderer::backward` in optimize/mod.rs, which this implements.
     fn backward(
         &self,
         lut: &Lut,

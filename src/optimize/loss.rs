@@ -358,6 +358,8 @@ mod tests {
 
     #[test]
     fn regularizers_match_central_differences() {
+        // The central-difference loop of the prior's test above, with this loss's own step
+        // and tolerance (argued next to each).
         let sigma = vec![3.0, 0.5, 200.0, 17.0];
         let rgb = vec![[0.1, 0.5, 0.9], [0.7, 0.3, 0.45]];
         let (l1, g1) = density_l1(&sigma, 2e-5);

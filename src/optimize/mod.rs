@@ -52,6 +52,8 @@ pub trait Renderer {
 
     /// Gradient of a loss with respect to the LUT, given d loss / d image (H·W·3) and
     /// d loss / d T_N (H·W) of the view `tape` was rendered for, with the same `lut`.
+    // Alike `render::Backend::backward`: the optimizer's view of a renderer (a `View`, boxed
+    // errors) over the backend's (a prepared level and a `Shot`); adapters.rs binds the two.
     fn backward(
         &self,
         lut: &Lut,
@@ -220,6 +222,8 @@ pub fn step_gradient<R: Renderer, E: ImageEncoder, P: Parameterization>(
     let (d_emb, d_trans) = view_losses(&emb, &trans, targets, settings, plan, &mut log)?;
     lap(&mut times.other);
 
+    // Each stage's output is checked with `same_len`; the calls read alike, the messages say
+    // which stage broke its contract.
     let d_images = encoder
         .backward(&cache, &d_emb)
         .map_err(OptimizeError::Encoder)?;

@@ -120,6 +120,7 @@ pub struct InitInfo {
     pub reached: bool,
 }
 
+// A struct of documented output fields, shaped like formats::WrittenFiles: alike in form only.
 /// The whole report.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Report {

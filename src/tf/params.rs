@@ -20,6 +20,8 @@ const SPACING_FLOOR: f64 = 1e-4;
 /// the clamp (≈ 2e-6) still lets the optimizer move the value.
 const ATANH_CLAMP: f64 = 1.0 - 1e-6;
 
+// Shaped like `ControlPoints` (a vector per quantity: positions, densities, colours): these
+// are their unconstrained counterparts, not the same values.
 /// Unconstrained TF parameters (f64). K control points.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TfParams {

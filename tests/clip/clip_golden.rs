@@ -11,7 +11,7 @@ use t2tf::clip::{cosine, cosine_grad, Clip};
 use t2tf::image::Image;
 
 /// A golden file written by transformers (`tests/fixtures/clip/*/golden.json`); also read by
-/// `clip_families`.
+/// `clip_families` and `clip_kernels`.
 #[derive(Deserialize)]
 pub(crate) struct TextCase {
     pub(crate) caption: String,
@@ -56,22 +56,18 @@ pub(crate) fn to_image(nested: &[Vec<Vec<f32>>]) -> Image {
     }
 }
 
-/// Both GEMM engines (packed weights + own kernel, and the `gemm` crate) must reach parity.
-fn check_variant(variant: &str) {
-    for engine in [Engine::Packed, Engine::Crate] {
-        with_engine(engine, || check_engine(variant, engine));
-    }
+/// What [`check_against_golden`] computed, for a caller's further checks.
+pub(crate) struct Outputs {
+    pub(crate) text_embeddings: Vec<Vec<f32>>,
+    pub(crate) image_embeddings: Vec<Vec<f32>>,
+    pub(crate) input_gradients: Vec<Image>,
 }
 
-fn check_engine(variant: &str, engine: Engine) {
-    let name = format!("{variant} ({engine:?})");
-    let dir = format!("tests/fixtures/clip/{variant}");
-    let golden: Golden =
-        serde_json::from_str(&std::fs::read_to_string(format!("{dir}/golden.json")).unwrap())
-            .unwrap();
-    let clip = Clip::load_with_tokenizer(&dir, Some(Path::new(TOKENIZER))).unwrap();
+/// `clip` against a golden file, within [`TOL`]: the logit scale, token ids, text embeddings
+/// of all captions in one batch, image embeddings, and the input gradient of
+/// Σ_b cos(image_b, text_pair[b]). Prints the worst error of each (`name` first).
+pub(crate) fn check_against_golden(clip: &Clip, golden: &Golden, name: &str) -> Outputs {
     assert!((clip.logit_scale() - golden.logit_scale).abs() <= 1e-5 * golden.logit_scale);
-
     // Text: ids from our tokenizer, embeddings of all captions in one batch.
     let captions: Vec<&str> = golden.texts.iter().map(|t| t.caption.as_str()).collect();
     let ids = clip.tokenize(&captions).unwrap();
@@ -113,9 +109,31 @@ fn check_engine(variant: &str, engine: Engine) {
         worst = worst.max(e);
     }
     eprintln!("{name}: worst input-gradient rel err {worst:.2e}");
+    Outputs {
+        text_embeddings: text_emb,
+        image_embeddings: img_emb,
+        input_gradients: grads,
+    }
+}
+
+/// Both GEMM engines (packed weights + own kernel, and the `gemm` crate) must reach parity.
+fn check_variant(variant: &str) {
+    for engine in [Engine::Packed, Engine::Crate] {
+        with_engine(engine, || check_engine(variant, engine));
+    }
+}
+
+fn check_engine(variant: &str, engine: Engine) {
+    let name = format!("{variant} ({engine:?})");
+    let dir = format!("tests/fixtures/clip/{variant}");
+    let golden: Golden =
+        serde_json::from_str(&std::fs::read_to_string(format!("{dir}/golden.json")).unwrap())
+            .unwrap();
+    let clip = Clip::load_with_tokenizer(&dir, Some(Path::new(TOKENIZER))).unwrap();
+    let out = check_against_golden(&clip, &golden, &name);
     // The scores themselves, through the public helper.
-    for (e, &p) in img_emb.iter().zip(&golden.grad_pairs) {
-        assert!(cosine(e, &text_emb[p]).is_finite());
+    for (e, &p) in out.image_embeddings.iter().zip(&golden.grad_pairs) {
+        assert!(cosine(e, &out.text_embeddings[p]).is_finite());
     }
 }
 

@@ -5,10 +5,12 @@
 
 use std::path::Path;
 
-use serde::Deserialize;
 use t2tf::clip::packed::{self, Kernel, PackedB, Precision};
 use t2tf::clip::{cosine_grad, Clip, ClipConfig, RandomSource};
 use t2tf::image::Image;
+
+// The golden-file format and parity measure are clip_golden's.
+use crate::clip_golden::{rel_err, to_image, Golden, TOKENIZER};
 
 /// The kernels to test here, printing the others with the reason.
 fn available(test: &str) -> Vec<Kernel> {
@@ -315,40 +317,6 @@ fn image_pass_is_deterministic_across_thread_counts() {
     }
 }
 
-#[derive(Deserialize)]
-struct TextCase {
-    ids: Vec<u32>,
-    embedding: Vec<f32>,
-}
-
-#[derive(Deserialize)]
-struct Golden {
-    texts: Vec<TextCase>,
-    /// [B][H][W][3]
-    images: Vec<Vec<Vec<Vec<f32>>>>,
-    image_embeddings: Vec<Vec<f32>>,
-    grad_pairs: Vec<usize>,
-    grad_images: Vec<Vec<Vec<Vec<f32>>>>,
-}
-
-/// max |got − want| / max |want|, as tests/clip/clip_golden.rs measures parity.
-fn rel_err(got: &[f32], want: &[f32]) -> f64 {
-    let scale = want.iter().fold(0.0f64, |m, &v| m.max(v.abs() as f64));
-    let diff = got
-        .iter()
-        .zip(want)
-        .fold(0.0f64, |m, (&a, &b)| m.max((a as f64 - b as f64).abs()));
-    diff / scale.max(1e-30)
-}
-
-fn to_image(nested: &[Vec<Vec<f32>>]) -> Image {
-    Image {
-        width: nested[0].len(),
-        height: nested.len(),
-        data: nested.iter().flatten().flatten().copied().collect(),
-    }
-}
-
 /// The transformers golden fixtures (tests/clip/clip_golden.rs) through every kernel: the f32 ones
 /// at the golden tests' 1e-4; the bf16 ones at 5e-2, from rounding every weight and
 /// activation to 8 significant bits (2⁻⁹ relative each) through 2 layers: measured worst
@@ -368,11 +336,7 @@ fn golden_fixtures_with_every_kernel() {
             };
             let name = format!("{variant} ({})", kernel.name());
             let clip = packed::with_kernel(kernel, || {
-                Clip::load_with_tokenizer(
-                    &dir,
-                    Some(Path::new("../shared/data/clip/tokenizer.json")),
-                )
-                .unwrap()
+                Clip::load_with_tokenizer(&dir, Some(Path::new(TOKENIZER))).unwrap()
             });
             let ids: Vec<Vec<u32>> = golden.texts.iter().map(|t| t.ids.clone()).collect();
             let text = clip.encode_tokens(&ids).unwrap();

@@ -165,6 +165,8 @@ mod tests {
     /// remainder, k = 0 and 1, transposed A, strided B and C (padding untouched).
     #[test]
     fn matches_f64_on_odd_shapes_and_strides() {
+        // Shaped like packed/mod.rs's and layers.rs's odd-shape tests (a table of m, n, k
+        // against f64); each tests its own product and strides.
         let val = |i: usize, s: usize| ((((i + s) * 2654435761usize) % 2001) as f32 / 1000.0) - 1.0;
         for &(m, n, k) in &[
             (1, 1, 1),

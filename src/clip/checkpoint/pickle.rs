@@ -381,6 +381,9 @@ impl<'a> Machine<'a> {
                 self.array::<8>()?;
                 self.push(Node::Float)
             }
+            // The string and bytes opcodes differ only in the width of their length prefix
+            // (u8, u32, u64); one arm per opcode keeps this table readable against
+            // Python's `pickletools` listing.
             SHORT_BINUNICODE => {
                 let n = self.u8()?.into();
                 self.unicode(n)

@@ -160,6 +160,9 @@ pub(super) unsafe fn tile_f32(
 // strides and counts stay in registers from `run_tile`, and the `# Safety` contract above is
 // stated per argument (a struct would be unpacked again on entry).
 #[allow(clippy::too_many_arguments)]
+// The same loop as `tile_f32` with bf16 pairs and `vdpbf16ps` in place of the f32 FMA; kept
+// apart because the hottest loop of CLIP should not go through a trait over the element type,
+// and the two need different target features.
 pub(super) unsafe fn tile_bf16(
     kq: usize,
     a: *const u32,

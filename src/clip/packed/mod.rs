@@ -658,6 +658,8 @@ pub(crate) fn gemm_new_post(
 }
 
 /// A `*mut f32` that may cross threads: each thread writes a disjoint set of C's columns.
+// The same wrapper as layers.rs's `SyncPtr`; kept apart so that each `unsafe impl`'s SAFETY
+// argument covers exactly one use (disjoint column panels here, one element per thread there).
 #[derive(Clone, Copy)]
 struct SendPtr(*mut f32);
 // SAFETY: only used for C in `gemm_raw`, where threads own disjoint column panels.
@@ -794,7 +796,9 @@ fn pack_a<'a>(
 /// elements are read only where `accumulate` is set (then they must be initialized) or after
 /// this call wrote them.
 // `gemm`'s arguments (see there) with C as a raw pointer and length, which the safety contract
-// above is about, and `post`.
+// above is about, and `post`. Its parameter list repeats `gemm`'s on purpose: `gemm` is the safe
+// entry on a C slice (and the k = 0 case), this the one `gemm_new`/`gemm_new_post` share on
+// uninitialized C; folding them into one would put the raw pointer in the safe signature.
 #[allow(clippy::too_many_arguments)]
 unsafe fn gemm_raw(
     c: *mut f32,
