@@ -63,6 +63,8 @@ const PROMPT: &str = "a CT angiography of blood vessels";
 const HELD_OUT: usize = 4;
 
 /// CPU seconds (user + system, all threads) of this process, from /proc/self/stat.
+// bench_clip's `cpu_seconds` falls back to this; it reads schedstat first for sub-tick precision,
+// which a run of minutes does not need (and schedstat misses threads that have exited).
 fn cpu_seconds() -> f64 {
     let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
     let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
@@ -439,22 +441,7 @@ fn main() -> anyhow::Result<()> {
     let u_over_l = default_unit_distance(&volume.geometry) / volume.geometry.longest_side();
 
     // Held-out renders always with the default render options, so the error is the TF's.
-    let render_held_out = |cp: &ControlPoints| -> anyhow::Result<Vec<Image>> {
-        let eval = VolumeRenderer {
-            volume: &volume,
-            options: RenderOptions::default(),
-            up: UpAxis::Z,
-            size: clip.image_size(),
-            render_size: clip.image_size(),
-            jitter: false,
-        };
-        let lut = cp.to_lut(LUT_SIZE);
-        held_out_views(&Settings::default())
-            .iter()
-            .map(|v| eval.render(&lut, v).map(|r| r.0))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(|e| anyhow::anyhow!("held-out render: {e}"))
-    };
+    let render_held_out = |cp: &ControlPoints| held_out_renders(&volume, clip.image_size(), cp);
     let run = |row: &Row| -> anyhow::Result<Result1> {
         let settings = row.settings().validate()?;
         let renderer = VolumeRenderer {
@@ -625,10 +612,13 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `--compare-tfs A B`: how far B's TF is from A's, as the table's error columns measure it.
-fn compare_tfs(volume: &Volume, a: &Path, b: &Path) -> anyhow::Result<()> {
-    let (ta, tb) = (read_tf(a)?, read_tf(b)?);
-    let size = ClipConfig::vit_b32().vision.image_size;
+/// `cp` rendered from the held-out views at `size`² with the default render options, so the
+/// error the tables print is the TF's, not the run's render settings'.
+fn held_out_renders(
+    volume: &Volume,
+    size: usize,
+    cp: &ControlPoints,
+) -> anyhow::Result<Vec<Image>> {
     let eval = VolumeRenderer {
         volume,
         options: RenderOptions::default(),
@@ -637,14 +627,19 @@ fn compare_tfs(volume: &Volume, a: &Path, b: &Path) -> anyhow::Result<()> {
         render_size: size,
         jitter: false,
     };
-    let render = |cp: &ControlPoints| -> anyhow::Result<Vec<Image>> {
-        let lut = cp.to_lut(LUT_SIZE);
-        held_out_views(&Settings::default())
-            .iter()
-            .map(|v| eval.render(&lut, v).map(|r| r.0))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(|e| anyhow::anyhow!("held-out render: {e}"))
-    };
+    let lut = cp.to_lut(LUT_SIZE);
+    held_out_views(&Settings::default())
+        .iter()
+        .map(|v| eval.render(&lut, v).map(|r| r.0))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| anyhow::anyhow!("held-out render: {e}"))
+}
+
+/// `--compare-tfs A B`: how far B's TF is from A's, as the table's error columns measure it.
+fn compare_tfs(volume: &Volume, a: &Path, b: &Path) -> anyhow::Result<()> {
+    let (ta, tb) = (read_tf(a)?, read_tf(b)?);
+    let size = ClipConfig::vit_b32().vision.image_size;
+    let render = |cp: &ControlPoints| held_out_renders(volume, size, cp);
     let u_over_l = default_unit_distance(&volume.geometry) / volume.geometry.longest_side();
     let (o, c) = tf_distance(&tb, &ta, u_over_l);
     println!(

@@ -183,6 +183,7 @@ fn main() -> anyhow::Result<()> {
     println!("## Every shared volume, dense TF, default options\n");
     println!("| volume | level | forward (s) | fwd+bwd (s) | fwd+bwd CPU (s) | samples |");
     println!("|---|---|---|---|---|---|");
+    // One row per shared volume (file, dims, spacing, type): alike by design.
     for (file, dims, spacing, scalar) in [
         (
             "aneurism_256x256x256_uint8.raw",

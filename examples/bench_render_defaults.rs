@@ -57,6 +57,7 @@ fn load(
         spacing,
         origin: [0.0; 3],
     };
+    // As in bench_render.rs's table of shared volumes: a raw file of known dims and spacing.
     let volume = Volume::from_buffer(
         &path,
         geometry,
@@ -191,6 +192,7 @@ fn main() -> anyhow::Result<()> {
         .map_or(Ok(256), |s| s.parse())?;
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/volumes");
     let mut cases = vec![
+        // One case per shared volume (name, file, dims, spacing): alike by design.
         load(
             &root,
             "aneurism (u8)",
