@@ -2,29 +2,13 @@
 //! leftover format placeholders such as `{script}`, `{name}`, `{}` or `{x:?}`: a `{{...}}`
 //! escape in a format string prints its braces literally.
 
-use std::path::{Path, PathBuf};
-
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::write_all;
 use t2tf::tf::ControlPoints;
-use t2tf::volume::{
-    ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,
-};
+use t2tf::volume::{ByteOrder, ScalarType, SourceFormat};
 
-fn volume(format: SourceFormat) -> Volume {
-    let g = Geometry {
-        dims: [8, 6, 5],
-        spacing: [0.5, 1.0, 2.0],
-        origin: [-1.0, 2.0, 3.5],
-    };
-    let values: Vec<f64> = (0..g.voxel_count()).map(|i| (i % 17) as f64).collect();
-    let mut v = Volume::from_buffer(Path::new("v"), g, &TypedBuffer::from_f64(values)).unwrap();
-    v.source = Some(VolumeSource {
-        path: PathBuf::from("data/vol_8x6x5_uint16.raw"),
-        format,
-    });
-    v
-}
+// The scripts tests' volume: only the file's words matter here, not its values.
+use crate::formats_scripts::volume;
 
 /// Placeholders left in `text`: `{` + identifier characters (possibly none) + an optional
 /// `:spec` + `}`. JSON's and Python's own braces are followed by a quote, a space or a

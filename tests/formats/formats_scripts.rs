@@ -11,7 +11,9 @@ use t2tf::volume::{
     ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,
 };
 
-fn volume(format: SourceFormat) -> Volume {
+/// An 8×6×5 volume with an origin and uneven spacing, said to come from a raw file in
+/// `format` (also the placeholder test's volume).
+pub(crate) fn volume(format: SourceFormat) -> Volume {
     let g = Geometry {
         dims: [8, 6, 5],
         spacing: [0.5, 1.0, 2.0],

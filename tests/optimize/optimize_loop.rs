@@ -339,7 +339,8 @@ fn initialization_averages_over_rays_that_see_the_volume() {
     assert!((hit - 0.05).abs() <= 0.02 * 0.05 + 1e-6, "{hit}");
     // Over the whole frame the same TF reads (1 + 0.05) / 2: ρ would have been unreachable.
     assert!((all - (1.0 + hit) / 2.0).abs() < 1e-6, "{all}");
-    // A view in which nothing is visible is a clear error.
+    // A view in which nothing is visible is a clear error. (`Blind` is shaped like
+    // `HalfMissing` above: both are forward-only renderers for the initialization.)
     struct Blind;
     impl Renderer for Blind {
         type Tape = ();

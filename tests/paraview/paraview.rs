@@ -7,14 +7,13 @@
 use crate::paraview_util;
 
 use paraview_util::{
-    assert_volume_only_inside, floats, paraview_available, projected_box, pvpython, repo,
+    assert_volume_only_inside, floats, paraview_available, projected_box, pvpython, repo, test_tf,
 };
 use std::path::Path;
 
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::{to_paraview_json, to_paraview_xml, write_all, ExportTf};
 use t2tf::image::{psnr, Image};
-use t2tf::tf::ControlPoints;
 use t2tf::volume::{
     ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,
 };
@@ -38,20 +37,6 @@ fn neghip() -> Volume {
         },
     });
     v
-}
-
-fn test_tf() -> ControlPoints {
-    ControlPoints {
-        x: vec![0.0, 0.2, 0.45, 0.7, 1.0],
-        sigma: vec![0.0, 5.0, 60.0, 180.0, 255.0],
-        rgb: vec![
-            [0.1, 0.1, 0.8],
-            [0.2, 0.6, 0.9],
-            [0.9, 0.8, 0.2],
-            [1.0, 0.3, 0.1],
-            [1.0, 1.0, 1.0],
-        ],
-    }
 }
 
 const PRESET_CHECK: &str = r#"

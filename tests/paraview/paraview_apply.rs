@@ -10,11 +10,10 @@ use crate::paraview_util;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use paraview_util::{paraview_available, projected_box, pvpython_output, repo};
+use paraview_util::{paraview_available, projected_box, pvpython_output, repo, test_tf};
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::write_all;
 use t2tf::image::Image;
-use t2tf::tf::ControlPoints;
 use t2tf::volume::{self, ReadOptions, Volume};
 
 const NEGHIP: &str = "../shared/data/volumes/neghip_64x64x64_uint8.raw";
@@ -25,20 +24,6 @@ fn helper() -> PathBuf {
 
 fn neghip() -> Volume {
     volume::load(&repo().join(NEGHIP), &ReadOptions::default()).unwrap()
-}
-
-fn test_tf() -> ControlPoints {
-    ControlPoints {
-        x: vec![0.0, 0.2, 0.45, 0.7, 1.0],
-        sigma: vec![0.0, 5.0, 60.0, 180.0, 255.0],
-        rgb: vec![
-            [0.1, 0.1, 0.8],
-            [0.2, 0.6, 0.9],
-            [0.9, 0.8, 0.2],
-            [1.0, 0.3, 0.1],
-            [1.0, 1.0, 1.0],
-        ],
-    }
 }
 
 /// t2tf's preset for neghip, written into `dir`.

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use t2tf::image::Image;
+use t2tf::tf::ControlPoints;
 
 pub mod server;
 
@@ -85,6 +86,22 @@ pub fn pvpython_output(script: &Path, args: &[&str]) -> std::process::Output {
             continue;
         }
         return out;
+    }
+}
+
+/// The TF the preset and script tests export: five points from transparent blue to opaque
+/// white.
+pub fn test_tf() -> ControlPoints {
+    ControlPoints {
+        x: vec![0.0, 0.2, 0.45, 0.7, 1.0],
+        sigma: vec![0.0, 5.0, 60.0, 180.0, 255.0],
+        rgb: vec![
+            [0.1, 0.1, 0.8],
+            [0.2, 0.6, 0.9],
+            [0.9, 0.8, 0.2],
+            [1.0, 0.3, 0.1],
+            [1.0, 1.0, 1.0],
+        ],
     }
 }
 
