@@ -64,7 +64,7 @@ impl Background {
     }
 
     /// Draw it at `width` × `height`: a pure function of the background and the size.
-    pub fn draw(&self, width: usize, height: usize) -> Image {
+    pub(crate) fn draw(&self, width: usize, height: usize) -> Image {
         let rng = |seed: u64| ChaCha8Rng::seed_from_u64(seed);
         match *self {
             Background::Gray { level } => Image::filled(width, height, [level as f32; 3]),
@@ -155,7 +155,7 @@ impl BackgroundKind {
 }
 
 /// Draw a `width` × `height` background of `kind` from `seed`.
-pub fn generate(kind: BackgroundKind, width: usize, height: usize, seed: u64) -> Image {
+pub(crate) fn generate(kind: BackgroundKind, width: usize, height: usize, seed: u64) -> Image {
     kind.resolve(seed).draw(width, height)
 }
 

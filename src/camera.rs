@@ -20,12 +20,12 @@ use rand::Rng;
 use crate::volume::Geometry;
 
 /// Vertical field of view in degrees (docs/DESIGN.md "Camera"; written into pvpython scripts).
-pub const VIEW_ANGLE_DEG: f64 = 45.0;
+pub(crate) const VIEW_ANGLE_DEG: f64 = 45.0;
 
 /// The paper's random-view ranges (Appendix A).
-pub const PITCH_RANGE: f64 = PI / 14.0;
+pub(crate) const PITCH_RANGE: f64 = PI / 14.0;
 /// The camera distances of the paper's random views, in bounding radii.
-pub const DISTANCE_RANGE: [f64; 2] = [2.0, 4.0];
+pub(crate) const DISTANCE_RANGE: [f64; 2] = [2.0, 4.0];
 
 #[derive(Debug, thiserror::Error)]
 /// Why a camera could not be made.

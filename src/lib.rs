@@ -20,7 +20,7 @@ pub mod formats;
 pub mod fs;
 pub mod hub;
 pub mod image;
-pub mod math;
+pub(crate) mod math;
 pub mod memory;
 pub mod optimize;
 pub mod progress;

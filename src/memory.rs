@@ -36,7 +36,7 @@ pub fn set_limit(bytes: Option<u64>) {
 }
 
 /// Bytes this process may still allocate.
-pub fn budget() -> u64 {
+pub(crate) fn budget() -> u64 {
     match LIMIT.load(Ordering::SeqCst) {
         0 => system_available(),
         n => n,

@@ -30,8 +30,9 @@ const HASH_LEN: usize = 8;
 
 impl ExportTf {
     /// Export `cp` for `volume`: opacity o = 1 − exp(−σ u / L) sampled densely and simplified
-    /// to within [`EXPORT_TOLERANCE`] (docs/DESIGN.md "Conventions"), points at least [`MIN_GAP`] of the range
-    /// apart (so ParaView's lookup tables resolve them), positions denormalized to data values.
+    /// to within [`EXPORT_TOLERANCE`] (docs/DESIGN.md "Conventions"), points at least
+    /// `tf::MIN_GAP` (1/16000) of the range apart (so ParaView's lookup tables resolve them),
+    /// positions denormalized to data values.
     /// `unit_distance` defaults to [`default_unit_distance`]. The name gets a content hash.
     pub fn from_control_points(
         name: &str,

@@ -19,7 +19,7 @@ use crate::tf::interpolate;
 use crate::volume::{ByteOrder, ScalarType, SourceFormat, Volume};
 
 /// Number of freeform opacity entries VisIt's Volume plot takes.
-pub const FREEFORM_SAMPLES: usize = 256;
+pub(crate) const FREEFORM_SAMPLES: usize = 256;
 
 /// The 256 freeform opacities (0..255) over the TF's data range, evenly spaced.
 pub fn freeform_opacity(tf: &ExportTf) -> Vec<u8> {

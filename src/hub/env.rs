@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use super::HubSettings;
 
 /// The public Hub.
-pub const DEFAULT_ENDPOINT: &str = "https://huggingface.co";
+pub(crate) const DEFAULT_ENDPOINT: &str = "https://huggingface.co";
 
 impl HubSettings {
     /// Settings from this process's environment; see [`HubSettings::from_lookup`].

@@ -15,10 +15,10 @@ use sha2::{Digest, Sha256};
 use super::{CaptionError, OptimizeError};
 
 /// The project's caption pool, one caption per line.
-pub const BUILTIN_CAPTIONS: &str = include_str!("../../data/captions.txt");
+pub(crate) const BUILTIN_CAPTIONS: &str = include_str!("../../data/captions.txt");
 
 /// The user negative used when none is given (the paper's "a blank image").
-pub const DEFAULT_USER_NEGATIVE: &str = "a blank image";
+pub(crate) const DEFAULT_USER_NEGATIVE: &str = "a blank image";
 
 /// A deduplicated list of captions to draw negatives from.
 #[derive(Clone, Debug, PartialEq)]
@@ -82,7 +82,7 @@ impl CaptionPool {
 
 /// `k` distinct indices into a pool of `n`, uniformly without replacement (all of them,
 /// shuffled, when k ≥ n). Deterministic for a seeded `rng`.
-pub fn sample_indices(n: usize, k: usize, rng: &mut impl Rng) -> Vec<usize> {
+pub(crate) fn sample_indices(n: usize, k: usize, rng: &mut impl Rng) -> Vec<usize> {
     rand::seq::index::sample(rng, n, k.min(n)).into_vec()
 }
 
@@ -117,8 +117,9 @@ pub fn cache_dir() -> Option<PathBuf> {
     nonempty("HOME").map(|h| PathBuf::from(h).join(".cache").join("t2tf"))
 }
 
-/// SHA-256 of a file's bytes (the model weights), read in 1 MiB chunks.
-pub fn hash_file(path: &Path) -> Result<[u8; 32], OptimizeError> {
+/// SHA-256 of a file's bytes, read in 1 MiB chunks: `hash_files` of one file (its tests).
+#[cfg(test)]
+fn hash_file(path: &Path) -> Result<[u8; 32], OptimizeError> {
     hash_files(&[path.to_path_buf()])
 }
 
@@ -174,7 +175,7 @@ const MAGIC: &[u8; 8] = b"T2TFEMB2";
 const HEADER: usize = 8 + 32 + 8 + 8 + 32;
 
 /// Where the embeddings for `key` live inside the cache directory `dir`.
-pub fn cache_path(dir: &Path, key: &[u8; 32]) -> PathBuf {
+pub(crate) fn cache_path(dir: &Path, key: &[u8; 32]) -> PathBuf {
     let hex: String = key.iter().map(|b| format!("{b:02x}")).collect();
     dir.join("text-embeddings").join(format!("{hex}.bin"))
 }

@@ -20,10 +20,10 @@ use crate::tf::ControlPoints;
 /// which fills ~40 % of the voxels in one of 256 bins (p ≈ 100). That keeps every initial σ
 /// representable after the one common scale, and empty ranges cost nothing: they render
 /// nothing whatever their density.
-pub const DENSITY_FLOOR: f64 = 0.01;
+pub(crate) const DENSITY_FLOOR: f64 = 0.01;
 
 /// Colours uniform in [0.3, 0.7] per channel (away from the flat ends of tanh).
-pub fn random_colours(k: usize, rng: &mut impl Rng) -> Vec<[f64; 3]> {
+pub(crate) fn random_colours(k: usize, rng: &mut impl Rng) -> Vec<[f64; 3]> {
     (0..k)
         .map(|_| std::array::from_fn(|_| rng.random_range(0.3..=0.7)))
         .collect()
@@ -37,7 +37,10 @@ pub fn random_colours(k: usize, rng: &mut impl Rng) -> Vec<[f64; 3]> {
 /// voxels whose colour σ_k influences, and it follows the control-point spacing, so 8 or 512
 /// points both see a sensible estimate. When no bin centre falls under a hat (points closer
 /// than a bin), the bin holding x_k is used.
-pub fn inverse_histogram_weights(histogram: &[u64], x: &[f64]) -> Result<Vec<f64>, OptimizeError> {
+pub(crate) fn inverse_histogram_weights(
+    histogram: &[u64],
+    x: &[f64],
+) -> Result<Vec<f64>, OptimizeError> {
     let total: u64 = histogram.iter().sum();
     if histogram.is_empty() || total == 0 {
         return Err(InitError::EmptyHistogram.into());
@@ -110,7 +113,7 @@ const RHO_TOLERANCE: f64 = 0.02;
 /// Mean transmittance is non-increasing in every σ, hence in s, so the bracket
 /// [s_max · 1e-9, s_max] (s_max saturates every point at 255) holds the answer whenever it
 /// exists. A non-finite or out-of-[0, 1] transmittance is an error.
-pub fn fit_density(
+pub(crate) fn fit_density(
     x: &[f64],
     colours: &[[f64; 3]],
     weights: &[f64],

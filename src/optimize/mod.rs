@@ -22,7 +22,7 @@ pub mod recover;
 pub mod report;
 pub mod schedule;
 pub mod settings;
-pub mod sgd;
+pub(crate) mod sgd;
 pub mod tf_plot;
 
 use std::cell::RefCell;

@@ -11,7 +11,7 @@ use super::OptimizeError;
 /// This is PyTorch's `LinearLR(start_factor = 1, end_factor = 0, total_iters = steps)`
 /// stepped once after each update: the first step uses `lr0`, the last `lr0 / steps`, and the
 /// rate would reach 0 after the last step.
-pub fn linear_lr(lr0: f64, step: usize, steps: usize) -> f64 {
+pub(crate) fn linear_lr(lr0: f64, step: usize, steps: usize) -> f64 {
     if steps == 0 {
         return 0.0;
     }
@@ -20,7 +20,7 @@ pub fn linear_lr(lr0: f64, step: usize, steps: usize) -> f64 {
 
 /// Momentum SGD over a flat parameter vector.
 #[derive(Clone, Debug)]
-pub struct Sgd {
+pub(crate) struct Sgd {
     momentum: f64,
     velocity: Vec<f64>,
     step: usize,
@@ -43,12 +43,14 @@ impl Sgd {
     }
 
     /// The momentum buffer (one entry per parameter).
-    pub fn velocity(&self) -> &[f64] {
+    #[cfg(test)]
+    fn velocity(&self) -> &[f64] {
         &self.velocity
     }
 
     /// Number of updates applied so far.
-    pub fn steps_taken(&self) -> usize {
+    #[cfg(test)]
+    fn steps_taken(&self) -> usize {
         self.step
     }
 

@@ -17,7 +17,8 @@ pub use colorspace::{ColorMap, ColorSpace};
 pub use lut::ControlPointsGrad;
 pub use opacity::{default_unit_distance, opacity_to_sigma, sigma_to_opacity};
 pub use params::{TfParams, TfParamsGrad};
-pub use simplify::{interpolate, EXPORT_TOLERANCE, MIN_GAP};
+pub(crate) use simplify::MIN_GAP;
+pub use simplify::{interpolate, EXPORT_TOLERANCE};
 pub(crate) use simplify::{simplified_curves, simplify_polyline};
 
 /// Largest density: σ = 255 · (tanh(p) + 1) / 2 (paper, Appendix A).

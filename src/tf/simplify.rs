@@ -29,7 +29,7 @@ const PARAVIEW_TABLE_SIZE: usize = 16384;
 /// Smallest gap between exported points, as a fraction of the TF's range: 1/16000 keeps
 /// ceil(range / gap) ≤ 16384 (the widest table ParaView's GPU volume mapper can count on) with a 2 % margin for the rounding of
 /// positions into data units. Finer detail is lost in ParaView's table anyway.
-pub const MIN_GAP: f64 = 1.0 / 16000.0;
+pub(crate) const MIN_GAP: f64 = 1.0 / 16000.0;
 
 // The margin above, checked when compiling.
 const _: () = assert!(1.0 / MIN_GAP <= 0.98 * PARAVIEW_TABLE_SIZE as f64);
