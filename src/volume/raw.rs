@@ -129,17 +129,31 @@ pub fn check_size(path: &Path, opts: &ReadOptions, len: u64) -> Result<(), Volum
     Ok(())
 }
 
+/// The geometry, scalar type and byte order the name and flags give a raw file (its size
+/// not checked): what [`decode`], the memory-mapped load and `summarize` all use.
+pub(super) fn header(
+    path: &Path,
+    opts: &ReadOptions,
+) -> Result<(Geometry, ScalarType, ByteOrder), VolumeError> {
+    let (dims, dtype) = layout(path, opts)?;
+    let geometry = Geometry {
+        dims,
+        spacing: opts.spacing.unwrap_or([1.0; 3]),
+        origin: [0.0; 3],
+    };
+    Ok((
+        geometry,
+        dtype,
+        opts.byte_order.unwrap_or(ByteOrder::Little),
+    ))
+}
+
 /// Decode `bytes` (the whole file) as a raw array.
 pub fn decode(path: &Path, bytes: Vec<u8>, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
     check_size(path, opts, bytes.len() as u64)?;
-    let (dims, dtype) = layout(path, opts)?;
-    let byte_order = opts.byte_order.unwrap_or(ByteOrder::Little);
+    let (geometry, dtype, byte_order) = header(path, opts)?;
     Ok(Decoded {
-        geometry: Geometry {
-            dims,
-            spacing: opts.spacing.unwrap_or([1.0; 3]),
-            origin: [0.0; 3],
-        },
+        geometry,
         buffer: TypedBuffer::new(dtype, byte_order, bytes),
         format: SourceFormat::Raw {
             scalar_type: dtype,

@@ -2,6 +2,7 @@
 
 use std::path::Path;
 
+use super::source::Source;
 use super::{
     legacy, raw, vti, ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume,
     VolumeError, VolumeSource,
@@ -36,15 +37,43 @@ pub struct Decoded {
     pub format: SourceFormat,
 }
 
-/// Read and normalize the volume at `path`; sets `Volume::source`.
+/// Read and normalize the volume at `path`; sets `Volume::source`. Level 0 is read from a
+/// memory map of the file where the format allows it (`source`), else decoded into memory;
+/// either way its f32 samples are made only when asked for.
 pub fn load(path: &Path, opts: &ReadOptions) -> Result<Volume, VolumeError> {
-    let decoded = decode(path, opts)?;
-    let mut volume = Volume::from_buffer(path, decoded.geometry, &decoded.buffer)?;
+    let (geometry, declared, format, source) = open(path, opts)?;
+    let mut volume = Volume::from_source(path, geometry, declared, source)?;
     volume.source = Some(VolumeSource {
         path: path.to_path_buf(),
-        format: decoded.format,
+        format,
     });
     Ok(volume)
+}
+
+/// The geometry, declared type, format and values' source of the file at `path`.
+fn open(
+    path: &Path,
+    opts: &ReadOptions,
+) -> Result<(Geometry, ScalarType, SourceFormat, Source), VolumeError> {
+    let meta = file_metadata(path)?;
+    if reader_for(path, opts)? == Kind::Raw {
+        raw::check_size(path, opts, meta.len())?;
+        let (geometry, dtype, byte_order) = raw::header(path, opts)?;
+        let source = Source::map(path, dtype, byte_order, 0, geometry.voxel_count())?;
+        let format = SourceFormat::Raw {
+            scalar_type: dtype,
+            byte_order,
+        };
+        return Ok((geometry, dtype, format, source));
+    }
+    let d = decode(path, opts)?;
+    let declared = d.buffer.scalar_type();
+    Ok((
+        d.geometry,
+        declared,
+        d.format,
+        Source::memory(path, d.buffer),
+    ))
 }
 
 /// Which reader handles `path`.

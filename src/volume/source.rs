@@ -1,0 +1,417 @@
+//! Where level 0's values come from, and the streaming build of the pyramid over them.
+//!
+//! A [`Source`] holds the values in the file's own scalar type and byte order: a memory map
+//! of the file where its values lie there contiguously and uncompressed (`.raw`, appended raw
+//! `.vti`, legacy BINARY `.vtk`), else the decoded bytes (a [`TypedBuffer`]). Values are
+//! normalized on the fly when read ([`Norm`]), with the formula of `Volume::from_buffer`, so a
+//! level 0 read from a source equals the in-memory one bit for bit.
+//!
+//! [`stream`] builds a volume from a source in **two passes**: the statistics first (the
+//! normalization needs the finite range before any value is normalized), then one pass over
+//! level 0's z-slices that normalizes each slice, adds it to level 0's brick ranges and the
+//! histogram, and pushes it through the pyramid's `Reducer`. Memory beyond the levels kept is
+//! one slice of level 0 and a few slices per coarser level. Level 0 is never kept by the
+//! stream: it is read from the source when asked for (`Level::data`, `Level::read_box`).
+//! Pages of a memory map are released behind each pass (`MADV_DONTNEED`: the file's pages stay
+//! in the page cache, they only stop counting as this process's memory).
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use super::pyramid::{self, BrickGridBuilder, Level, Narrow, Reducer};
+use super::summary::{code_stats, code_value, count_codes, small_codes, MinMax, Stats};
+use super::{
+    buffer::for_each_value, half_scale, normalize_value, ByteOrder, Geometry, ScalarType,
+    TypedBuffer, VolumeError,
+};
+
+/// Values visited at a time by the statistics pass (and released behind it when mapped).
+const BLOCK_VALUES: usize = 4 << 20;
+
+/// Level 0's values in the file's own type and byte order.
+#[derive(Debug)]
+pub(crate) struct Source {
+    /// The file, for errors.
+    path: PathBuf,
+    /// The stored type (f64 for parsed text).
+    ty: ScalarType,
+    order: ByteOrder,
+    bytes: Bytes,
+    /// Number of values.
+    len: usize,
+}
+
+/// Where the bytes are.
+#[derive(Debug)]
+enum Bytes {
+    /// `len × size` bytes from `offset` of a memory-mapped file.
+    Map { map: memmap2::Mmap, offset: usize },
+    /// Decoded into memory.
+    Memory(TypedBuffer),
+}
+
+impl Source {
+    /// Map `count` values of `ty` in `order` starting `offset` bytes into the file at `path`.
+    /// The file must not change while the volume lives (the map would see the change).
+    pub(crate) fn map(
+        path: &Path,
+        ty: ScalarType,
+        order: ByteOrder,
+        offset: u64,
+        count: usize,
+    ) -> Result<Source, VolumeError> {
+        let io = |error| VolumeError::Io {
+            path: path.to_path_buf(),
+            error,
+        };
+        let file = std::fs::File::open(path).map_err(io)?;
+        // SAFETY: the map is read only; the file changing underneath is documented above
+        // as unsupported (as for any reader that reads a file twice).
+        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
+        let need = (count as u64)
+            .checked_mul(ty.size() as u64)
+            .and_then(|n| n.checked_add(offset));
+        if need.is_none_or(|n| n > map.len() as u64) {
+            return Err(VolumeError::file(
+                path,
+                format!(
+                    "holds {} bytes but {count} {ty} values from byte {offset} need more \
+                     (truncated?)",
+                    map.len()
+                ),
+            ));
+        }
+        Ok(Source {
+            path: path.to_path_buf(),
+            ty,
+            order,
+            bytes: Bytes::Map {
+                map,
+                offset: offset as usize,
+            },
+            len: count,
+        })
+    }
+
+    /// Values decoded into memory.
+    pub(crate) fn memory(path: &Path, buffer: TypedBuffer) -> Source {
+        let (ty, order, _) = buffer.raw();
+        Source {
+            path: path.to_path_buf(),
+            ty,
+            order,
+            len: buffer.len(),
+            bytes: Bytes::Memory(buffer),
+        }
+    }
+
+    /// Whether the values are read from a memory map.
+    pub(crate) fn is_mapped(&self) -> bool {
+        matches!(self.bytes, Bytes::Map { .. })
+    }
+
+    /// The file the values come from.
+    pub(crate) fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Number of values.
+    pub(crate) fn len(&self) -> usize {
+        self.len
+    }
+
+    /// The bytes of values `range`.
+    fn bytes(&self, range: Range<usize>) -> &[u8] {
+        let size = self.ty.size();
+        let all = match &self.bytes {
+            Bytes::Map { map, offset } => &map[*offset..*offset + self.len * size],
+            Bytes::Memory(b) => b.raw().2,
+        };
+        &all[range.start * size..range.end * size]
+    }
+
+    /// Stop counting the mapped pages of values `range` as this process's memory (nothing for
+    /// decoded sources). Called behind sequential passes; the values stay readable.
+    fn release(&self, range: Range<usize>) {
+        if let Bytes::Map { map, offset } = &self.bytes {
+            let size = self.ty.size();
+            let start = offset + range.start * size;
+            let len = (range.end - range.start) * size;
+            // Only whole pages inside the range, so neighbouring values' pages stay.
+            let page = 4096;
+            let first = start.div_ceil(page) * page;
+            let end = (start + len) / page * page;
+            if end > first {
+                // SAFETY: the map is a read-only shared file mapping: after MADV_DONTNEED the
+                // pages read back from the file unchanged, so no reference sees other bytes.
+                // A failure only means the pages stay counted.
+                let _ = unsafe {
+                    map.unchecked_advise_range(
+                        memmap2::UncheckedAdvice::DontNeed,
+                        first,
+                        end - first,
+                    )
+                };
+            }
+        }
+    }
+
+    /// Finite range, non-finite count and (for 8/16-bit codes) histogram: the first pass.
+    /// `None` when no value is finite.
+    fn stats(&self) -> Option<(Stats, Option<Vec<u64>>)> {
+        let blocks = (0..self.len)
+            .step_by(BLOCK_VALUES)
+            .map(|s| s..(s + BLOCK_VALUES).min(self.len));
+        if let Some(codes) = small_codes(self.ty) {
+            use rayon::prelude::*;
+            let mut counts = vec![0u64; codes];
+            for block in blocks {
+                let bytes = self.bytes(block.clone());
+                let size = self.ty.size();
+                let threads = rayon::current_num_threads().max(1);
+                let share = (bytes.len().div_ceil(threads).div_ceil(size) * size).max(size);
+                // Counts are integers: the split changes nothing in the result.
+                let parts: Vec<Vec<u64>> = bytes
+                    .par_chunks(share)
+                    .map(|b| {
+                        let mut c = vec![0u64; codes];
+                        count_codes(self.ty, self.order, b, &mut c);
+                        c
+                    })
+                    .collect();
+                for p in parts {
+                    for (c, k) in counts.iter_mut().zip(p) {
+                        *c += k;
+                    }
+                }
+                self.release(block);
+            }
+            return Some((code_stats(self.ty, &counts), Some(counts)));
+        }
+        // In index order: min/max of ±0 depend on the order, and `normalize` goes in it.
+        let mut acc = MinMax::default();
+        for block in blocks {
+            for_each_value(self.ty, self.order, self.bytes(block.clone()), |v| {
+                acc.add(v)
+            });
+            self.release(block);
+        }
+        acc.norm_range()?;
+        Some((acc.stats(Vec::new()), None))
+    }
+}
+
+/// How a source's values become normalized samples (`normalize` of `Volume::from_buffer`).
+#[derive(Debug)]
+pub(crate) struct Norm {
+    norm_range: [f64; 2],
+    scale: f64,
+    /// For 8/16-bit codes: the sample of every code (as `small_int`).
+    lut: Option<Vec<f32>>,
+}
+
+impl Norm {
+    fn new(ty: ScalarType, norm_range: [f64; 2]) -> Norm {
+        let scale = half_scale(norm_range);
+        let lut = small_codes(ty).map(|codes| {
+            (0..codes)
+                .map(|c| normalize_value(code_value(ty, c), norm_range, scale).0)
+                .collect()
+        });
+        Norm {
+            norm_range,
+            scale,
+            lut,
+        }
+    }
+
+    /// Normalized samples of values `start..start + out.len()` of `src` into `out`; counts
+    /// each finite value's bin into `histogram` when given.
+    pub(crate) fn read(
+        &self,
+        src: &Source,
+        start: usize,
+        out: &mut [f32],
+        mut histogram: Option<&mut Vec<u64>>,
+    ) {
+        let bytes = src.bytes(start..start + out.len());
+        if let Some(lut) = &self.lut {
+            if src.ty.size() == 1 {
+                for (o, &b) in out.iter_mut().zip(bytes) {
+                    *o = lut[b as usize];
+                }
+            } else {
+                for (o, c) in out.iter_mut().zip(bytes.chunks_exact(2)) {
+                    let b = [c[0], c[1]];
+                    let code = match src.order {
+                        ByteOrder::Little => u16::from_le_bytes(b),
+                        ByteOrder::Big => u16::from_be_bytes(b),
+                    };
+                    *o = lut[code as usize];
+                }
+            }
+            return;
+        }
+        let mut i = 0;
+        for_each_value(src.ty, src.order, bytes, |v| {
+            out[i] = if v.is_finite() {
+                let (t, bin) = normalize_value(v, self.norm_range, self.scale);
+                if let Some(h) = histogram.as_deref_mut() {
+                    h[bin] += 1;
+                }
+                t
+            } else {
+                f32::NAN
+            };
+            i += 1;
+        });
+    }
+}
+
+/// A source with its normalization and level shapes: what a lazy level is made from.
+#[derive(Debug)]
+pub(crate) struct Streamed {
+    pub(crate) source: Source,
+    pub(crate) norm: Norm,
+    /// Points per axis and spacing of every level ([`pyramid::level_shapes`]).
+    pub(crate) shapes: Vec<([usize; 3], [f64; 3])>,
+}
+
+impl Streamed {
+    /// The samples of level `level`, made by streaming over the source again (the levels
+    /// between it and level 0 are reduced slice by slice and not kept). The memory budget is
+    /// checked first.
+    pub(crate) fn materialize(&self, level: usize) -> Result<Vec<f32>, VolumeError> {
+        let dims = self.shapes[level].0;
+        crate::memory::check(
+            format!(
+                "mip level {level} ({}x{}x{} points, f32)",
+                dims[0], dims[1], dims[2]
+            ),
+            crate::memory::product(&dims),
+            4,
+            "render at a coarser level (--level) or use a smaller volume",
+        )
+        .map_err(|e| VolumeError::file(self.source.path(), e.to_string()))?;
+        let [nx, ny, nz] = self.shapes[0].0;
+        let area = nx * ny;
+        if level == 0 {
+            let mut out = vec![0.0f32; self.source.len()];
+            for (z, slice) in out.chunks_mut(area).enumerate() {
+                self.norm.read(&self.source, z * area, slice, None);
+                self.source.release(z * area..(z + 1) * area);
+            }
+            return Ok(out);
+        }
+        let mut reducer = Reducer::new(&self.shapes[..=level], |l| l == level);
+        let mut slice = vec![0.0f32; area];
+        for z in 0..nz {
+            self.norm.read(&self.source, z * area, &mut slice, None);
+            self.source.release(z * area..(z + 1) * area);
+            reducer.push(&slice, |_, _| {});
+        }
+        Ok(reducer.finish().pop().flatten().unwrap_or_default())
+    }
+}
+
+/// The statistics and levels of a volume streamed from a source.
+pub(crate) struct Streaming {
+    pub(crate) stats: Stats,
+    pub(crate) levels: Vec<Level>,
+}
+
+/// Build a volume's statistics and levels from `source` (module docs: two passes). Levels 1..
+/// whose f32 samples [`keep`] accepts are held; the others, and level 0, are made when asked
+/// for. `None` when no value is finite.
+pub(crate) fn stream(
+    geometry: Geometry,
+    declared: ScalarType,
+    source: Source,
+) -> Result<Option<Streaming>, VolumeError> {
+    let Some((mut stats, _counts)) = source.stats() else {
+        return Ok(None);
+    };
+    let shapes = pyramid::level_shapes(geometry);
+    let kept = keep(&shapes);
+    let bytes: u64 = kept
+        .iter()
+        .zip(&shapes)
+        .filter(|(k, _)| **k)
+        .map(|(_, s)| pyramid::level_bytes(s.0) as u64)
+        .sum();
+    crate::memory::check(
+        "the volume's coarse mip levels",
+        Some(bytes),
+        1,
+        "use a smaller volume",
+    )
+    .map_err(|e| VolumeError::file(source.path(), e.to_string()))?;
+
+    let norm = Norm::new(source.ty, stats.norm_range);
+    let [nx, ny, nz] = geometry.dims;
+    let area = nx * ny;
+    let mut grids: Vec<BrickGridBuilder> =
+        shapes.iter().map(|s| BrickGridBuilder::new(s.0)).collect();
+    let mut reducer = Reducer::new(&shapes, |l| kept[l]);
+    // The generic path counts the histogram while normalizing (the code path has it).
+    let mut histogram = stats
+        .histogram
+        .is_empty()
+        .then(|| vec![0u64; super::HISTOGRAM_BINS]);
+    let mut slice = vec![0.0f32; area];
+    for z in 0..nz {
+        norm.read(&source, z * area, &mut slice, histogram.as_mut());
+        source.release(z * area..(z + 1) * area);
+        let (first, rest) = grids.split_first_mut().expect("level 0 exists");
+        first.push(&slice);
+        reducer.push(&slice, |l, s| rest[l - 1].push(s));
+    }
+    if let Some(h) = histogram {
+        stats.histogram = h;
+    }
+    let narrow = narrow_for(declared, stats.norm_range);
+    let streamed = Arc::new(Streamed {
+        source,
+        norm,
+        shapes: shapes.clone(),
+    });
+    let mut data = reducer.finish();
+    let levels = shapes
+        .iter()
+        .zip(grids)
+        .enumerate()
+        .map(|(l, ((dims, spacing), grid))| {
+            let narrow = if l == 0 { narrow } else { Narrow::Round16 };
+            let data = if l == 0 { None } else { data[l - 1].take() };
+            Level::lazy(*dims, *spacing, grid.finish(), narrow, data, &streamed, l)
+        })
+        .collect();
+    Ok(Some(Streaming { stats, levels }))
+}
+
+/// Which levels a stream keeps in f32: the coarse ones. A level above [`KEEP_POINTS`] points
+/// (finer than 512³) is made only when asked for; level 0 always is.
+pub(crate) fn keep(shapes: &[([usize; 3], [f64; 3])]) -> Vec<bool> {
+    shapes
+        .iter()
+        .enumerate()
+        .map(|(l, (dims, _))| l > 0 && dims.iter().product::<usize>() <= KEEP_POINTS)
+        .collect()
+}
+
+/// Points of the finest level a stream keeps: 512³ (512 MiB of f32).
+const KEEP_POINTS: usize = 1 << 27;
+
+/// How level 0's samples may be narrowed: integer data spanning at most 65535 steps
+/// normalizes to k / span exactly, so the renderer's bricked copy can store k in 8 or 16 bits
+/// (render::cpu::bricked).
+pub(super) fn narrow_for(scalar_type: ScalarType, norm_range: [f64; 2]) -> Narrow {
+    let span = norm_range[1] - norm_range[0];
+    let integer = !matches!(scalar_type, ScalarType::F32 | ScalarType::F64);
+    if integer && span.fract() == 0.0 && (1.0..=65535.0).contains(&span) {
+        Narrow::Exact(span as u32)
+    } else {
+        Narrow::No
+    }
+}
