@@ -202,6 +202,20 @@ impl Source {
     }
 }
 
+/// Where a file's chosen array lies when its values can be mapped: contiguous, uncompressed,
+/// in one byte order (`vti::locate`, `legacy::locate`).
+pub(crate) struct Located {
+    pub(crate) geometry: Geometry,
+    /// The stored type (what the file declares).
+    pub(crate) ty: ScalarType,
+    pub(crate) order: ByteOrder,
+    /// Byte offset of the first value in the file.
+    pub(crate) offset: u64,
+    /// Number of values.
+    pub(crate) count: usize,
+    pub(crate) format: super::SourceFormat,
+}
+
 /// How a source's values become normalized samples (`normalize` of `Volume::from_buffer`).
 #[derive(Debug)]
 pub(crate) struct Norm {

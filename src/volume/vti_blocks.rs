@@ -110,7 +110,7 @@ pub(super) fn base64_streams(text: &[u8]) -> Result<Vec<u8>, BlockError> {
 }
 
 /// One header integer at `at`.
-fn header_int(stream: &[u8], at: usize, layout: Layout) -> Result<usize, BlockError> {
+pub(super) fn header_int(stream: &[u8], at: usize, layout: Layout) -> Result<usize, BlockError> {
     let h = layout.header_size;
     let b = stream.get(at..at + h).ok_or(BlockError::HeaderTruncated)?;
     let v = match (h, layout.order) {

@@ -8,3 +8,4 @@ mod hostile_volumes;
 mod volume_errors;
 mod volume_fixtures;
 mod volume_shared;
+mod volume_stream;
