@@ -134,6 +134,7 @@ impl Level {
 
     /// What identifies this level's samples without making them: the same allocation for
     /// every clone of the level, dropped with the last one.
+    #[allow(dead_code)] // For render::cpu's cache of prepared levels (helper B's branch).
     pub(crate) fn cell(&self) -> &Arc<LevelCell> {
         &self.cell
     }
@@ -159,30 +160,19 @@ impl Level {
         let w = hi[0] - lo[0];
         let (h, d) = (hi[1] - lo[1], hi[2] - lo[2]);
         assert_eq!(out.len(), w * h * d, "box {lo:?}..{hi:?} and output size");
-        if w == 0 {
-            return Ok(());
-        }
-        let [nx, ny, _] = self.dims;
-        // 64-bit index math: a level may hold more than 2³² points.
-        let at = |j: usize, k: usize| lo[0] as u64 + nx as u64 * (j as u64 + ny as u64 * k as u64);
-        let rows = out.chunks_exact_mut(w);
-        let coords = (lo[2]..hi[2]).flat_map(|k| (lo[1]..hi[1]).map(move |j| (j, k)));
         match (self.cell.data.get(), &self.cell.origin) {
-            (None, Some((streamed, 0))) => {
-                for (row, (j, k)) in rows.zip(coords) {
-                    streamed
-                        .norm
-                        .read(&streamed.source, at(j, k) as usize, row, None);
-                }
-            }
+            (None, Some((streamed, level))) => streamed.read_box(*level, lo, hi, out),
             _ => {
                 let data = self.try_data()?;
-                for (row, (j, k)) in rows.zip(coords) {
-                    row.copy_from_slice(&data[at(j, k) as usize..][..w]);
+                for (row, at) in out
+                    .chunks_exact_mut(w.max(1))
+                    .zip(box_rows(self.dims, lo, hi))
+                {
+                    row.copy_from_slice(&data[at as usize..][..w]);
                 }
+                Ok(())
             }
         }
-        Ok(())
     }
 
     /// How the values may be stored in fewer bits (see [`Narrow`]).
@@ -216,6 +206,19 @@ pub(crate) enum Narrow {
     Round16,
     /// f32 (float volumes' level 0).
     No,
+}
+
+/// Index of the first point of every x-row of the box [`lo`, `hi`) in a level of `dims`
+/// points, in order (z outer). 64-bit: a level may hold more than 2³² points.
+pub(super) fn box_rows(
+    dims: [usize; 3],
+    lo: [usize; 3],
+    hi: [usize; 3],
+) -> impl Iterator<Item = u64> {
+    let [nx, ny, _] = dims.map(|d| d as u64);
+    (lo[2]..hi[2]).flat_map(move |k| {
+        (lo[1]..hi[1]).map(move |j| lo[0] as u64 + nx * (j as u64 + ny * k as u64))
+    })
 }
 
 /// What [`Level::memory_bytes`] gives for a level of `dims` points, without building it.
@@ -372,20 +375,105 @@ pub(super) fn build(geometry: Geometry, data: Vec<f32>, narrow: Narrow) -> Vec<L
 /// Taps of a tent filter of the reduction's width resampling `d` points to `n`: per output
 /// point, (source index, weight) in ascending source order — the order the sums are taken in.
 fn taps(d: usize, n: usize) -> Taps {
+    (0..n).map(|j| tap(d, n, j)).collect()
+}
+
+/// The taps of output point `j` ([`taps`]).
+fn tap(d: usize, n: usize, j: usize) -> Vec<(usize, f32)> {
     let ratio = (d - 1) as f64 / (n - 1) as f64;
-    (0..n)
-        .map(|j| {
-            let x = j as f64 * ratio;
-            let lo = (x - ratio).ceil().max(0.0) as usize;
-            let hi = ((x + ratio).floor() as usize).min(d - 1);
-            (lo..=hi)
-                .filter_map(|i| {
-                    let w = 1.0 - (i as f64 - x).abs() / ratio;
-                    (w > 0.0).then_some((i, w as f32))
-                })
-                .collect()
+    let x = j as f64 * ratio;
+    let lo = (x - ratio).ceil().max(0.0) as usize;
+    let hi = ((x + ratio).floor() as usize).min(d - 1);
+    (lo..=hi)
+        .filter_map(|i| {
+            let w = 1.0 - (i as f64 - x).abs() / ratio;
+            (w > 0.0).then_some((i, w as f32))
         })
         .collect()
+}
+
+/// The points [`lo`, `hi`) of the level of shape `output` reduced from the level of shape
+/// `input`: the box of the input they read (`read(lo, hi, out)` fills it, x fastest) is
+/// reduced along x, then y, then z, with the sums of [`Reducer`] in its order, so every value
+/// equals the streamed level's bit for bit.
+pub(super) fn reduce_box(
+    input: [usize; 3],
+    output: [usize; 3],
+    lo: [usize; 3],
+    hi: [usize; 3],
+    out: &mut [f32],
+    read: impl FnOnce([usize; 3], [usize; 3], &mut [f32]) -> Result<(), VolumeError>,
+) -> Result<(), VolumeError> {
+    // Per axis: the taps of the wanted outputs, relative to the input box's first point.
+    let mut in_lo = lo;
+    let mut in_hi = hi;
+    let mut axis_taps: [Option<Taps>; 3] = [None, None, None];
+    for a in 0..3 {
+        if input[a] == output[a] || hi[a] == lo[a] {
+            continue;
+        }
+        let t: Taps = (lo[a]..hi[a])
+            .map(|j| tap(input[a], output[a], j))
+            .collect();
+        in_lo[a] = t
+            .iter()
+            .filter_map(|t| t.first())
+            .map(|t| t.0)
+            .min()
+            .unwrap_or(0);
+        in_hi[a] = t
+            .iter()
+            .filter_map(|t| t.last())
+            .map(|t| t.0 + 1)
+            .max()
+            .unwrap_or(0);
+        let shifted = t
+            .into_iter()
+            .map(|tj| tj.into_iter().map(|(s, w)| (s - in_lo[a], w)).collect())
+            .collect();
+        axis_taps[a] = Some(shifted);
+    }
+    let [bx, by, bz] = std::array::from_fn(|a| in_hi[a] - in_lo[a]);
+    let [ox, oy, oz] = std::array::from_fn(|a| hi[a] - lo[a]);
+    let mut src = vec![0.0f32; bx * by * bz];
+    read(in_lo, in_hi, &mut src)?;
+    // x, per input row.
+    let xr: Vec<f32> = match &axis_taps[0] {
+        None => src,
+        Some(t) => src
+            .chunks_exact(bx)
+            .flat_map(|row| t.iter().map(move |tj| filter(tj, |s| row[s])))
+            .collect(),
+    };
+    // y, per input slice.
+    let xy: Vec<f32> = match &axis_taps[1] {
+        None => xr,
+        Some(t) => {
+            let mut o = Vec::with_capacity(ox * oy * bz);
+            for slice in xr.chunks_exact(ox * by) {
+                for tj in t {
+                    for x in 0..ox {
+                        o.push(filter(tj, |s| slice[x + ox * s]));
+                    }
+                }
+            }
+            o
+        }
+    };
+    // z.
+    match &axis_taps[2] {
+        None => out.copy_from_slice(&xy),
+        Some(t) => {
+            let area = ox * oy;
+            for (tj, o) in t.iter().zip(out.chunks_exact_mut(area)) {
+                for (i, v) in o.iter_mut().enumerate() {
+                    *v = filter(tj, |s| xy[i + area * s]);
+                }
+            }
+        }
+    }
+    debug_assert_eq!(out.len(), ox * oy * oz);
+    Ok(())
 }
 
 /// One filtered value: the weighted mean of the taps that are not NaN (`at(s)` reads source

@@ -106,11 +106,6 @@ impl Source {
         }
     }
 
-    /// Whether the values are read from a memory map.
-    pub(crate) fn is_mapped(&self) -> bool {
-        matches!(self.bytes, Bytes::Map { .. })
-    }
-
     /// The file the values come from.
     pub(crate) fn path(&self) -> &Path {
         &self.path
@@ -329,6 +324,34 @@ impl Streamed {
     }
 }
 
+impl Streamed {
+    /// Samples of level `level` in the box [`lo`, `hi`) (x fastest) without holding the
+    /// level: level 0's rows are read from the source, a coarser level is reduced from the box
+    /// of the finer one that its filter reads (`pyramid::reduce_box`: the streamed level's
+    /// values bit for bit). 64-bit index math: level 0 may hold more than 2³² points.
+    pub(crate) fn read_box(
+        &self,
+        level: usize,
+        lo: [usize; 3],
+        hi: [usize; 3],
+        out: &mut [f32],
+    ) -> Result<(), VolumeError> {
+        if level == 0 {
+            let w = hi[0] - lo[0];
+            let rows = pyramid::box_rows(self.shapes[0].0, lo, hi);
+            for (row, at) in out.chunks_exact_mut(w.max(1)).zip(rows) {
+                // A usize index: the values lie in this process's memory (a map or a buffer).
+                self.norm.read(&self.source, at as usize, row, None);
+            }
+            return Ok(());
+        }
+        let (input, output) = (self.shapes[level - 1].0, self.shapes[level].0);
+        pyramid::reduce_box(input, output, lo, hi, out, |l, h, buf| {
+            self.read_box(level - 1, l, h, buf)
+        })
+    }
+}
+
 /// The statistics and levels of a volume streamed from a source.
 pub(crate) struct Streaming {
     pub(crate) stats: Stats,
@@ -343,11 +366,23 @@ pub(crate) fn stream(
     declared: ScalarType,
     source: Source,
 ) -> Result<Option<Streaming>, VolumeError> {
-    let Some((mut stats, _counts)) = source.stats() else {
+    let Some((stats, _counts)) = source.stats() else {
         return Ok(None);
     };
     let shapes = pyramid::level_shapes(geometry);
     let kept = keep(&shapes);
+    stream_keeping(geometry, declared, source, stats, shapes, &kept)
+}
+
+/// [`stream`] after the statistics pass, holding the levels `kept` says.
+fn stream_keeping(
+    geometry: Geometry,
+    declared: ScalarType,
+    source: Source,
+    mut stats: Stats,
+    shapes: Vec<([usize; 3], [f64; 3])>,
+    kept: &[bool],
+) -> Result<Option<Streaming>, VolumeError> {
     let bytes: u64 = kept
         .iter()
         .zip(&shapes)
@@ -427,5 +462,70 @@ pub(super) fn narrow_for(scalar_type: ScalarType, norm_range: [f64; 2]) -> Narro
         Narrow::Exact(span as u32)
     } else {
         Narrow::No
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Levels that are not held: `read_box` (reduced from level 0's box on the source) and
+    /// `try_data` (a second stream) equal the in-memory pyramid bit for bit, on odd boxes.
+    #[test]
+    fn levels_not_held_read_like_held_ones() {
+        let dims = [37, 29, 23];
+        let n: usize = dims.iter().product();
+        let mut values: Vec<f64> = (0..n).map(|i| ((i * 7919) % 1013) as f64 - 3.5).collect();
+        for i in (0..n).step_by(89) {
+            values[i] = f64::NAN;
+        }
+        let geometry = Geometry {
+            dims,
+            spacing: [1.0, 0.5, 2.0],
+            origin: [0.0; 3],
+        };
+        let path = Path::new("t");
+        let buffer = TypedBuffer::from_f64(values);
+        let reference = super::super::Volume::from_buffer(path, geometry, &buffer).unwrap();
+        let source = Source::memory(path, buffer);
+        let (stats, _) = source.stats().unwrap();
+        let shapes = pyramid::level_shapes(geometry);
+        let none = vec![false; shapes.len()];
+        let s = stream_keeping(geometry, ScalarType::F64, source, stats, shapes, &none)
+            .unwrap()
+            .unwrap();
+        assert_eq!(s.stats.histogram, reference.histogram);
+        assert!(s.levels.len() >= 3);
+        let bits = |d: &[f32]| d.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        for (l, (level, want)) in s.levels.iter().zip(&reference.levels).enumerate() {
+            assert!(!level.is_materialized(), "level {l}");
+            let d = level.dims;
+            let boxes = [
+                ([0, 0, 0], d),
+                ([1, 2, 3], [d[0] - 1, d[1], d[2] - 2]),
+                (
+                    [d[0] / 2, d[1] / 3, d[2] / 2],
+                    [d[0] / 2 + 1, d[1] / 3 + 2, d[2]],
+                ),
+                ([d[0] - 1, d[1] - 1, d[2] - 1], d),
+            ];
+            for (lo, hi) in boxes {
+                let len = (0..3).map(|a| hi[a] - lo[a]).product();
+                let mut out = vec![0.0; len];
+                level.read_box(lo, hi, &mut out).unwrap();
+                let mut expect = Vec::new();
+                for at in pyramid::box_rows(d, lo, hi) {
+                    expect.extend_from_slice(&want.data()[at as usize..][..hi[0] - lo[0]]);
+                }
+                assert_eq!(bits(&out), bits(&expect), "level {l} {lo:?}..{hi:?}");
+            }
+            assert!(!level.is_materialized(), "read_box made level {l}");
+            assert_eq!(
+                bits(level.try_data().unwrap()),
+                bits(want.data()),
+                "level {l}"
+            );
+            assert_eq!(level.bricks.min, want.bricks.min, "level {l}");
+        }
     }
 }

@@ -30,16 +30,32 @@ fn both(path: &Path, opts: &ReadOptions) -> (Volume, Volume) {
 fn assert_same(a: &Volume, b: &Volume, what: &str) {
     assert_eq!(a.geometry, b.geometry, "{what}");
     assert_eq!(a.scalar_type, b.scalar_type, "{what}");
-    assert_eq!(a.range.map(f64::to_bits), b.range.map(f64::to_bits), "{what}");
+    assert_eq!(
+        a.range.map(f64::to_bits),
+        b.range.map(f64::to_bits),
+        "{what}"
+    );
     assert_eq!(a.norm_range, b.norm_range, "{what}");
     assert_eq!(a.non_finite, b.non_finite, "{what}");
     assert_eq!(a.histogram, b.histogram, "{what}");
     assert_eq!(a.levels.len(), b.levels.len(), "{what}: level count");
     for (l, (x, y)) in a.levels.iter().zip(&b.levels).enumerate() {
-        assert_eq!((x.dims, x.spacing), (y.dims, y.spacing), "{what}: level {l}");
+        assert_eq!(
+            (x.dims, x.spacing),
+            (y.dims, y.spacing),
+            "{what}: level {l}"
+        );
         assert_eq!(x.bricks.counts, y.bricks.counts, "{what}: level {l}");
-        assert_eq!(bits(&x.bricks.min), bits(&y.bricks.min), "{what}: level {l} min");
-        assert_eq!(bits(&x.bricks.max), bits(&y.bricks.max), "{what}: level {l} max");
+        assert_eq!(
+            bits(&x.bricks.min),
+            bits(&y.bricks.min),
+            "{what}: level {l} min"
+        );
+        assert_eq!(
+            bits(&x.bricks.max),
+            bits(&y.bricks.max),
+            "{what}: level {l} max"
+        );
         assert_eq!(x.bricks.uniform, y.bricks.uniform, "{what}: level {l}");
         assert!(
             bits(x.data()) == bits(y.data()),
@@ -179,8 +195,7 @@ fn streaming_equals_in_memory_on_every_fixture() {
         }
         let opts = ReadOptions::default();
         // Fixtures that need flags or hold no finite value are other tests' business.
-        let (Ok(loaded), Ok(d)) = (volume::load(&path, &opts), volume::decode(&path, &opts))
-        else {
+        let (Ok(loaded), Ok(d)) = (volume::load(&path, &opts), volume::decode(&path, &opts)) else {
             continue;
         };
         let built = Volume::from_buffer(&path, d.geometry, &d.buffer).unwrap();
@@ -222,11 +237,12 @@ fn read_box_equals_slicing_data() {
             assert_eq!(bits(&out), bits(&want), "{what} {lo:?}..{hi:?}");
         }
     };
-    check(&loaded.levels[0], &built.levels[0], "level 0 from the source");
-    assert!(
-        !loaded.levels[0].is_materialized(),
-        "read_box made level 0"
+    check(
+        &loaded.levels[0],
+        &built.levels[0],
+        "level 0 from the source",
     );
+    assert!(!loaded.levels[0].is_materialized(), "read_box made level 0");
     check(&loaded.levels[1], &built.levels[1], "level 1");
     let _ = loaded.levels[0].data();
     check(&loaded.levels[0], &built.levels[0], "level 0 held");
