@@ -510,6 +510,7 @@ mod tests {
                 ([d[0] - 1, d[1] - 1, d[2] - 1], d),
             ];
             for (lo, hi) in boxes {
+                let lo: [usize; 3] = std::array::from_fn(|a| lo[a].min(hi[a]));
                 let len = (0..3).map(|a| hi[a] - lo[a]).product();
                 let mut out = vec![0.0; len];
                 level.read_box(lo, hi, &mut out).unwrap();
