@@ -1,7 +1,7 @@
 //! A decoded array in its file's own scalar type and byte order.
 //!
-//! Readers hand over the bytes as they are; values are decoded on the fly in the two passes of
-//! [`super::Volume::from_buffer`], so a volume costs the file's bytes plus one f32 copy.
+//! Readers hand over the bytes as they are; values are decoded on the fly when normalized
+//! ([`super::Volume::from_buffer`], or the streamed `source` of [`super::load`]).
 
 use std::fmt;
 use std::str::FromStr;

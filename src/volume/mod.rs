@@ -1,10 +1,15 @@
 //! Volumes: reading `.raw`, `.vti` and legacy `.vtk` files into one normalized [`Volume`].
 //!
 //! Readers (`raw`, `vti`, `legacy`) decode a file into a [`TypedBuffer`] (the file's own scalar
-//! type and byte order, untouched) plus [`Geometry`]; [`Volume::from_buffer`] then makes the one
-//! f32 copy the rest of the program uses: values normalized to [0, 1] by the finite min/max
-//! (docs/DESIGN.md, "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty),
-//! the histogram, and the mip pyramid with per-brick value ranges for empty-space skipping.
+//! type and byte order, untouched) plus [`Geometry`], or locate its values in the file where
+//! they lie there contiguously. [`load`] streams them from a `source` (a memory map, else the
+//! decoded bytes): values normalized to [0, 1] by the finite min/max (docs/DESIGN.md,
+//! "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty), the
+//! histogram, and the mip pyramid with per-brick value ranges for empty-space skipping. Only
+//! the coarse levels are held in f32; level 0 (and any level finer than 512³) is made when
+//! asked for ([`Level::try_data`]) or read box by box ([`Level::read_box`]).
+//! [`Volume::from_buffer`] is the in-memory build of the same volume (every level held), which
+//! the streamed one equals bit for bit.
 
 mod buffer;
 mod legacy;
@@ -253,7 +258,8 @@ impl Volume {
         })
     }
 
-    /// Full-resolution normalized samples, x fastest (NaN = empty).
+    /// Full-resolution normalized samples, x fastest (NaN = empty). Made on first use; panics
+    /// when they do not fit the memory budget (see [`Level::try_data`]).
     pub fn data(&self) -> &[f32] {
         self.levels[0].data()
     }
@@ -268,7 +274,8 @@ impl Volume {
         denormalize(self.norm_range, t)
     }
 
-    /// Bytes held by the normalized data and the pyramid.
+    /// Bytes the normalized data and the pyramid take with every level made
+    /// ([`Level::memory_bytes`]).
     pub fn memory_bytes(&self) -> usize {
         self.levels.iter().map(Level::memory_bytes).sum()
     }

@@ -693,21 +693,9 @@ mod tests {
         if n == d {
             return src.to_vec();
         }
-        let ratio = (d - 1) as f64 / (n - 1) as f64;
-        // Taps per output point: (source index, weight), precomputed once per axis.
-        let taps: Vec<Vec<(usize, f32)>> = (0..n)
-            .map(|j| {
-                let x = j as f64 * ratio;
-                let lo = (x - ratio).ceil().max(0.0) as usize;
-                let hi = ((x + ratio).floor() as usize).min(d - 1);
-                (lo..=hi)
-                    .filter_map(|i| {
-                        let w = 1.0 - (i as f64 - x).abs() / ratio;
-                        (w > 0.0).then_some((i, w as f32))
-                    })
-                    .collect()
-            })
-            .collect();
+        // Taps per output point: (source index, weight), precomputed once per axis (the
+        // reducer's own taps: this reference checks the order of the sums, not the weights).
+        let taps = taps(d, n);
         let stride = match axis {
             0 => 1,
             1 => dims[0],

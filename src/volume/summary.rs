@@ -18,6 +18,9 @@ use super::{
 const BLOCK_BYTES: usize = 8 << 20;
 
 /// A volume file's statistics, as [`super::Volume`] would hold them after a load.
+// The statistics fields repeat `Volume`'s on purpose: both are public structs the CLI and
+// library users read field by field (`Volume` is used across the crate); one shared struct
+// would change every caller of `Volume` outside `volume/`.
 #[derive(Clone, Debug)]
 pub struct Summary {
     /// Points per axis, spacing and origin.
@@ -446,6 +449,7 @@ mod tests {
         }
     }
 
+    // The inverse of `buffer::for_each_value` (encoding, not decoding): alike in shape only.
     /// `values` stored as `ty` in `order` (values are exact in every type used above).
     fn encode(values: &[f64], ty: ScalarType, order: ByteOrder) -> Vec<u8> {
         macro_rules! enc {
