@@ -109,6 +109,15 @@ impl Level {
         self.cell.data.get().is_some()
     }
 
+    /// Whether the samples, when not held, are read from a memory map of the volume's file
+    /// (`.raw`, appended raw `.vti`, BINARY `.vtk`) rather than from decoded bytes.
+    pub fn is_mapped(&self) -> bool {
+        self.cell
+            .origin
+            .as_ref()
+            .is_some_and(|(s, _)| s.source.is_mapped())
+    }
+
     fn try_shared(&self) -> Result<&Arc<Vec<f32>>, VolumeError> {
         if let Some(d) = self.cell.data.get() {
             return Ok(d);

@@ -106,6 +106,11 @@ impl Source {
         }
     }
 
+    /// Whether the values are read from a memory map of the file.
+    pub(crate) fn is_mapped(&self) -> bool {
+        matches!(self.bytes, Bytes::Map { .. })
+    }
+
     /// The file the values come from.
     pub(crate) fn path(&self) -> &Path {
         &self.path

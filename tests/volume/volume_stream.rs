@@ -200,6 +200,14 @@ fn streaming_equals_in_memory_on_every_fixture() {
         };
         let built = Volume::from_buffer(&path, d.geometry, &d.buffer).unwrap();
         assert_same(&loaded, &built, &path.display().to_string());
+        let name = path.file_name().unwrap().to_str().unwrap();
+        // Mapped: raw files, appended raw uncompressed .vti (the active array, the first
+        // array) and BINARY legacy files; every other encoding is decoded.
+        let mapped = ext == "raw"
+            || ["appended_raw_uint16.vti", "arrays_raw.vti"].contains(&name)
+            || name.starts_with("legacy_binary")
+            || name == "legacy_sections_binary.vtk";
+        assert_eq!(loaded.levels[0].is_mapped(), mapped, "{name}");
         checked += 1;
     }
     assert!(checked >= 30, "only {checked} fixtures");
