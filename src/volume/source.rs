@@ -68,7 +68,18 @@ impl Source {
         let file = std::fs::File::open(path).map_err(io)?;
         // SAFETY: the map is read only; the file changing underneath is documented above
         // as unsupported (as for any reader that reads a file twice).
-        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
+        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| {
+            // Mostly an address-space limit (`ulimit -v`) smaller than the file.
+            let len = file.metadata().map_or(0, |m| m.len());
+            VolumeError::file(
+                path,
+                format!(
+                    "cannot map its {} into memory ({e}); raise the address-space limit \
+                     (ulimit -v) or use a smaller volume",
+                    crate::units::human_bytes(len as u128)
+                ),
+            )
+        })?;
         let need = (count as u64)
             .checked_mul(ty.size() as u64)
             .and_then(|n| n.checked_add(offset));
