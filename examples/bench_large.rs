@@ -141,6 +141,7 @@ fn optimize(
         ])
         .arg(&out)
         .env("XDG_CACHE_HOME", dir)
+        .stdout(std::process::Stdio::null())
         .status()?;
     let secs = t.elapsed().as_secs_f64();
     anyhow::ensure!(status.success(), "t2tf optimize failed: {status}");
