@@ -51,6 +51,8 @@ pub(crate) struct LevelCell {
     data: OnceLock<Arc<Vec<f32>>>,
     /// What makes them when they are not held: the source and this level's index.
     origin: Option<(Arc<Streamed>, usize)>,
+    /// Held while the samples are made, so that threads asking at once make one copy.
+    making: std::sync::Mutex<()>,
 }
 
 impl Level {
@@ -63,6 +65,7 @@ impl Level {
             cell: Arc::new(LevelCell {
                 data: OnceLock::from(Arc::new(data)),
                 origin: None,
+                making: Default::default(),
             }),
             narrow,
         }
@@ -82,6 +85,7 @@ impl Level {
         let cell = LevelCell {
             data: data.map(Arc::new).map(OnceLock::from).unwrap_or_default(),
             origin: Some((streamed.clone(), index)),
+            making: Default::default(),
         };
         Level {
             dims,
@@ -130,7 +134,11 @@ impl Level {
             .origin
             .as_ref()
             .expect("a level without samples has a source");
-        // Two threads asking at once may both make the samples; one copy is kept.
+        // A panic while making them leaves nothing behind the lock: ignore the poison.
+        let _making = self.cell.making.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(d) = self.cell.data.get() {
+            return Ok(d);
+        }
         let data = streamed.materialize(*index)?;
         Ok(self.cell.data.get_or_init(|| Arc::new(data)))
     }
@@ -902,6 +910,16 @@ mod tests {
         }
         let uniform = (0..total).map(|b| !nan[b] && min[b] == max[b]).collect();
         (min, max, uniform)
+    }
+
+    /// Row starts past 2³² points (a level of 70000 × 70000 × 2, not allocated).
+    #[test]
+    fn box_rows_index_past_32_bits() {
+        let dims = [70_000, 70_000, 2];
+        let rows: Vec<u64> = box_rows(dims, [5, 69_998, 1], [9, 70_000, 2]).collect();
+        let plane = 70_000u64 * 70_000;
+        assert!(plane > u32::MAX as u64);
+        assert_eq!(rows, [5 + 69_998 * 70_000 + plane, 5 + 69_999 * 70_000 + plane]);
     }
 
     /// Row by row equals point by point, bit for bit (both zeros, NaN), on odd sizes.
