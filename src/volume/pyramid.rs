@@ -919,7 +919,10 @@ mod tests {
         let rows: Vec<u64> = box_rows(dims, [5, 69_998, 1], [9, 70_000, 2]).collect();
         let plane = 70_000u64 * 70_000;
         assert!(plane > u32::MAX as u64);
-        assert_eq!(rows, [5 + 69_998 * 70_000 + plane, 5 + 69_999 * 70_000 + plane]);
+        assert_eq!(
+            rows,
+            [5 + 69_998 * 70_000 + plane, 5 + 69_999 * 70_000 + plane]
+        );
     }
 
     /// Row by row equals point by point, bit for bit (both zeros, NaN), on odd sizes.
@@ -934,12 +937,12 @@ mod tests {
             [64, 3, 2],
         ] {
             let n: usize = dims.iter().product();
+            // Every 11th point from NaN, −0, +0, −0, +0; the rest a scramble of [0, 1].
+            let special = [f32::NAN, -0.0, 0.0, -0.0, 0.0];
             let data: Vec<f32> = (0..n)
-                .map(|i| match i % 11 {
-                    0 => f32::NAN,
-                    1 | 4 => -0.0,
-                    2 | 7 => 0.0,
-                    _ => ((i * 7919) % 1013) as f32 / 1012.0,
+                .map(|i| {
+                    let scrambled = ((i * 7919) % 1013) as f32 / 1012.0;
+                    special.get(i % 11).copied().unwrap_or(scrambled)
                 })
                 .collect();
             let g = BrickGrid::build(dims, &data);
