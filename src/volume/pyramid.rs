@@ -928,14 +928,8 @@ mod tests {
     /// Row by row equals point by point, bit for bit (both zeros, NaN), on odd sizes.
     #[test]
     fn brick_rows_match_point_by_point() {
-        for dims in [
-            [1, 1, 1],
-            [2, 3, 1],
-            [9, 17, 33],
-            [17, 8, 9],
-            [33, 20, 9],
-            [64, 3, 2],
-        ] {
+        let cases = [[1, 1, 1], [2, 3, 1], [9, 17, 33], [17, 8, 9], [33, 20, 9]];
+        for dims in cases.into_iter().chain([[64, 3, 2]]) {
             let n: usize = dims.iter().product();
             // Every 11th point from NaN, −0, +0, −0, +0; the rest a scramble of [0, 1].
             let special = [f32::NAN, -0.0, 0.0, -0.0, 0.0];

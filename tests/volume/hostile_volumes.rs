@@ -110,6 +110,7 @@ fn info_streams_a_volume_larger_than_its_address_space_allows() {
 }
 
 /// `cmd` run under an address-space limit of `bytes` (`RLIMIT_AS`).
+// The same helper as tests/cli/hostile_cli.rs's: another test binary, which cannot share it.
 pub(crate) fn limit_address_space(
     cmd: &mut std::process::Command,
     bytes: u64,
