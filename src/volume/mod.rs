@@ -24,9 +24,6 @@ mod vti_blocks;
 
 pub use buffer::{ByteOrder, ScalarType, TextValueError, TypedBuffer, UnknownScalarType};
 pub(crate) use pyramid::Narrow;
-// For render::cpu's cache, keyed by a level's cell (`Level::cell`) on helper B's branch.
-#[allow(unused_imports)]
-pub(crate) use pyramid::LevelCell;
 pub use pyramid::{BrickGrid, Level, BRICK_CELLS};
 pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
 pub use summary::{summarize, Summary};
