@@ -66,6 +66,19 @@ pub enum RenderError {
         /// Height found.
         got_h: usize,
     },
+    /// The brick cache of a level too large for memory cannot hold what one tile needs.
+    #[error(
+        "the brick cache holds {slots} bricks of the level in {} but one 16x16-pixel tile's rays need {needed}; raise --max-memory or render a coarser --level",
+        crate::units::human_bytes(*.budget as u128)
+    )]
+    BrickBudget {
+        /// Bricks one tile needs.
+        needed: usize,
+        /// Bricks the cache holds.
+        slots: usize,
+        /// Bytes the cache may use.
+        budget: u64,
+    },
     /// A gradient (or the forward's result) does not have the image's size.
     #[error("{what} has {got} values; {expected} expected for a {w}×{h} image")]
     GradientSize {

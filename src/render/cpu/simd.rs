@@ -8,7 +8,7 @@
 //! fused multiply-add, the same order), so both paths give bit-identical results — a test
 //! checks it — and the result does not depend on which one the CPU takes.
 
-use super::sample::{interpolate_classify_scalar, Chunk, MarchParams, Ray, Voxel, CHUNK};
+use super::sample::{interpolate_classify_scalar, Chunk, MarchParams, Ray, Slots, Voxel, CHUNK};
 
 /// Whether this CPU can run [`interpolate_classify`].
 pub(crate) fn available() -> bool {
@@ -22,19 +22,20 @@ pub(crate) fn available() -> bool {
     }
 }
 
-/// Interpolate and classify samples n … n + 7 of `ray` (values `d`, the grid's) into `out`
-/// (see `Chunk`); without `p.simd` through the scalar code.
+/// Interpolate and classify samples n … n + 7 of `ray` (values `d`, the grid's, bricks at
+/// `slots`) into `out` (see `Chunk`); without `p.simd`, or for a brick cache, through the
+/// scalar code.
 #[inline(always)]
-pub(crate) fn interpolate_classify<T: Voxel>(
+pub(crate) fn interpolate_classify<T: Voxel, S: Slots>(
     p: &MarchParams,
-    d: &[T],
+    (d, slots): (&[T], S),
     ray: &Ray,
     n: u32,
     delta_norm: f32,
     out: &mut Chunk,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if p.simd {
+    if p.simd && S::IN_PLACE {
         // SAFETY: `simd` is only true where `available()` said the CPU has AVX2 and the
         // grid's indices fit 32-bit lanes (`View` sets it from `available()` and
         // `Grid::gathers_fit`; tests from there too); `p.grid` holds `Grid`'s invariants
@@ -42,7 +43,7 @@ pub(crate) fn interpolate_classify<T: Voxel>(
         unsafe { avx2::interpolate_classify(p, d, ray, n, delta_norm, out) };
         return;
     }
-    interpolate_classify_scalar(p, d, ray, n, delta_norm, out);
+    interpolate_classify_scalar(p, (d, slots), ray, n, delta_norm, out);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -240,8 +241,8 @@ mod avx2 {
 mod tests {
     use super::super::bricked::BrickValues;
     use super::super::march::BoxFrame;
-    use super::super::sample::Grid;
-    use super::super::{skip, CpuBackend};
+    use super::super::sample::{Grid, InPlace};
+    use super::super::{skip, tests::whole, CpuBackend};
     use super::*;
     use crate::render::backend::Backend;
     use crate::tf::Lut;
@@ -302,7 +303,7 @@ mod tests {
             });
             let blocks = skip::blocks(&level.bricks, &lut, false, 0.0, false);
             let params = |simd: bool| MarchParams {
-                grid: Grid::new(dims, &prepared.data.bricked, &blocks),
+                grid: Grid::new(dims, whole(&prepared), None, &blocks),
                 lut: &lut,
                 inv_l: 1.0 / 20.0,
                 stop_below: 0.0,
@@ -322,9 +323,15 @@ mod tests {
                 for n in (0..ray.segments()).step_by(CHUNK) {
                     let (mut fast, mut slow) = (Chunk::default(), Chunk::default());
                     let run = |p: &MarchParams, out: &mut Chunk| match p.grid.values {
-                        BrickValues::U8(x) => interpolate_classify(p, x, &ray, n, p.inv_l, out),
-                        BrickValues::U16(x) => interpolate_classify(p, x, &ray, n, p.inv_l, out),
-                        BrickValues::F32(x) => interpolate_classify(p, x, &ray, n, p.inv_l, out),
+                        BrickValues::U8(x) => {
+                            interpolate_classify(p, (x, InPlace), &ray, n, p.inv_l, out)
+                        }
+                        BrickValues::U16(x) => {
+                            interpolate_classify(p, (x, InPlace), &ray, n, p.inv_l, out)
+                        }
+                        BrickValues::F32(x) => {
+                            interpolate_classify(p, (x, InPlace), &ray, n, p.inv_l, out)
+                        }
                     };
                     run(&vector, &mut fast);
                     run(&scalar, &mut slow);
