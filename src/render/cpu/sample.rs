@@ -401,4 +401,26 @@ mod tests {
         assert_eq!(i, values - 1);
         assert!(i > u32::MAX as usize);
     }
+
+    /// Through a brick cache's slot table the same cell is found in 64 bits: the brick number
+    /// of the last cell of a level past 2³² values, and its slot's values (the table is
+    /// allocated: 54 MB).
+    #[test]
+    fn slot_table_index_is_64_bit() {
+        let dims = [2001usize, 1897, 1801];
+        let counts = dims.map(|d| (d - 1).div_ceil(BRICK_CELLS));
+        let stride = [counts[0], counts[0] * counts[1]];
+        let bricks: usize = counts.iter().product();
+        let last = dims.map(|d| (d - 2) as u32);
+        assert_eq!(brick_of_cell(stride, last), bricks - 1);
+        let mut table = vec![0u32; bricks];
+        // A slot past 2³² / 729 so that its first value is past 2³².
+        table[bricks - 1] = 6_000_000;
+        let local = value_index(stride, InPlace, last) - (bricks - 1) * BRICK_VALUES;
+        let i = value_index(stride, Table(&table), last);
+        assert_eq!(i, 6_000_000 * BRICK_VALUES + local);
+        assert!(i > u32::MAX as usize);
+        // A brick that is not loaded reads slot 0 (zeros).
+        assert_eq!(value_index(stride, Table(&table), [0, 0, 0]), 0);
+    }
 }
