@@ -52,7 +52,7 @@ fn one_point_axis() -> Volume {
 fn cameras(v: &Volume) -> Vec<Camera> {
     [(0.0, 0.0), (37.0, 21.0), (200.0, -50.0), (123.0, 64.0)]
         .iter()
-        .map(|&(yaw, pitch)| orbit(v, yaw, pitch, 2.2))
+        .map(|&(yaw, pitch): &(f64, f64)| orbit(v, yaw.to_radians(), pitch.to_radians(), 2.2))
         .collect()
 }
 

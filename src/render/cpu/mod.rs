@@ -8,6 +8,13 @@
 //! `render` facade; inside, `sample` is used by `march` and `simd`, `simd` by `march`, and
 //! none of them imports the others back.
 //!
+//! **Levels larger than memory.** A level's whole bricked copy is built when it fits the
+//! memory budget ([`crate::memory::budget`], `--max-memory`), slab by slab from
+//! `Level::read_box` (no f32 copy of the level is made for it). Otherwise the level gets a
+//! brick cache (`cache.rs`: an LRU arena of at most half the budget and 2 GiB, loaded per
+//! batch of tiles); the march reaches bricks through a slot table there, and is compiled
+//! separately for the whole copy, whose path is unchanged. Both give bit-identical results.
+//!
 //! **Prepared levels are cached** per level allocation (`volume::Level` shares its samples in
 //! an `Arc` that never changes): preparing the same level again — every view of an
 //! optimization — costs a lookup. An entry is dropped at the next `prepare` after its level's
@@ -693,16 +700,28 @@ mod tests {
         }
     }
 
-    fn volume(seed: usize) -> Volume {
-        let dims = [12, 10, 9];
-        let n: usize = dims.iter().product();
-        let vals = (0..n).map(|i| ((i * 31 + seed) % 17) as f64).collect();
+    /// A float volume of `dims` points at unit spacing with value `f(i, j, k)` at (i, j, k).
+    pub(super) fn volume_of(dims: [usize; 3], f: impl Fn(usize, usize, usize) -> f64) -> Volume {
+        let mut vals = Vec::with_capacity(dims.iter().product());
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    vals.push(f(i, j, k));
+                }
+            }
+        }
         let g = Geometry {
             dims,
             spacing: [1.0; 3],
             origin: [0.0; 3],
         };
         Volume::from_buffer(Path::new("t"), g, &TypedBuffer::from_f64(vals)).unwrap()
+    }
+
+    fn volume(seed: usize) -> Volume {
+        volume_of([12, 10, 9], |i, j, k| {
+            ((((i + 12 * (j + 10 * k)) * 31 + seed) % 17) as f64)
+        })
     }
 
     /// A level is bricked once (clones of the volume share it), and the copy goes once the

@@ -103,6 +103,8 @@ mod avx2 {
     /// its value slice (every index below is then inside `d`, as in the scalar `trilinear`,
     /// plus `bricked::PAD` for the 4-byte gathers), its values fit 32-bit indices
     /// (`Grid::gathers_fit`), and the LUT has at least two entries.
+    // Same parameters as the dispatcher above and the scalar twin, on purpose (they are
+    // interchangeable); `d` alone, since the gathers compute in-place brick offsets.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn interpolate_classify<T: Voxel>(
         p: &MarchParams,

@@ -125,26 +125,8 @@ pub(crate) fn empty_bricks(grid: &BrickGrid, lut: &Lut, threshold: f32) -> Vec<b
 
 #[cfg(test)]
 mod tests {
+    use super::super::tests::volume_of as volume;
     use super::*;
-    use crate::volume::{Geometry, TypedBuffer, Volume};
-    use std::path::Path;
-
-    fn volume(dims: [usize; 3], f: impl Fn(usize, usize, usize) -> f64) -> Volume {
-        let mut vals = Vec::new();
-        for k in 0..dims[2] {
-            for j in 0..dims[1] {
-                for i in 0..dims[0] {
-                    vals.push(f(i, j, k));
-                }
-            }
-        }
-        let geometry = Geometry {
-            dims,
-            spacing: [1.0; 3],
-            origin: [0.0; 3],
-        };
-        Volume::from_buffer(Path::new("t"), geometry, &TypedBuffer::from_f64(vals)).unwrap()
-    }
 
     #[test]
     fn bricks_are_empty_exactly_where_the_tf_is_zero_on_their_range() {
