@@ -3,8 +3,14 @@
 //! does (`volume::summarize`), against the time of one plain sequential read of the same file.
 //! Prints a Markdown row for BENCHMARKS.md.
 //!
+//! With `--optimize`, it then runs the built `t2tf optimize` on the same file (the tiny test
+//! CLIP of tests/fixtures/clip, 20 steps; build the binary first) and reports its wall time
+//! and peak resident memory (the child's `ru_maxrss`): issue #15's target is ≤ 3 GiB for
+//! 2048³.
+//!
 //! ```text
-//! cargo run --release --example bench_large [-- --n 2048] [--dir DIR] [--keep]
+//! cargo build --release --bin t2tf
+//! cargo run --release --example bench_large [-- --n 2048] [--dir DIR] [--keep] [--optimize]
 //! ```
 //!
 //! The default N = 512 (256 MiB) runs in seconds; `--n 2048` is the issue's 16 GiB target.
@@ -64,6 +70,9 @@ fn main() -> anyhow::Result<()> {
         info_s / read_s,
         peak_memory().unwrap_or_else(|| "n/a".into())
     );
+    if args.iter().any(|a| a == "--optimize") {
+        optimize(&path, &dir, n, bytes)?;
+    }
     if keep {
         std::mem::forget(tmp);
     } else {
@@ -92,6 +101,65 @@ fn write_volume(path: &std::path::Path, n: usize) -> std::io::Result<()> {
         }
     }
     out.flush()
+}
+
+/// `t2tf optimize` (tiny CLIP, 20 steps) on `path`; prints its row.
+fn optimize(
+    path: &std::path::Path,
+    dir: &std::path::Path,
+    n: usize,
+    bytes: f64,
+) -> anyhow::Result<()> {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    // The binary beside this example's folder (target/release/t2tf).
+    let exe = std::env::current_exe()?;
+    let bin = exe
+        .parent()
+        .and_then(|p| p.parent())
+        .map(|p| p.join("t2tf"))
+        .filter(|b| b.is_file())
+        .ok_or_else(|| {
+            anyhow::anyhow!("build the binary first: cargo build --release --bin t2tf")
+        })?;
+    let out = dir.join("bench_large_optimize");
+    let t = Instant::now();
+    let status = std::process::Command::new(&bin)
+        .arg("optimize")
+        .arg(path)
+        .arg("--model")
+        .arg(root.join("tests/fixtures/clip/quick_gelu"))
+        .arg("--tokenizer")
+        .arg(root.join("../shared/data/clip/tokenizer.json"))
+        .args([
+            "--prompt",
+            "a ball",
+            "--steps",
+            "20",
+            "--progress",
+            "json",
+            "--out",
+        ])
+        .arg(&out)
+        .env("XDG_CACHE_HOME", dir)
+        .status()?;
+    let secs = t.elapsed().as_secs_f64();
+    anyhow::ensure!(status.success(), "t2tf optimize failed: {status}");
+    // SAFETY: getrusage writes into the struct it is given.
+    let peak_kib = unsafe {
+        let mut u: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_CHILDREN, &mut u);
+        u.ru_maxrss
+    };
+    println!();
+    println!("| volume | t2tf optimize, tiny CLIP, 20 steps (s) | peak memory |");
+    println!("|---|---|---|");
+    println!(
+        "| {n}³ uint16 ({:.1} GiB) | {secs:.1} | {:.1} MiB |",
+        bytes / (1u64 << 30) as f64,
+        peak_kib as f64 / 1024.0
+    );
+    std::fs::remove_dir_all(&out).ok();
+    Ok(())
 }
 
 /// The process's peak resident memory (Linux `VmHWM`).

@@ -245,6 +245,7 @@ fn json_report(a: &InfoArgs, v: &Summary, file_bytes: u64, rows: &[Row], secs: f
     format!("{report:#}\n")
 }
 
+// Test boilerplate alike in shape to units.rs's tests (one `use super::x` and asserts).
 #[cfg(test)]
 mod tests {
     use super::num;

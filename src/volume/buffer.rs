@@ -1,7 +1,7 @@
 //! A decoded array in its file's own scalar type and byte order.
 //!
-//! Readers hand over the bytes as they are; values are decoded on the fly in the two passes of
-//! [`super::Volume::from_buffer`], so a volume costs the file's bytes plus one f32 copy.
+//! Readers hand over the bytes as they are; values are decoded on the fly when normalized
+//! ([`super::Volume::from_buffer`], or the streamed `source` of [`super::load`]).
 
 use std::fmt;
 use std::str::FromStr;
@@ -278,31 +278,43 @@ impl TypedBuffer {
     }
 
     /// Call `f` with every value as f64, in order.
-    pub fn for_each(&self, mut f: impl FnMut(f64)) {
-        macro_rules! each {
-            ($t:ty) => {{
-                const N: usize = std::mem::size_of::<$t>();
-                for c in self.bytes.chunks_exact(N) {
-                    let a: [u8; N] = c.try_into().expect("chunk of N bytes");
-                    let v = match self.byte_order {
-                        ByteOrder::Little => <$t>::from_le_bytes(a),
-                        ByteOrder::Big => <$t>::from_be_bytes(a),
-                    };
-                    f(v as f64);
-                }
-            }};
-        }
-        match self.storage {
-            ScalarType::U8 => each!(u8),
-            ScalarType::I8 => each!(i8),
-            ScalarType::U16 => each!(u16),
-            ScalarType::I16 => each!(i16),
-            ScalarType::U32 => each!(u32),
-            ScalarType::I32 => each!(i32),
-            ScalarType::U64 => each!(u64),
-            ScalarType::I64 => each!(i64),
-            ScalarType::F32 => each!(f32),
-            ScalarType::F64 => each!(f64),
-        }
+    pub fn for_each(&self, f: impl FnMut(f64)) {
+        for_each_value(self.storage, self.byte_order, &self.bytes, f);
+    }
+}
+
+/// Call `f` with every value of `bytes` (values of type `ty` in byte order `order`; a
+/// trailing partial value is ignored) as f64, in order. Shared by [`TypedBuffer`] and the
+/// memory-mapped sources (`source`), so both decode alike.
+pub(super) fn for_each_value(
+    ty: ScalarType,
+    order: ByteOrder,
+    bytes: &[u8],
+    mut f: impl FnMut(f64),
+) {
+    macro_rules! each {
+        ($t:ty) => {{
+            const N: usize = std::mem::size_of::<$t>();
+            for c in bytes.chunks_exact(N) {
+                let a: [u8; N] = c.try_into().expect("chunk of N bytes");
+                let v = match order {
+                    ByteOrder::Little => <$t>::from_le_bytes(a),
+                    ByteOrder::Big => <$t>::from_be_bytes(a),
+                };
+                f(v as f64);
+            }
+        }};
+    }
+    match ty {
+        ScalarType::U8 => each!(u8),
+        ScalarType::I8 => each!(i8),
+        ScalarType::U16 => each!(u16),
+        ScalarType::I16 => each!(i16),
+        ScalarType::U32 => each!(u32),
+        ScalarType::I32 => each!(i32),
+        ScalarType::U64 => each!(u64),
+        ScalarType::I64 => each!(i64),
+        ScalarType::F32 => each!(f32),
+        ScalarType::F64 => each!(f64),
     }
 }

@@ -9,10 +9,13 @@
 
 use std::path::Path;
 
+use super::source::Located;
 use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer, VolumeError};
 
 /// Why a legacy `.vtk` file could not be read. Each message is one line; the reader adds the
 /// file's path.
+// Alike in shape to the other readers' error enums (raw, vti, vti_blocks, mod's GeometryError):
+// thiserror variants, each reader's own messages; kept apart so each names its format's terms.
 #[derive(Debug, thiserror::Error)]
 pub(crate) enum LegacyError {
     #[error("not a legacy VTK file: the first line is not '# vtk DataFile Version x.x'")]
@@ -124,12 +127,19 @@ enum Section {
 struct Found {
     name: String,
     values: Result<TypedBuffer, Unrenderable>,
+    /// Where its binary values start in the file and how many there are, when read by
+    /// [`locate`].
+    at: Option<(usize, usize)>,
 }
 
 /// A cursor over the file's bytes: header lines are text, binary data follows a newline.
 struct Cursor<'a> {
     bytes: &'a [u8],
     pos: usize,
+    /// [`locate`]: binary arrays are stepped over, not copied; `last_binary` says where the
+    /// last one started and its value count.
+    lazy: bool,
+    last_binary: Option<(usize, usize)>,
 }
 
 impl<'a> Cursor<'a> {
@@ -202,8 +212,39 @@ fn legacy_type(name: &str) -> Option<ScalarType> {
 /// Parse the legacy file `bytes`; `want` names the point-data array to read.
 pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, VolumeError> {
     let err = |e: LegacyError| VolumeError::file(path, e.to_string());
-    let mut c = Cursor { bytes, pos: 0 };
-    let ascii = header(&mut c).map_err(err)?;
+    parse(bytes, want, false).map(|(d, _)| d).map_err(err)
+}
+
+/// Where the array `want` (as [`decode`] chooses it) lies in a BINARY legacy file: its
+/// big-endian values are contiguous there and can be read from a memory map. `None` for an
+/// ASCII file and for any file [`decode`] rejects (it then reports why).
+pub(super) fn locate(bytes: &[u8], want: Option<&str>) -> Option<Located> {
+    let (d, at) = parse(bytes, want, true).ok()?;
+    let (ty, order, _) = d.buffer.raw();
+    let (offset, count) = at?;
+    Some(Located {
+        geometry: d.geometry,
+        ty,
+        order,
+        offset: offset as u64,
+        count,
+        format: d.format,
+    })
+}
+
+/// The header and the chosen array (empty and located by its offset when `lazy`).
+fn parse(
+    bytes: &[u8],
+    want: Option<&str>,
+    lazy: bool,
+) -> Result<(Decoded, Option<(usize, usize)>), LegacyError> {
+    let mut c = Cursor {
+        bytes,
+        pos: 0,
+        lazy,
+        last_binary: None,
+    };
+    let ascii = header(&mut c)?;
     let mut p = Parser {
         c,
         ascii,
@@ -220,11 +261,11 @@ pub fn decode(path: &Path, bytes: &[u8], want: Option<&str>) -> Result<Decoded, 
         fallback: None,
     };
     while let Some(line) = p.c.line() {
-        if p.keyword(line).map_err(err)? == Flow::Done {
+        if p.keyword(line)? == Flow::Done {
             break;
         }
     }
-    p.finish().map_err(err)
+    p.finish()
 }
 
 /// The first three lines: the version line, the title, and ASCII or BINARY (`true` for ASCII).
@@ -431,7 +472,8 @@ impl Parser<'_, '_> {
                 }
             })?;
         if self.section == Section::Point {
-            let f = found(&name, l.arg(1).unwrap_or("?"), ncomp, values);
+            let at = self.c.last_binary;
+            let f = found(&name, l.arg(1).unwrap_or("?"), ncomp, values, at);
             self.names.push(name.clone());
             if pick(
                 self.want,
@@ -481,7 +523,7 @@ impl Parser<'_, '_> {
                 error,
             })?;
             if self.section == Section::Point && ntuples == self.count {
-                let fnd = found(f[0], f[3], ncomp, values);
+                let fnd = found(f[0], f[3], ncomp, values, self.c.last_binary);
                 self.names.push(f[0].to_string());
                 if pick(
                     self.want,
@@ -544,7 +586,8 @@ impl Parser<'_, '_> {
     }
 
     /// The geometry and the chosen array, once the file has been read.
-    fn finish(self) -> Result<Decoded, LegacyError> {
+    /// The chosen array, and where its binary values start when the parse is lazy.
+    fn finish(self) -> Result<(Decoded, Option<(usize, usize)>), LegacyError> {
         if !self.dataset_seen {
             return Err(LegacyError::NoDataset);
         }
@@ -567,7 +610,7 @@ impl Parser<'_, '_> {
                 })
             }
         };
-        Ok(Decoded {
+        let d = Decoded {
             geometry: Geometry {
                 dims,
                 spacing: self.spacing,
@@ -575,13 +618,20 @@ impl Parser<'_, '_> {
             },
             buffer,
             format: SourceFormat::LegacyVtk { array: f.name },
-        })
+        };
+        Ok((d, f.at))
     }
 }
 
 /// Wrap a read array, turning a multi-component or unreadable one into a deferred error (it
 /// matters only if this array is the one chosen).
-fn found(name: &str, type_name: &str, ncomp: usize, values: Option<TypedBuffer>) -> Found {
+fn found(
+    name: &str,
+    type_name: &str,
+    ncomp: usize,
+    values: Option<TypedBuffer>,
+    at: Option<(usize, usize)>,
+) -> Found {
     let values = match values {
         _ if ncomp != 1 => Err(Unrenderable::Components(ncomp)),
         Some(v) => Ok(v),
@@ -590,6 +640,7 @@ fn found(name: &str, type_name: &str, ncomp: usize, values: Option<TypedBuffer>)
     Found {
         name: name.to_string(),
         values,
+        at,
     }
 }
 
@@ -667,6 +718,10 @@ fn read_array(
         let data = c
             .take(len)
             .ok_or(ReadError::BinaryTruncated { len, available })?;
+        if c.lazy {
+            c.last_binary = Some((c.pos - len, n));
+            return Ok(Some(TypedBuffer::new(t, ByteOrder::Big, Vec::new())));
+        }
         // Legacy binary files are big-endian by definition.
         Ok(Some(TypedBuffer::new(t, ByteOrder::Big, data.to_vec())))
     }

@@ -1,10 +1,15 @@
 //! Volumes: reading `.raw`, `.vti` and legacy `.vtk` files into one normalized [`Volume`].
 //!
 //! Readers (`raw`, `vti`, `legacy`) decode a file into a [`TypedBuffer`] (the file's own scalar
-//! type and byte order, untouched) plus [`Geometry`]; [`Volume::from_buffer`] then makes the one
-//! f32 copy the rest of the program uses: values normalized to [0, 1] by the finite min/max
-//! (docs/DESIGN.md, "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty),
-//! the histogram, and the mip pyramid with per-brick value ranges for empty-space skipping.
+//! type and byte order, untouched) plus [`Geometry`], or locate its values in the file where
+//! they lie there contiguously. [`load`] streams them from a `source` (a memory map, else the
+//! decoded bytes): values normalized to [0, 1] by the finite min/max (docs/DESIGN.md,
+//! "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty), the
+//! histogram, and the mip pyramid with per-brick value ranges for empty-space skipping. Only
+//! the coarse levels are held in f32; level 0 (and any level finer than 512³) is made when
+//! asked for ([`Level::try_data`]) or read box by box ([`Level::read_box`]).
+//! [`Volume::from_buffer`] is the in-memory build of the same volume (every level held), which
+//! the streamed one equals bit for bit.
 
 mod buffer;
 mod legacy;
@@ -12,6 +17,7 @@ mod pyramid;
 mod raw;
 mod read;
 mod small_int;
+mod source;
 mod summary;
 mod vti;
 mod vti_blocks;
@@ -184,15 +190,21 @@ impl Volume {
         buffer: &TypedBuffer,
     ) -> Result<Volume, VolumeError> {
         check_geometry(name, &geometry, buffer.len())?;
-        // The f32 copy, its mip levels (1/7 more) and the renderer's bricked copy (aprons
-        // make it up to 1.42× the f32 data): 12 bytes per point is a safe bound.
+        // What is made here: level 0's f32 copy and the coarser levels with their brick
+        // ranges (a renderer's copies are checked where they are made).
+        let bytes = pyramid::level_shapes(geometry)
+            .iter()
+            .try_fold(0u64, |acc, (dims, _)| {
+                crate::memory::product(dims)?;
+                acc.checked_add(pyramid::level_bytes(*dims) as u64)
+            });
         crate::memory::check(
             format!(
                 "{}x{}x{} points",
                 geometry.dims[0], geometry.dims[1], geometry.dims[2]
             ),
-            crate::memory::product(&geometry.dims),
-            12,
+            bytes,
+            1,
             "use a smaller volume or crop it",
         )
         .map_err(|e| VolumeError::file(name, e.to_string()))?;
@@ -206,16 +218,7 @@ impl Volume {
         else {
             return Err(GeometryError::NoFiniteValues.at(name));
         };
-
-        // Integer data spanning at most 65535 steps normalizes to k / span exactly: the
-        // renderer's bricked copy can store k in 8 or 16 bits (render::cpu::bricked).
-        let span = norm_range[1] - norm_range[0];
-        let integer = !matches!(buffer.scalar_type(), ScalarType::F32 | ScalarType::F64);
-        let narrow = if integer && span.fract() == 0.0 && (1.0..=65535.0).contains(&span) {
-            Narrow::Exact(span as u32)
-        } else {
-            Narrow::No
-        };
+        let narrow = source::narrow_for(buffer.scalar_type(), norm_range);
         let levels = pyramid::build(geometry, data, narrow);
         Ok(Volume {
             geometry,
@@ -229,7 +232,34 @@ impl Volume {
         })
     }
 
-    /// Full-resolution normalized samples, x fastest (NaN = empty).
+    /// Stream `source` into a volume (two passes, `source` module docs): the statistics and
+    /// every level's brick ranges are computed now, the coarse levels are held, level 0 and
+    /// any level finer than 512³ are made when asked for. Bit for bit what
+    /// [`Volume::from_buffer`] gives for the same values.
+    pub(crate) fn from_source(
+        name: &Path,
+        geometry: Geometry,
+        scalar_type: ScalarType,
+        source: source::Source,
+    ) -> Result<Volume, VolumeError> {
+        check_geometry(name, &geometry, source.len())?;
+        let Some(s) = source::stream(geometry, scalar_type, source)? else {
+            return Err(GeometryError::NoFiniteValues.at(name));
+        };
+        Ok(Volume {
+            geometry,
+            scalar_type,
+            range: s.stats.range,
+            norm_range: s.stats.norm_range,
+            non_finite: s.stats.non_finite,
+            histogram: s.stats.histogram,
+            levels: s.levels,
+            source: None,
+        })
+    }
+
+    /// Full-resolution normalized samples, x fastest (NaN = empty). Made on first use; panics
+    /// when they do not fit the memory budget (see [`Level::try_data`]).
     pub fn data(&self) -> &[f32] {
         self.levels[0].data()
     }
@@ -244,7 +274,8 @@ impl Volume {
         denormalize(self.norm_range, t)
     }
 
-    /// Bytes held by the normalized data and the pyramid.
+    /// Bytes the normalized data and the pyramid take with every level made
+    /// ([`Level::memory_bytes`]).
     pub fn memory_bytes(&self) -> usize {
         self.levels.iter().map(Level::memory_bytes).sum()
     }

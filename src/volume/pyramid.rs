@@ -11,9 +11,10 @@
 //! [min, max] and a TF that is zero on that interval makes the whole brick empty.
 
 use std::collections::VecDeque;
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
-use super::Geometry;
+use super::source::Streamed;
+use super::{Geometry, VolumeError};
 
 /// Cells per brick side.
 pub const BRICK_CELLS: usize = 8;
@@ -21,42 +22,166 @@ pub const BRICK_CELLS: usize = 8;
 /// Stop reducing once every axis has at most this many points.
 const MIN_LEVEL_POINTS: usize = 8;
 
-/// One level of the pyramid.
+/// One level of the pyramid. Its shape and brick ranges are known from the start; its f32
+/// samples are made when first asked for ([`Level::try_data`]) unless the volume was built
+/// holding them.
 #[derive(Clone, Debug)]
 pub struct Level {
     /// Points per axis.
     pub dims: [usize; 3],
     /// World spacing at this level (origin is the volume's).
     pub spacing: [f64; 3],
-    /// Normalized samples, x fastest; NaN = empty. Shared and never changed after the level
-    /// is built: a renderer backend may keep a copy in its own layout for as long as this
-    /// allocation lives (it tells the levels apart by it, `render::cpu`).
-    data: Arc<Vec<f32>>,
+    /// The samples, shared by the level's clones and never changed once made: a renderer
+    /// backend may keep a copy in its own layout for as long as this cell lives (it tells
+    /// the levels apart by it, `render::cpu`).
+    cell: Arc<LevelCell>,
     /// Per-brick value ranges, for empty-space skipping.
     pub bricks: BrickGrid,
     /// How exactly the values can be stored in fewer bits than f32.
     narrow: Narrow,
 }
 
+/// A level's samples, made at most once.
+#[derive(Debug)]
+pub(crate) struct LevelCell {
+    /// Normalized samples, x fastest; NaN = empty.
+    data: OnceLock<Arc<Vec<f32>>>,
+    /// What makes them when they are not held: the source and this level's index.
+    origin: Option<(Arc<Streamed>, usize)>,
+}
+
 impl Level {
+    /// A level holding `data`.
     fn new(dims: [usize; 3], spacing: [f64; 3], data: Vec<f32>, narrow: Narrow) -> Level {
         Level {
             dims,
             spacing,
             bricks: BrickGrid::build(dims, &data),
-            data: Arc::new(data),
+            cell: Arc::new(LevelCell {
+                data: OnceLock::from(Arc::new(data)),
+                origin: None,
+            }),
             narrow,
         }
     }
 
-    /// Normalized samples, x fastest; NaN = empty.
-    pub fn data(&self) -> &[f32] {
-        &self.data
+    /// Level `index` of a streamed volume, holding `data` if given, else made from
+    /// `streamed` when asked for.
+    pub(super) fn lazy(
+        dims: [usize; 3],
+        spacing: [f64; 3],
+        bricks: BrickGrid,
+        narrow: Narrow,
+        data: Option<Vec<f32>>,
+        streamed: &Arc<Streamed>,
+        index: usize,
+    ) -> Level {
+        let cell = LevelCell {
+            data: data.map(Arc::new).map(OnceLock::from).unwrap_or_default(),
+            origin: Some((streamed.clone(), index)),
+        };
+        Level {
+            dims,
+            spacing,
+            bricks,
+            cell: Arc::new(cell),
+            narrow,
+        }
     }
 
-    /// The samples' allocation: what a renderer's cache of this level is keyed by.
+    /// Normalized samples, x fastest; NaN = empty. Made on first use.
+    ///
+    /// # Panics
+    /// When they cannot be made (they do not fit the memory budget): callers that may ask for
+    /// a level larger than memory use [`Level::try_data`] or [`Level::read_box`].
+    pub fn data(&self) -> &[f32] {
+        self.shared_data()
+    }
+
+    /// Normalized samples, x fastest; NaN = empty. Made on first use (reading the source
+    /// again); an error when they do not fit the memory budget.
+    pub fn try_data(&self) -> Result<&[f32], VolumeError> {
+        self.try_shared().map(|d| d.as_slice())
+    }
+
+    /// Whether the samples are held (made, or built with the level).
+    pub fn is_materialized(&self) -> bool {
+        self.cell.data.get().is_some()
+    }
+
+    /// Whether the samples, when not held, are read from a memory map of the volume's file
+    /// (`.raw`, appended raw `.vti`, BINARY `.vtk`) rather than from decoded bytes.
+    pub fn is_mapped(&self) -> bool {
+        self.cell
+            .origin
+            .as_ref()
+            .is_some_and(|(s, _)| s.source.is_mapped())
+    }
+
+    fn try_shared(&self) -> Result<&Arc<Vec<f32>>, VolumeError> {
+        if let Some(d) = self.cell.data.get() {
+            return Ok(d);
+        }
+        let (streamed, index) = self
+            .cell
+            .origin
+            .as_ref()
+            .expect("a level without samples has a source");
+        // Two threads asking at once may both make the samples; one copy is kept.
+        let data = streamed.materialize(*index)?;
+        Ok(self.cell.data.get_or_init(|| Arc::new(data)))
+    }
+
+    /// The samples' allocation: what a renderer's cache of this level is keyed by. Makes the
+    /// samples (panics as [`Level::data`]).
     pub(crate) fn shared_data(&self) -> &Arc<Vec<f32>> {
-        &self.data
+        match self.try_shared() {
+            Ok(d) => d,
+            Err(e) => panic!("{e}"),
+        }
+    }
+
+    /// What identifies this level's samples without making them: the same allocation for
+    /// every clone of the level, dropped with the last one.
+    #[allow(dead_code)] // For render::cpu's cache of prepared levels (helper B's branch).
+    pub(crate) fn cell(&self) -> &Arc<LevelCell> {
+        &self.cell
+    }
+
+    /// Normalized samples of the points in the box [`lo`, `hi`) into `out` (x fastest, then
+    /// y, then z; `out.len()` is the box's point count). Read from the held samples when
+    /// there are, else from the source for level 0 (nothing is kept), else the level is made
+    /// first ([`Level::try_data`]).
+    ///
+    /// # Panics
+    /// When the box is not inside the level or `out` is not its size.
+    pub fn read_box(
+        &self,
+        lo: [usize; 3],
+        hi: [usize; 3],
+        out: &mut [f32],
+    ) -> Result<(), VolumeError> {
+        assert!(
+            (0..3).all(|a| lo[a] <= hi[a] && hi[a] <= self.dims[a]),
+            "box {lo:?}..{hi:?} outside a level of {:?} points",
+            self.dims
+        );
+        let w = hi[0] - lo[0];
+        let (h, d) = (hi[1] - lo[1], hi[2] - lo[2]);
+        assert_eq!(out.len(), w * h * d, "box {lo:?}..{hi:?} and output size");
+        match (self.cell.data.get(), &self.cell.origin) {
+            (None, Some((streamed, level))) => streamed.read_box(*level, lo, hi, out),
+            _ => {
+                let data = self.try_data()?;
+                for (row, at) in out
+                    .chunks_exact_mut(w.max(1))
+                    .zip(box_rows(self.dims, lo, hi))
+                {
+                    row.copy_from_slice(&data[at as usize..][..w]);
+                }
+                Ok(())
+            }
+        }
     }
 
     /// How the values may be stored in fewer bits (see [`Narrow`]).
@@ -64,10 +189,10 @@ impl Level {
         self.narrow
     }
 
-    /// Memory held by the samples and the brick ranges (a renderer's copies not included).
+    /// Memory the samples and the brick ranges take once the samples are made (a renderer's
+    /// copies not included); see [`Level::is_materialized`] for whether they are.
     pub fn memory_bytes(&self) -> usize {
-        4 * (self.data.len() + self.bricks.min.len() + self.bricks.max.len())
-            + self.bricks.uniform.len()
+        level_bytes(self.dims)
     }
 
     /// Index of point (i, j, k) in [`Level::data`].
@@ -90,6 +215,19 @@ pub(crate) enum Narrow {
     Round16,
     /// f32 (float volumes' level 0).
     No,
+}
+
+/// Index of the first point of every x-row of the box [`lo`, `hi`) in a level of `dims`
+/// points, in order (z outer). 64-bit: a level may hold more than 2³² points.
+pub(super) fn box_rows(
+    dims: [usize; 3],
+    lo: [usize; 3],
+    hi: [usize; 3],
+) -> impl Iterator<Item = u64> {
+    let [nx, ny, _] = dims.map(|d| d as u64);
+    (lo[2]..hi[2]).flat_map(move |k| {
+        (lo[1]..hi[1]).map(move |j| lo[0] as u64 + nx * (j as u64 + ny * k as u64))
+    })
 }
 
 /// What [`Level::memory_bytes`] gives for a level of `dims` points, without building it.
@@ -118,51 +256,90 @@ pub struct BrickGrid {
 impl BrickGrid {
     /// The ranges of a level with `dims` points holding `data` (x fastest).
     pub(crate) fn build(dims: [usize; 3], data: &[f32]) -> BrickGrid {
-        let cells = dims.map(|d| d.saturating_sub(1).max(1));
-        let counts = cells.map(|c| c.div_ceil(BRICK_CELLS));
-        let total = counts.iter().product();
-        let (mut min, mut max) = (vec![f32::INFINITY; total], vec![f32::NEG_INFINITY; total]);
-        let mut nan = vec![false; total];
-        // Each point is a corner of cells p − 1 and p (where they exist): it belongs to the
-        // bricks of those cells (two on a shared face, one elsewhere).
-        let bricks_of = |p: usize, a: usize| {
-            let lo = (p.saturating_sub(1) / BRICK_CELLS).min(counts[a] - 1);
-            let hi = (p / BRICK_CELLS).min(counts[a] - 1);
-            lo..=hi
-        };
-        for k in 0..dims[2] {
-            for j in 0..dims[1] {
-                let row = &data[dims[0] * (j + dims[1] * k)..][..dims[0]];
-                for (i, &v) in row.iter().enumerate() {
-                    for bk in bricks_of(k, 2) {
-                        for bj in bricks_of(j, 1) {
-                            for bi in bricks_of(i, 0) {
-                                let b = bi + counts[0] * (bj + counts[1] * bk);
-                                if v.is_nan() {
-                                    nan[b] = true;
-                                } else {
-                                    min[b] = min[b].min(v);
-                                    max[b] = max[b].max(v);
-                                }
-                            }
-                        }
-                    }
-                }
-            }
+        let mut b = BrickGridBuilder::new(dims);
+        for slice in data.chunks_exact(dims[0] * dims[1]).take(dims[2]) {
+            b.push(slice);
         }
-        let uniform = (0..total).map(|b| !nan[b] && min[b] == max[b]).collect();
-        BrickGrid {
-            counts,
-            min,
-            max,
-            uniform,
-        }
+        b.finish()
     }
 
     /// Index of brick (bi, bj, bk) in the per-brick vectors.
     #[inline]
     pub(crate) fn index(&self, bi: usize, bj: usize, bk: usize) -> usize {
         bi + self.counts[0] * (bj + self.counts[1] * bk)
+    }
+}
+
+/// A [`BrickGrid`] made from a level's z-slices, pushed in order (so a level need not be
+/// held to have its ranges).
+pub(crate) struct BrickGridBuilder {
+    dims: [usize; 3],
+    counts: [usize; 3],
+    min: Vec<f32>,
+    max: Vec<f32>,
+    nan: Vec<bool>,
+    /// The next slice's z.
+    k: usize,
+}
+
+impl BrickGridBuilder {
+    pub(crate) fn new(dims: [usize; 3]) -> BrickGridBuilder {
+        let cells = dims.map(|d| d.saturating_sub(1).max(1));
+        let counts = cells.map(|c| c.div_ceil(BRICK_CELLS));
+        let total = counts.iter().product();
+        BrickGridBuilder {
+            dims,
+            counts,
+            min: vec![f32::INFINITY; total],
+            max: vec![f32::NEG_INFINITY; total],
+            nan: vec![false; total],
+            k: 0,
+        }
+    }
+
+    /// The bricks of the cells that have point `p` of axis `a` as a corner: cells p − 1 and
+    /// p where they exist (two on a shared face, one elsewhere).
+    fn bricks_of(&self, p: usize, a: usize) -> std::ops::RangeInclusive<usize> {
+        let lo = (p.saturating_sub(1) / BRICK_CELLS).min(self.counts[a] - 1);
+        let hi = (p / BRICK_CELLS).min(self.counts[a] - 1);
+        lo..=hi
+    }
+
+    /// The next z-slice (x fastest).
+    pub(crate) fn push(&mut self, slice: &[f32]) {
+        let k = self.k;
+        self.k += 1;
+        let [nx, _, _] = self.dims;
+        let counts = self.counts;
+        for (j, row) in slice.chunks_exact(nx).enumerate() {
+            for (i, &v) in row.iter().enumerate() {
+                for bk in self.bricks_of(k, 2) {
+                    for bj in self.bricks_of(j, 1) {
+                        for bi in self.bricks_of(i, 0) {
+                            let b = bi + counts[0] * (bj + counts[1] * bk);
+                            if v.is_nan() {
+                                self.nan[b] = true;
+                            } else {
+                                self.min[b] = self.min[b].min(v);
+                                self.max[b] = self.max[b].max(v);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    pub(crate) fn finish(self) -> BrickGrid {
+        let uniform = (0..self.min.len())
+            .map(|b| !self.nan[b] && self.min[b] == self.max[b])
+            .collect();
+        BrickGrid {
+            counts: self.counts,
+            min: self.min,
+            max: self.max,
+            uniform,
+        }
     }
 }
 
@@ -192,12 +369,13 @@ pub(super) fn level_shapes(geometry: Geometry) -> Vec<([usize; 3], [f64; 3])> {
 pub(super) fn build(geometry: Geometry, data: Vec<f32>, narrow: Narrow) -> Vec<Level> {
     let shapes = level_shapes(geometry);
     let [nx, ny, nz] = geometry.dims;
-    let mut reducer = Reducer::new(&shapes);
+    let mut reducer = Reducer::new(&shapes, |_| true);
     for slice in data.chunks_exact(nx * ny).take(nz) {
-        reducer.push(slice);
+        reducer.push(slice, |_, _| {});
     }
     let mut levels = vec![Level::new(geometry.dims, geometry.spacing, data, narrow)];
     for ((dims, spacing), data) in shapes[1..].iter().zip(reducer.finish()) {
+        let data = data.expect("every level kept");
         levels.push(Level::new(*dims, *spacing, data, Narrow::Round16));
     }
     levels
@@ -206,20 +384,105 @@ pub(super) fn build(geometry: Geometry, data: Vec<f32>, narrow: Narrow) -> Vec<L
 /// Taps of a tent filter of the reduction's width resampling `d` points to `n`: per output
 /// point, (source index, weight) in ascending source order — the order the sums are taken in.
 fn taps(d: usize, n: usize) -> Taps {
+    (0..n).map(|j| tap(d, n, j)).collect()
+}
+
+/// The taps of output point `j` ([`taps`]).
+fn tap(d: usize, n: usize, j: usize) -> Vec<(usize, f32)> {
     let ratio = (d - 1) as f64 / (n - 1) as f64;
-    (0..n)
-        .map(|j| {
-            let x = j as f64 * ratio;
-            let lo = (x - ratio).ceil().max(0.0) as usize;
-            let hi = ((x + ratio).floor() as usize).min(d - 1);
-            (lo..=hi)
-                .filter_map(|i| {
-                    let w = 1.0 - (i as f64 - x).abs() / ratio;
-                    (w > 0.0).then_some((i, w as f32))
-                })
-                .collect()
+    let x = j as f64 * ratio;
+    let lo = (x - ratio).ceil().max(0.0) as usize;
+    let hi = ((x + ratio).floor() as usize).min(d - 1);
+    (lo..=hi)
+        .filter_map(|i| {
+            let w = 1.0 - (i as f64 - x).abs() / ratio;
+            (w > 0.0).then_some((i, w as f32))
         })
         .collect()
+}
+
+/// The points [`lo`, `hi`) of the level of shape `output` reduced from the level of shape
+/// `input`: the box of the input they read (`read(lo, hi, out)` fills it, x fastest) is
+/// reduced along x, then y, then z, with the sums of [`Reducer`] in its order, so every value
+/// equals the streamed level's bit for bit.
+pub(super) fn reduce_box(
+    input: [usize; 3],
+    output: [usize; 3],
+    lo: [usize; 3],
+    hi: [usize; 3],
+    out: &mut [f32],
+    read: impl FnOnce([usize; 3], [usize; 3], &mut [f32]) -> Result<(), VolumeError>,
+) -> Result<(), VolumeError> {
+    // Per axis: the taps of the wanted outputs, relative to the input box's first point.
+    let mut in_lo = lo;
+    let mut in_hi = hi;
+    let mut axis_taps: [Option<Taps>; 3] = [None, None, None];
+    for a in 0..3 {
+        if input[a] == output[a] || hi[a] == lo[a] {
+            continue;
+        }
+        let t: Taps = (lo[a]..hi[a])
+            .map(|j| tap(input[a], output[a], j))
+            .collect();
+        in_lo[a] = t
+            .iter()
+            .filter_map(|t| t.first())
+            .map(|t| t.0)
+            .min()
+            .unwrap_or(0);
+        in_hi[a] = t
+            .iter()
+            .filter_map(|t| t.last())
+            .map(|t| t.0 + 1)
+            .max()
+            .unwrap_or(0);
+        let shifted = t
+            .into_iter()
+            .map(|tj| tj.into_iter().map(|(s, w)| (s - in_lo[a], w)).collect())
+            .collect();
+        axis_taps[a] = Some(shifted);
+    }
+    let [bx, by, bz] = std::array::from_fn(|a| in_hi[a] - in_lo[a]);
+    let [ox, oy, oz] = std::array::from_fn(|a| hi[a] - lo[a]);
+    let mut src = vec![0.0f32; bx * by * bz];
+    read(in_lo, in_hi, &mut src)?;
+    // x, per input row.
+    let xr: Vec<f32> = match &axis_taps[0] {
+        None => src,
+        Some(t) => src
+            .chunks_exact(bx)
+            .flat_map(|row| t.iter().map(move |tj| filter(tj, |s| row[s])))
+            .collect(),
+    };
+    // y, per input slice.
+    let xy: Vec<f32> = match &axis_taps[1] {
+        None => xr,
+        Some(t) => {
+            let mut o = Vec::with_capacity(ox * oy * bz);
+            for slice in xr.chunks_exact(ox * by) {
+                for tj in t {
+                    for x in 0..ox {
+                        o.push(filter(tj, |s| slice[x + ox * s]));
+                    }
+                }
+            }
+            o
+        }
+    };
+    // z.
+    match &axis_taps[2] {
+        None => out.copy_from_slice(&xy),
+        Some(t) => {
+            let area = ox * oy;
+            for (tj, o) in t.iter().zip(out.chunks_exact_mut(area)) {
+                for (i, v) in o.iter_mut().enumerate() {
+                    *v = filter(tj, |s| xy[i + area * s]);
+                }
+            }
+        }
+    }
+    debug_assert_eq!(out.len(), ox * oy * oz);
+    Ok(())
 }
 
 /// One filtered value: the weighted mean of the taps that are not NaN (`at(s)` reads source
@@ -246,7 +509,7 @@ fn filter(taps: &[(usize, f32)], at: impl Fn(usize) -> f32) -> f32 {
 /// each output slice to the next stage as soon as it is complete. Memory beyond the coarser
 /// levels themselves is a few slices per level. Every value is the same sum, in the same
 /// order, as reducing whole axes one after the other (x, then y, then z): bit-identical.
-struct Reducer {
+pub(crate) struct Reducer {
     stages: Vec<Stage>,
 }
 
@@ -265,12 +528,14 @@ struct Stage {
     window: VecDeque<(usize, Vec<f32>)>,
     /// Input slices seen so far.
     seen: usize,
-    /// The output level, filled slice by slice.
-    out: Vec<f32>,
+    /// Output slices completed so far.
+    done: usize,
+    /// The output level, filled slice by slice, when it is kept.
+    out: Option<Vec<f32>>,
 }
 
 impl Stage {
-    fn new(input: [usize; 3], output: [usize; 3]) -> Stage {
+    fn new(input: [usize; 3], output: [usize; 3], keep: bool) -> Stage {
         Stage {
             input,
             output,
@@ -279,7 +544,8 @@ impl Stage {
             }),
             window: VecDeque::new(),
             seen: 0,
-            out: Vec::with_capacity(output.iter().product()),
+            done: 0,
+            out: keep.then(|| Vec::with_capacity(output.iter().product())),
         }
     }
 
@@ -316,13 +582,16 @@ impl Stage {
         let z = self.seen;
         self.seen += 1;
         let Some(tz) = &self.taps[2] else {
-            self.out.extend_from_slice(&xy);
+            self.done += 1;
+            if let Some(out) = &mut self.out {
+                out.extend_from_slice(&xy);
+            }
             return vec![xy];
         };
         self.window.push_back((z, xy));
         let area = self.output[0] * self.output[1];
         let mut done = Vec::new();
-        for tj in tz.iter().skip(self.out.len() / area) {
+        for tj in tz.iter().skip(self.done) {
             if tj.last().map_or(0, |t| t.0) > z {
                 break;
             }
@@ -331,13 +600,16 @@ impl Stage {
             let out: Vec<f32> = (0..area)
                 .map(|i| filter(tj, |s| w[s - first].1[i]))
                 .collect();
-            self.out.extend_from_slice(&out);
+            if let Some(level) = &mut self.out {
+                level.extend_from_slice(&out);
+            }
+            self.done += 1;
             done.push(out);
         }
         // Drop the slices no later output reads (each output's taps start at or after the
         // previous one's).
         let keep_from = tz
-            .get(self.out.len() / area)
+            .get(self.done)
             .and_then(|t| t.first())
             .map_or(z + 1, |t| t.0);
         while self.window.front().is_some_and(|w| w.0 < keep_from) {
@@ -348,23 +620,29 @@ impl Stage {
 }
 
 impl Reducer {
-    /// A reducer for the levels `shapes` ([`level_shapes`]); level 0's slices go in.
-    fn new(shapes: &[([usize; 3], [f64; 3])]) -> Reducer {
+    /// A reducer for the levels `shapes` ([`level_shapes`], level 0 first); level 0's slices
+    /// go in. Level `l` ≥ 1 is held for [`Reducer::finish`] when `keep(l)`.
+    pub(crate) fn new(shapes: &[([usize; 3], [f64; 3])], keep: impl Fn(usize) -> bool) -> Reducer {
         Reducer {
             stages: shapes
                 .windows(2)
-                .map(|w| Stage::new(w[0].0, w[1].0))
+                .enumerate()
+                .map(|(l, w)| Stage::new(w[0].0, w[1].0, keep(l + 1)))
                 .collect(),
         }
     }
 
-    /// The next z-slice of level 0 (x fastest).
-    fn push(&mut self, slice: &[f32]) {
+    /// The next z-slice of level 0 (x fastest); `done(l, slice)` sees every slice of level
+    /// `l` ≥ 1 as it is completed, in order.
+    pub(crate) fn push(&mut self, slice: &[f32], mut done: impl FnMut(usize, &[f32])) {
         let mut pending = vec![slice.to_vec()];
-        for stage in &mut self.stages {
+        for (l, stage) in self.stages.iter_mut().enumerate() {
             let mut next = Vec::new();
             for s in &pending {
                 next.extend(stage.push(s));
+            }
+            for s in &next {
+                done(l + 1, s);
             }
             pending = next;
             if pending.is_empty() {
@@ -373,8 +651,8 @@ impl Reducer {
         }
     }
 
-    /// Levels 1.. once every slice of level 0 went in.
-    fn finish(self) -> Vec<Vec<f32>> {
+    /// Levels 1.. once every slice of level 0 went in (`None` where not kept).
+    pub(crate) fn finish(self) -> Vec<Option<Vec<f32>>> {
         self.stages.into_iter().map(|s| s.out).collect()
     }
 }
@@ -424,21 +702,9 @@ mod tests {
         if n == d {
             return src.to_vec();
         }
-        let ratio = (d - 1) as f64 / (n - 1) as f64;
-        // Taps per output point: (source index, weight), precomputed once per axis.
-        let taps: Vec<Vec<(usize, f32)>> = (0..n)
-            .map(|j| {
-                let x = j as f64 * ratio;
-                let lo = (x - ratio).ceil().max(0.0) as usize;
-                let hi = ((x + ratio).floor() as usize).min(d - 1);
-                (lo..=hi)
-                    .filter_map(|i| {
-                        let w = 1.0 - (i as f64 - x).abs() / ratio;
-                        (w > 0.0).then_some((i, w as f32))
-                    })
-                    .collect()
-            })
-            .collect();
+        // Taps per output point: (source index, weight), precomputed once per axis (the
+        // reducer's own taps: this reference checks the order of the sums, not the weights).
+        let taps = taps(d, n);
         let stride = match axis {
             0 => 1,
             1 => dims[0],

@@ -7,6 +7,8 @@ use super::{UnknownScalarType, VolumeError};
 
 /// Why a raw file's name, flags or size do not give a readable array. Each message is one
 /// line; [`VolumeError::file`] adds the file's path.
+// Alike in shape to mod.rs's GeometryError (dims and counts in messages): this one speaks of
+// the file name and flags, that one of any decoded data; kept apart for their messages.
 #[derive(Debug, thiserror::Error)]
 pub(crate) enum RawError {
     /// A dimension in the name that does not fit in `usize`.
@@ -129,17 +131,31 @@ pub fn check_size(path: &Path, opts: &ReadOptions, len: u64) -> Result<(), Volum
     Ok(())
 }
 
+/// The geometry, scalar type and byte order the name and flags give a raw file (its size
+/// not checked): what [`decode`], the memory-mapped load and `summarize` all use.
+pub(super) fn header(
+    path: &Path,
+    opts: &ReadOptions,
+) -> Result<(Geometry, ScalarType, ByteOrder), VolumeError> {
+    let (dims, dtype) = layout(path, opts)?;
+    let geometry = Geometry {
+        dims,
+        spacing: opts.spacing.unwrap_or([1.0; 3]),
+        origin: [0.0; 3],
+    };
+    Ok((
+        geometry,
+        dtype,
+        opts.byte_order.unwrap_or(ByteOrder::Little),
+    ))
+}
+
 /// Decode `bytes` (the whole file) as a raw array.
 pub fn decode(path: &Path, bytes: Vec<u8>, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
     check_size(path, opts, bytes.len() as u64)?;
-    let (dims, dtype) = layout(path, opts)?;
-    let byte_order = opts.byte_order.unwrap_or(ByteOrder::Little);
+    let (geometry, dtype, byte_order) = header(path, opts)?;
     Ok(Decoded {
-        geometry: Geometry {
-            dims,
-            spacing: opts.spacing.unwrap_or([1.0; 3]),
-            origin: [0.0; 3],
-        },
+        geometry,
         buffer: TypedBuffer::new(dtype, byte_order, bytes),
         format: SourceFormat::Raw {
             scalar_type: dtype,

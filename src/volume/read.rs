@@ -2,6 +2,7 @@
 
 use std::path::Path;
 
+use super::source::{Located, Source};
 use super::{
     legacy, raw, vti, ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume,
     VolumeError, VolumeSource,
@@ -36,15 +37,52 @@ pub struct Decoded {
     pub format: SourceFormat,
 }
 
-/// Read and normalize the volume at `path`; sets `Volume::source`.
+/// Read and normalize the volume at `path`; sets `Volume::source`. Level 0 is read from a
+/// memory map of the file where the format allows it (`source`), else decoded into memory;
+/// either way its f32 samples are made only when asked for.
 pub fn load(path: &Path, opts: &ReadOptions) -> Result<Volume, VolumeError> {
-    let decoded = decode(path, opts)?;
-    let mut volume = Volume::from_buffer(path, decoded.geometry, &decoded.buffer)?;
+    let (geometry, declared, format, source) = open(path, opts)?;
+    let mut volume = Volume::from_source(path, geometry, declared, source)?;
     volume.source = Some(VolumeSource {
         path: path.to_path_buf(),
-        format: decoded.format,
+        format,
     });
     Ok(volume)
+}
+
+/// The geometry, declared type, format and values' source of the file at `path`.
+fn open(
+    path: &Path,
+    opts: &ReadOptions,
+) -> Result<(Geometry, ScalarType, SourceFormat, Source), VolumeError> {
+    let meta = file_metadata(path)?;
+    let kind = reader_for(path, opts)?;
+    if kind == Kind::Raw {
+        raw::check_size(path, opts, meta.len())?;
+        let (geometry, dtype, byte_order) = raw::header(path, opts)?;
+        let source = Source::map(path, dtype, byte_order, 0, geometry.voxel_count())?;
+        let format = SourceFormat::Raw {
+            scalar_type: dtype,
+            byte_order,
+        };
+        return Ok((geometry, dtype, format, source));
+    }
+    if let Some(loc) = locate(path, kind, opts) {
+        let source = Source::map(path, loc.ty, loc.order, loc.offset, loc.count)?;
+        let mut geometry = loc.geometry;
+        if let Some(spacing) = opts.spacing {
+            geometry.spacing = spacing;
+        }
+        return Ok((geometry, loc.ty, loc.format, source));
+    }
+    let d = decode(path, opts)?;
+    let declared = d.buffer.scalar_type();
+    Ok((
+        d.geometry,
+        declared,
+        d.format,
+        Source::memory(path, d.buffer),
+    ))
 }
 
 /// Which reader handles `path`.
@@ -74,6 +112,21 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
         error: e,
     })?;
     decode_bytes(path, bytes, opts)
+}
+
+/// Where the chosen array of a `.vti` or `.vtk` file lies, when its values can be mapped
+/// (the readers' `locate`); `None` otherwise, or when the file cannot be mapped (`decode`
+/// then reads it and reports any error).
+fn locate(path: &Path, kind: Kind, opts: &ReadOptions) -> Option<Located> {
+    let file = std::fs::File::open(path).ok()?;
+    // SAFETY: read only, and only while the readers look for the array (see `Source::map`).
+    let map = unsafe { memmap2::Mmap::map(&file) }.ok()?;
+    let want = opts.array.as_deref();
+    match kind {
+        Kind::Vti => vti::locate(&map, want),
+        Kind::Legacy => legacy::locate(&map, want),
+        Kind::Raw => None,
+    }
 }
 
 /// Why a path and its flags do not pick a reader. The reader adds the file's path.

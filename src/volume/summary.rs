@@ -18,6 +18,9 @@ use super::{
 const BLOCK_BYTES: usize = 8 << 20;
 
 /// A volume file's statistics, as [`super::Volume`] would hold them after a load.
+// The statistics fields repeat `Volume`'s on purpose: both are public structs the CLI and
+// library users read field by field (`Volume` is used across the crate); one shared struct
+// would change every caller of `Volume` outside `volume/`.
 #[derive(Clone, Debug)]
 pub struct Summary {
     /// Points per axis, spacing and origin.
@@ -49,12 +52,12 @@ impl Summary {
     }
 }
 
-/// Statistics gathered over the values.
-struct Stats {
-    range: [f64; 2],
-    norm_range: [f64; 2],
-    non_finite: usize,
-    histogram: Vec<u64>,
+/// Statistics gathered over the values (the fields of the same names of `Volume`).
+pub(super) struct Stats {
+    pub(super) range: [f64; 2],
+    pub(super) norm_range: [f64; 2],
+    pub(super) non_finite: usize,
+    pub(super) histogram: Vec<u64>,
 }
 
 /// Summarize the volume file at `path` read with `opts`.
@@ -108,13 +111,7 @@ fn raw_summary(path: &Path, opts: &ReadOptions) -> Result<RawSummary, VolumeErro
         error,
     };
     // The geometry and format exactly as the raw reader gives them (decoding no bytes).
-    let (dims, dtype) = raw::layout(path, opts)?;
-    let byte_order = opts.byte_order.unwrap_or(ByteOrder::Little);
-    let geometry = Geometry {
-        dims,
-        spacing: opts.spacing.unwrap_or([1.0; 3]),
-        origin: [0.0; 3],
-    };
+    let (geometry, dtype, byte_order) = raw::header(path, opts)?;
     check_geometry(path, &geometry, geometry.voxel_count())?;
     let blocks = |f: &mut dyn FnMut(&[u8])| -> Result<(), VolumeError> {
         let mut file = std::fs::File::open(path).map_err(io)?;
@@ -247,7 +244,7 @@ fn buffer_stats(buffer: &TypedBuffer) -> Option<Stats> {
 }
 
 /// Distinct codes of an 8- or 16-bit integer type; `None` for other types.
-fn small_codes(ty: ScalarType) -> Option<usize> {
+pub(super) fn small_codes(ty: ScalarType) -> Option<usize> {
     match ty {
         ScalarType::U8 | ScalarType::I8 => Some(1 << 8),
         ScalarType::U16 | ScalarType::I16 => Some(1 << 16),
@@ -256,7 +253,7 @@ fn small_codes(ty: ScalarType) -> Option<usize> {
 }
 
 /// The number a code stands for (as `small_int`).
-fn code_value(ty: ScalarType, c: usize) -> f64 {
+pub(super) fn code_value(ty: ScalarType, c: usize) -> f64 {
     match ty {
         ScalarType::I8 => c as u8 as i8 as f64,
         ScalarType::I16 => c as u16 as i16 as f64,
@@ -265,7 +262,7 @@ fn code_value(ty: ScalarType, c: usize) -> f64 {
 }
 
 /// Count the codes of the values in `bytes`.
-fn count_codes(ty: ScalarType, order: ByteOrder, bytes: &[u8], counts: &mut [u64]) {
+pub(super) fn count_codes(ty: ScalarType, order: ByteOrder, bytes: &[u8], counts: &mut [u64]) {
     if ty.size() == 1 {
         for &b in bytes {
             counts[b as usize] += 1;
@@ -283,7 +280,7 @@ fn count_codes(ty: ScalarType, order: ByteOrder, bytes: &[u8], counts: &mut [u64
 }
 
 /// Range and histogram from code counts (integers are always finite).
-fn code_stats(ty: ScalarType, counts: &[u64]) -> Stats {
+pub(super) fn code_stats(ty: ScalarType, counts: &[u64]) -> Stats {
     let mut acc = MinMax::default();
     for (c, _) in counts.iter().enumerate().filter(|(_, &k)| k > 0) {
         acc.add(code_value(ty, c));
@@ -298,7 +295,7 @@ fn code_stats(ty: ScalarType, counts: &[u64]) -> Stats {
 }
 
 /// The finite range and the count of other values.
-struct MinMax {
+pub(super) struct MinMax {
     lo: f64,
     hi: f64,
     finite: usize,
@@ -317,7 +314,7 @@ impl Default for MinMax {
 }
 
 impl MinMax {
-    fn add(&mut self, v: f64) {
+    pub(super) fn add(&mut self, v: f64) {
         if v.is_finite() {
             self.lo = self.lo.min(v);
             self.hi = self.hi.max(v);
@@ -328,11 +325,11 @@ impl MinMax {
     }
 
     /// `None` when no value is finite.
-    fn norm_range(&self) -> Option<[f64; 2]> {
+    pub(super) fn norm_range(&self) -> Option<[f64; 2]> {
         (self.finite > 0).then(|| norm_range(self.lo, self.hi))
     }
 
-    fn stats(&self, histogram: Vec<u64>) -> Stats {
+    pub(super) fn stats(&self, histogram: Vec<u64>) -> Stats {
         Stats {
             range: [self.lo, self.hi],
             norm_range: norm_range(self.lo, self.hi),
@@ -452,6 +449,7 @@ mod tests {
         }
     }
 
+    // The inverse of `buffer::for_each_value` (encoding, not decoding): alike in shape only.
     /// `values` stored as `ty` in `order` (values are exact in every type used above).
     fn encode(values: &[f64], ty: ScalarType, order: ByteOrder) -> Vec<u8> {
         macro_rules! enc {

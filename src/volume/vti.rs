@@ -27,7 +27,8 @@ use std::path::Path;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
-use super::vti_blocks::{base64_streams, unpack, BlockError, Compressor, Layout};
+use super::source::Located;
+use super::vti_blocks::{base64_streams, header_int, unpack, BlockError, Compressor, Layout};
 use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer, VolumeError};
 
 /// Why a `.vti` file could not be read. Each message is one line (quoted file text may hold
@@ -185,6 +186,51 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, VtiError> {
             origin,
         },
         buffer,
+        format: SourceFormat::Vti {
+            array: decl.name.clone(),
+        },
+    })
+}
+
+/// Where the array `want` (as [`decode`] chooses it) lies in a `.vti` file that stores it as
+/// appended *raw*, uncompressed data: after its length header the values are contiguous in
+/// the file and can be read from a memory map. `None` for every other file (inline, base64,
+/// compressed, multi-component) and for any file [`decode`] rejects (it then reports why).
+pub(super) fn locate(bytes: &[u8], want: Option<&str>) -> Option<Located> {
+    let split = find(bytes, b"<AppendedData")?;
+    let xml = std::str::from_utf8(&bytes[..split]).ok()?;
+    let app = appended_section(&bytes[split..]).ok()?;
+    let h = parse_header(xml).ok()?;
+    if app.base64 || h.layout.compressor != Compressor::None {
+        return None;
+    }
+    let (dims, origin) = grid(&h).ok()?;
+    let decl = select(&h, want).ok()?;
+    if decl.format != "appended" || decl.components != 1 {
+        return None;
+    }
+    let ty: ScalarType = decl.type_name.parse().ok()?;
+    let count: usize = dims.iter().product();
+    let nbytes = count.checked_mul(ty.size())?;
+    let start = app.data.get(decl.offset?..)?;
+    // The checks `unpack` makes: the length header names exactly the array, all present.
+    let len = header_int(start, 0, h.layout).ok()?;
+    let values = h.layout.header_size.checked_add(len)?;
+    if len != nbytes || start.len() < values {
+        return None;
+    }
+    // `start` points into `bytes`: its distance from the file's first byte.
+    let offset = start.as_ptr() as usize - bytes.as_ptr() as usize + h.layout.header_size;
+    Some(Located {
+        geometry: Geometry {
+            dims,
+            spacing: h.spacing,
+            origin,
+        },
+        ty,
+        order: h.layout.order,
+        offset: offset as u64,
+        count,
         format: SourceFormat::Vti {
             array: decl.name.clone(),
         },

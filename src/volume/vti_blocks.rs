@@ -14,6 +14,8 @@ use super::ByteOrder;
 
 /// Why a binary array's bytes could not be decoded. Each message is one line; the reader adds
 /// the file and array names.
+// Alike in shape to VtiError (thiserror variants): these are the binary blocks' errors, which
+// vti.rs wraps with the array's name; kept apart so the block decoder stands alone.
 #[derive(Debug, thiserror::Error)]
 pub(super) enum BlockError {
     #[error("base64 data has {chars} characters, not a multiple of 4 (truncated?)")]
@@ -110,7 +112,7 @@ pub(super) fn base64_streams(text: &[u8]) -> Result<Vec<u8>, BlockError> {
 }
 
 /// One header integer at `at`.
-fn header_int(stream: &[u8], at: usize, layout: Layout) -> Result<usize, BlockError> {
+pub(super) fn header_int(stream: &[u8], at: usize, layout: Layout) -> Result<usize, BlockError> {
     let h = layout.header_size;
     let b = stream.get(at..at + h).ok_or(BlockError::HeaderTruncated)?;
     let v = match (h, layout.order) {

@@ -7,4 +7,6 @@ mod fuzz_replay;
 mod hostile_volumes;
 mod volume_errors;
 mod volume_fixtures;
+mod volume_large_cli;
 mod volume_shared;
+mod volume_stream;
