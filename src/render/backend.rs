@@ -79,6 +79,9 @@ pub enum RenderError {
         /// Bytes the cache may use.
         budget: u64,
     },
+    /// The level's values could not be read (its source file, or memory to make them).
+    #[error("{0}")]
+    Source(crate::volume::VolumeError),
     /// A gradient (or the forward's result) does not have the image's size.
     #[error("{what} has {got} values; {expected} expected for a {w}×{h} image")]
     GradientSize {

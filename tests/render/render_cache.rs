@@ -218,3 +218,29 @@ fn cache_budget_errors_and_whole_copies() {
         render_all(&whole, &lut, &cams, &bg).unwrap()
     );
 }
+
+/// A volume loaded lazily from its file (level 0 memory-mapped, not materialized): its whole
+/// copy and its brick cache are both read in place, level 0 stays unmaterialized, and the
+/// renders equal those of the volume built in memory, bit for bit.
+#[test]
+fn lazy_level_0_is_bricked_and_cached_from_its_file() {
+    let name = "walnut_128x96x114_uint16.raw";
+    let loaded = t2tf::volume::load(&shared_volume(name), &Default::default()).unwrap();
+    assert!(!loaded.levels[0].is_materialized());
+    let built = load_u16(name, [128, 96, 114]);
+    assert_eq!(loaded.geometry, built.geometry);
+    let lut = random_lut(32, 0.0, 25.0, 5);
+    let bg = Image::new(48, 48);
+    let cams = cameras(&built);
+    let expected = render_all(&CpuBackend.prepare(&built, 0).unwrap(), &lut, &cams, &bg).unwrap();
+    let whole = CpuBackend.prepare(&loaded, 0).unwrap();
+    assert!(whole.cache_stats().is_none());
+    assert!(render_all(&whole, &lut, &cams, &bg).unwrap() == expected);
+    let (_, cached, got) = smallest_cache(&loaded, &lut, &cams, &bg, 200_000);
+    assert!(cached.cache_stats().unwrap().evictions > 0);
+    assert!(got == expected, "cached renders differ");
+    assert!(
+        !loaded.levels[0].is_materialized(),
+        "rendering made level 0's f32 samples"
+    );
+}

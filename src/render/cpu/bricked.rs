@@ -364,22 +364,6 @@ impl<T: Stored> Buffer<T> {
     }
 }
 
-/// The values of the points in [lo, hi) of a level of `dims` points holding `data` (x
-/// fastest), into `out`, x fastest: what `Level::read_box` does over a level's samples.
-pub(crate) fn slice_box(
-    dims: [usize; 3],
-    data: &[f32],
-    lo: [usize; 3],
-    hi: [usize; 3],
-    out: &mut [f32],
-) {
-    let n = [hi[0] - lo[0], hi[1] - lo[1]];
-    for (r, dst) in out.chunks_exact_mut(n[0].max(1)).enumerate() {
-        let (y, z) = (lo[1] + r % n[1].max(1), lo[2] + r / n[1].max(1));
-        dst.copy_from_slice(&data[lo[0] + dims[0] * (y + dims[1] * z)..][..n[0]]);
-    }
-}
-
 impl<T: Stored> Clone for Buffer<T> {
     fn clone(&self) -> Buffer<T> {
         let src = self.as_slice();
@@ -392,6 +376,16 @@ impl<T: Stored> Clone for Buffer<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The values of the points in [lo, hi) of a level of `dims` points holding `data` (x
+    /// fastest), into `out`, x fastest: what `Level::read_box` does over a level's samples.
+    fn slice_box(dims: [usize; 3], data: &[f32], lo: [usize; 3], hi: [usize; 3], out: &mut [f32]) {
+        let n = [hi[0] - lo[0], hi[1] - lo[1]];
+        for (r, dst) in out.chunks_exact_mut(n[0].max(1)).enumerate() {
+            let (y, z) = (lo[1] + r % n[1].max(1), lo[2] + r / n[1].max(1));
+            dst.copy_from_slice(&data[lo[0] + dims[0] * (y + dims[1] * z)..][..n[0]]);
+        }
+    }
 
     fn build(dims: [usize; 3], data: &[f32], grid: &BrickGrid, narrow: Narrow) -> BrickedData {
         let read = |lo, hi, out: &mut [f32]| {

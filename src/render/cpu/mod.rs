@@ -132,19 +132,16 @@ impl std::fmt::Debug for CpuPrepared {
     }
 }
 
-/// The normalized values of the points in [lo, hi) of `level`, x fastest, into `out`.
-///
-/// Stand-in for `volume::Level::read_box` (same arguments), which reads level 0 of a
-/// memory-mapped file without materializing it; until it lands this slices the level's
-/// samples.
+/// The normalized values of the points in [lo, hi) of `level`, x fastest, into `out`: from
+/// the level's samples when it holds them, else from its source (level 0 of a memory-mapped
+/// file is read in place, `volume::Level::read_box`).
 fn read_box(
     level: &Level,
     lo: [usize; 3],
     hi: [usize; 3],
     out: &mut [f32],
 ) -> Result<(), RenderError> {
-    bricked::slice_box(level.dims, level.data(), lo, hi, out);
-    Ok(())
+    level.read_box(lo, hi, out).map_err(RenderError::Source)
 }
 
 /// Bytes of the whole bricked copy of a level with `counts` bricks stored as `encoding`.
@@ -165,7 +162,7 @@ fn build(level: &Level, budget: u64, cache_budget: u64) -> Result<CpuLevel, Rend
     {
         level.bricks.clone()
     } else {
-        BrickGrid::build(dims, level.data())
+        BrickGrid::build(dims, level.try_data().map_err(RenderError::Source)?)
     };
     let encoding = Encoding::of(level.narrow());
     let store = if whole_bytes(counts, encoding) <= budget {
@@ -177,10 +174,11 @@ fn build(level: &Level, budget: u64, cache_budget: u64) -> Result<CpuLevel, Rend
     Ok(CpuLevel { dims, grid, store })
 }
 
-/// One cached level: its samples' allocation (dead once the level is dropped) and the copy,
-/// built under the entry's own lock.
+/// One cached level: its samples' cell (dead once the level is dropped) and the copy, built
+/// under the entry's own lock.
 struct CacheEntry {
-    key: Weak<Vec<f32>>,
+    /// `Level::cell`, type-erased (the cell's type is private to `volume`).
+    key: Weak<dyn std::any::Any + Send + Sync>,
     level: Arc<Mutex<Option<Arc<CpuLevel>>>>,
 }
 
@@ -192,20 +190,20 @@ static CACHE: Mutex<Vec<CacheEntry>> = Mutex::new(Vec::new());
 /// the entry; the build runs under the entry's own lock, so views of one level wait for one
 /// build instead of each making a copy.
 fn cached(level: &Level) -> Result<Arc<CpuLevel>, RenderError> {
-    let shared = level.shared_data();
+    let shared = level.cell();
     let slot = {
         // A panic elsewhere while the lock was held leaves the list itself consistent.
         let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
         cache.retain(|e| e.key.strong_count() > 0);
         match cache
             .iter()
-            .find(|e| std::ptr::eq(e.key.as_ptr(), Arc::as_ptr(shared)))
+            .find(|e| std::ptr::addr_eq(e.key.as_ptr(), Arc::as_ptr(shared)))
         {
             Some(e) => e.level.clone(),
             None => {
                 let slot = Arc::new(Mutex::new(None));
                 cache.push(CacheEntry {
-                    key: Arc::downgrade(shared),
+                    key: Arc::downgrade(shared) as Weak<dyn std::any::Any + Send + Sync>,
                     level: slot.clone(),
                 });
                 slot
@@ -720,7 +718,7 @@ mod tests {
 
     fn volume(seed: usize) -> Volume {
         volume_of([12, 10, 9], |i, j, k| {
-            ((((i + 12 * (j + 10 * k)) * 31 + seed) % 17) as f64)
+            (((i + 12 * (j + 10 * k)) * 31 + seed) % 17) as f64
         })
     }
 
