@@ -91,6 +91,7 @@ pub fn backward(
 
 /// Like [`backward`], with the image and transmittance of the forward of the same view,
 /// LUT and options (its background is already in `rendered.image`).
+// The same parameters as `backward` but one: both are public API and share `backward_to`.
 pub fn backward_from(
     volume: &Volume,
     lut: &Lut,

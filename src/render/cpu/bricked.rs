@@ -81,10 +81,31 @@ pub struct BrickedData {
     scale: f32,
 }
 
-enum Storage {
+/// Bricks in 8, 16 or 32 bits: a level's whole copy, or a brick cache's arena (`cache.rs`).
+pub(crate) enum Storage {
     U8(Buffer<u8>),
     U16(Buffer<u16>),
     F32(Buffer<f32>),
+}
+
+impl Storage {
+    /// `len` zero values of `encoding`'s width.
+    pub(crate) fn zeros(encoding: Encoding, len: usize) -> Storage {
+        match encoding.bytes() {
+            1 => Storage::U8(Buffer::zeros(len)),
+            2 => Storage::U16(Buffer::zeros(len)),
+            _ => Storage::F32(Buffer::zeros(len)),
+        }
+    }
+
+    /// The stored values.
+    pub(crate) fn values(&self) -> BrickValues<'_> {
+        match self {
+            Storage::U8(b) => BrickValues::U8(b.as_slice()),
+            Storage::U16(b) => BrickValues::U16(b.as_slice()),
+            Storage::F32(b) => BrickValues::F32(b.as_slice()),
+        }
+    }
 }
 
 impl BrickedData {
@@ -127,11 +148,7 @@ impl BrickedData {
 
     /// The stored values.
     pub fn values(&self) -> BrickValues<'_> {
-        match &self.storage {
-            Storage::U8(b) => BrickValues::U8(b.as_slice()),
-            Storage::U16(b) => BrickValues::U16(b.as_slice()),
-            Storage::F32(b) => BrickValues::F32(b.as_slice()),
-        }
+        self.storage.values()
     }
 
     /// Normalized value per unit of a stored value.

@@ -33,7 +33,7 @@ use std::sync::Mutex;
 
 use rayon::prelude::*;
 
-use super::bricked::{fill_brick, BrickValues, Buffer, Encoding, Stored, BRICK_VALUES};
+use super::bricked::{fill_brick, BrickValues, Buffer, Encoding, Storage, Stored, BRICK_VALUES};
 use super::read_box;
 use crate::render::RenderError;
 use crate::volume::{Level, BRICK_CELLS};
@@ -75,15 +75,9 @@ pub(crate) struct Resident<'a> {
     pub(crate) slots: &'a [u32],
 }
 
-enum Arena {
-    U8(Buffer<u8>),
-    U16(Buffer<u16>),
-    F32(Buffer<f32>),
-}
-
 struct State {
     encoding: Encoding,
-    arena: Arena,
+    arena: Storage,
     /// Per brick: its slot, 0 when not loaded.
     slot_of: Vec<u32>,
     /// Per slot: its brick, or [`FREE`] (slot 0: always FREE, never handed out).
@@ -110,12 +104,7 @@ impl State {
                 budget,
             });
         }
-        let n = slots * BRICK_VALUES;
-        let arena = match encoding.bytes() {
-            1 => Arena::U8(Buffer::zeros(n)),
-            2 => Arena::U16(Buffer::zeros(n)),
-            _ => Arena::F32(Buffer::zeros(n)),
-        };
+        let arena = Storage::zeros(encoding, slots * BRICK_VALUES);
         Ok(State {
             encoding,
             arena,
@@ -134,24 +123,14 @@ impl State {
     }
 
     fn bytes(&self) -> u64 {
-        let values = match &self.arena {
-            Arena::U8(b) => std::mem::size_of_val(b.as_slice()),
-            Arena::U16(b) => std::mem::size_of_val(b.as_slice()),
-            Arena::F32(b) => std::mem::size_of_val(b.as_slice()),
-        };
-        values as u64
+        self.arena.values().bytes() as u64
             + PER_BRICK * self.slot_of.len() as u64
             + PER_SLOT * self.brick_of.len() as u64
     }
 
     fn resident(&self) -> Resident<'_> {
-        let values = match &self.arena {
-            Arena::U8(b) => BrickValues::U8(b.as_slice()),
-            Arena::U16(b) => BrickValues::U16(b.as_slice()),
-            Arena::F32(b) => BrickValues::F32(b.as_slice()),
-        };
         Resident {
-            values,
+            values: self.arena.values(),
             scale: self.encoding.scale(),
             slots: &self.slot_of,
         }
@@ -203,9 +182,9 @@ impl State {
         self.loads += fresh.len() as u64;
         let e = self.encoding;
         match &mut self.arena {
-            Arena::U8(a) => load(a, &fresh, e, level, counts),
-            Arena::U16(a) => load(a, &fresh, e, level, counts),
-            Arena::F32(a) => load(a, &fresh, e, level, counts),
+            Storage::U8(a) => load(a, &fresh, e, level, counts),
+            Storage::U16(a) => load(a, &fresh, e, level, counts),
+            Storage::F32(a) => load(a, &fresh, e, level, counts),
         }
     }
 }
@@ -354,7 +333,7 @@ impl BrickCache {
                 if !state.ensure(&self.level, self.counts, &bricks)? {
                     // A value the narrow encoding does not hold: start over in f32.
                     let bricks = state.slot_of.len();
-                    state.arena = Arena::F32(Buffer::zeros(0)); // freed before the new one
+                    state.arena = Storage::zeros(Encoding::F32, 0); // freed before the new one
                     *state = State::new(Encoding::F32, bricks, self.budget)?;
                     continue 'again;
                 }

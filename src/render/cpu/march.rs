@@ -409,6 +409,7 @@ fn walk_blocks(g: &Grid, ray: &Ray, mut f: impl FnMut(Work) -> ControlFlow<()>) 
                 ray,
                 (u_in, u_out),
                 (lo, hi),
+                // Alike the super-block step above by design: the same tests one level finer.
                 |b, _, u_in, u_out| {
                     let (n0, n1) = (first_at(u_in), first_at(u_out));
                     if n0 >= n1 || bricks.empty[b] {
@@ -614,6 +615,7 @@ mod tests {
         let with = super::super::skip::blocks(&level.bricks, &lut, false, 0.0, true);
         let without = super::super::skip::blocks(&level.bricks, &lut, false, 0.0, false);
         for stop in [0.0, 0.05] {
+            // Built like simd.rs's test parameters: both tests vary one field of the same struct.
             let params = |uniform: bool| MarchParams {
                 grid: Grid::new(
                     dims,

@@ -454,14 +454,7 @@ fn each_tile<R: Send>(
         }
         Store::Cache(cache) => cache.run(
             |r| {
-                let v = View::new(
-                    prepared,
-                    lut,
-                    camera,
-                    size,
-                    opts,
-                    resident_grid(dims, r, &blocks),
-                );
+                let v = resident_view(prepared, lut, camera, size, opts, (r, &blocks));
                 tiles
                     .par_iter()
                     .map(|&t| {
@@ -478,27 +471,30 @@ fn each_tile<R: Send>(
                     .collect()
             },
             |r, range| {
-                let v = View::new(
-                    prepared,
-                    lut,
-                    camera,
-                    size,
-                    opts,
-                    resident_grid(dims, r, &blocks),
-                );
+                let v = resident_view(prepared, lut, camera, size, opts, (r, &blocks));
                 tiles[range].par_iter().map(|&t| per_tile(&v, t)).collect()
             },
         ),
     }
 }
 
-/// The grid of a brick cache's resident bricks, for a level of `dims` points.
-fn resident_grid<'a>(
-    dims: [usize; 3],
-    r: cache::Resident<'a>,
-    blocks: &'a [Blocks; 2],
-) -> Grid<'a> {
-    Grid::new(dims, (r.values, r.scale), Some(r.slots), blocks)
+/// A view of `prepared` sampling a brick cache's resident bricks `r`, with block tables
+/// `blocks`.
+fn resident_view<'a>(
+    prepared: &CpuPrepared,
+    lut: &'a Lut,
+    camera: &Camera,
+    size: (usize, usize),
+    opts: &RenderOptions,
+    (r, blocks): (cache::Resident<'a>, &'a [Blocks; 2]),
+) -> View<'a> {
+    let grid = Grid::new(
+        prepared.data.dims,
+        (r.values, r.scale),
+        Some(r.slots),
+        blocks,
+    );
+    View::new(prepared, lut, camera, size, opts, grid)
 }
 
 /// Render `prepared` with `lut` from `camera` over `background` (whose size is the image size).
