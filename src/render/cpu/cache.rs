@@ -344,3 +344,51 @@ impl BrickCache {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::tests::volume_of;
+    use super::*;
+    use crate::render::Backend;
+
+    /// The least recently used brick that the batch does not need is the one evicted, and a
+    /// loaded brick holds what the whole copy holds.
+    #[test]
+    fn evicts_the_least_recently_used_brick() {
+        // 33 × 2 × 2 points: 4 bricks along x.
+        let v = volume_of([33, 2, 2], |i, j, k| ((i * 7 + j * 3 + k) % 11) as f64);
+        let level = &v.levels[0];
+        let counts = level.bricks.counts;
+        assert_eq!(counts, [4, 1, 1]);
+        let e = Encoding::of(level.narrow());
+        let per_slot = (BRICK_VALUES * e.bytes()) as u64 + PER_SLOT;
+        // The zero slot and two bricks.
+        let budget = 4 * PER_BRICK + 3 * per_slot;
+        let mut s = State::new(e, 4, budget).unwrap();
+        assert_eq!(s.slots(), 2);
+        assert!(s.bytes() <= budget);
+        for batch in [&[0u32][..], &[1], &[0], &[2]] {
+            assert!(s.ensure(level, counts, batch).unwrap());
+        }
+        assert_eq!((s.loads, s.evictions), (3, 1));
+        assert_eq!(s.slot_of[1], 0, "brick 1 was the least recently used");
+        assert!(s.slot_of[0] != 0 && s.slot_of[2] != 0);
+        // Brick 2's values are the whole copy's.
+        let whole = super::super::CpuBackend.prepare(&v, 0).unwrap();
+        let (BrickValues::F32(all), BrickValues::F32(arena)) = (whole.values(), s.arena.values())
+        else {
+            panic!("a float volume is stored in f32")
+        };
+        let slot = s.slot_of[2] as usize;
+        assert_eq!(
+            arena[slot * BRICK_VALUES..][..BRICK_VALUES],
+            all[2 * BRICK_VALUES..][..BRICK_VALUES]
+        );
+        // Slot 0 stays zero.
+        assert!(arena[..BRICK_VALUES].iter().all(|&x| x == 0.0));
+        // Two bricks in one batch may not evict each other.
+        assert!(s.ensure(level, counts, &[3, 1]).unwrap());
+        assert!(s.slot_of[3] != 0 && s.slot_of[1] != 0);
+        assert_eq!(s.evictions, 3);
+    }
+}

@@ -72,7 +72,7 @@ enum Store {
     /// All of them, in memory (`bricked.rs`).
     Whole(BrickedData),
     /// Loaded on demand into a bounded arena (`cache.rs`).
-    Cache(BrickCache),
+    Cache(Box<BrickCache>),
 }
 
 /// A mip level of a volume, prepared for the CPU backend.
@@ -169,7 +169,12 @@ fn build(level: &Level, budget: u64, cache_budget: u64) -> Result<CpuLevel, Rend
         let read = |lo, hi, out: &mut [f32]| read_box(level, lo, hi, out);
         Store::Whole(BrickedData::build(dims, &grid, level.narrow(), &read)?)
     } else {
-        Store::Cache(BrickCache::new(level, counts, encoding, cache_budget)?)
+        Store::Cache(Box::new(BrickCache::new(
+            level,
+            counts,
+            encoding,
+            cache_budget,
+        )?))
     };
     Ok(CpuLevel { dims, grid, store })
 }
