@@ -74,13 +74,16 @@ fn option_sets() -> [RenderOptions; 3] {
     ]
 }
 
+/// One render's bits: image, transmittance, sample count and LUT gradient.
+type Bits = (Vec<u32>, Vec<u32>, u64, Vec<u64>);
+
 /// Forward and backward of every view and option set, through `prepared`.
 fn render_all(
     prepared: &CpuPrepared,
     lut: &Lut,
     cams: &[Camera],
     bg: &Image,
-) -> Result<Vec<(Vec<u32>, Vec<u32>, u64, Vec<u64>)>, RenderError> {
+) -> Result<Vec<Bits>, RenderError> {
     let (wi, wt) = weights(bg.width, bg.height, 3);
     let mut out = Vec::new();
     for cam in cams {
@@ -112,7 +115,7 @@ fn smallest_cache(
     cams: &[Camera],
     bg: &Image,
     start: u64,
-) -> (u64, CpuPrepared, Vec<(Vec<u32>, Vec<u32>, u64, Vec<u64>)>) {
+) -> (u64, CpuPrepared, Vec<Bits>) {
     let mut budget = start;
     for _ in 0..60 {
         let prepared = match CpuBackend.prepare_within(v, 0, budget) {

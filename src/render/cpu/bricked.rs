@@ -31,11 +31,11 @@ use crate::render::RenderError;
 use crate::volume::{BrickGrid, Narrow, BRICK_CELLS};
 
 /// Points per brick side: its cells plus one.
-pub const BRICK_POINTS: usize = BRICK_CELLS + 1;
+pub(crate) const BRICK_POINTS: usize = BRICK_CELLS + 1;
 /// Values per brick.
-pub const BRICK_VALUES: usize = BRICK_POINTS * BRICK_POINTS * BRICK_POINTS;
+pub(crate) const BRICK_VALUES: usize = BRICK_POINTS * BRICK_POINTS * BRICK_POINTS;
 /// Zero values after the last brick (see the module docs).
-pub const PAD: usize = 4;
+pub(crate) const PAD: usize = 4;
 
 /// The stored values of all bricks, one after the other: brick `b` at
 /// `[b * BRICK_VALUES..][..BRICK_VALUES]`, local point (i, j, k) at
@@ -52,7 +52,7 @@ pub enum BrickValues<'a> {
 
 impl BrickValues<'_> {
     /// Stored values (bricks and padding).
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         match self {
             BrickValues::U8(v) => v.len(),
             BrickValues::U16(v) => v.len(),
@@ -60,13 +60,8 @@ impl BrickValues<'_> {
         }
     }
 
-    /// Whether no value is stored (never, for a built level: the padding is always there).
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
     /// Bytes held.
-    pub fn bytes(&self) -> usize {
+    pub(crate) fn bytes(&self) -> usize {
         match self {
             BrickValues::U8(v) => std::mem::size_of_val(*v),
             BrickValues::U16(v) => std::mem::size_of_val(*v),
@@ -76,7 +71,7 @@ impl BrickValues<'_> {
 }
 
 /// A level's bricks; the normalized value of stored `q` is `q · scale`.
-pub struct BrickedData {
+pub(crate) struct BrickedData {
     storage: Storage,
     scale: f32,
 }
@@ -147,17 +142,17 @@ impl BrickedData {
     }
 
     /// The stored values.
-    pub fn values(&self) -> BrickValues<'_> {
+    pub(crate) fn values(&self) -> BrickValues<'_> {
         self.storage.values()
     }
 
     /// Normalized value per unit of a stored value.
-    pub fn scale(&self) -> f32 {
+    pub(crate) fn scale(&self) -> f32 {
         self.scale
     }
 
     /// Bytes held.
-    pub fn memory_bytes(&self) -> usize {
+    pub(crate) fn memory_bytes(&self) -> usize {
         self.values().bytes()
     }
 }

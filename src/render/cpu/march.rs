@@ -109,28 +109,28 @@ impl BoxFrame {
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Sample {
     /// LUT entry below the sample and the weight of the entry above.
-    pub lut_index: usize,
-    pub lut_weight: f32,
-    pub rgb: [f32; 3],
+    pub(crate) lut_index: usize,
+    pub(crate) lut_weight: f32,
+    pub(crate) rgb: [f32; 3],
     /// Segment length in normalized units (δ / L).
-    pub delta_norm: f32,
+    pub(crate) delta_norm: f32,
     /// How many identical consecutive samples this stands for (> 1 across a uniform brick,
     /// where the per-sample terms of the backward are equal and are summed in one go).
-    pub count: f32,
+    pub(crate) count: f32,
     /// Transmittance before and after the sample.
-    pub t_before: f32,
-    pub t_after: f32,
+    pub(crate) t_before: f32,
+    pub(crate) t_after: f32,
     /// Colour accumulated up to and including this sample (no background).
-    pub acc: [f32; 3],
+    pub(crate) acc: [f32; 3],
 }
 
 /// Result of one march.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Marched {
-    pub acc: [f32; 3],
-    pub transmittance: f32,
+    pub(crate) acc: [f32; 3],
+    pub(crate) transmittance: f32,
     /// Samples whose scalar was interpolated (skipped ones excluded).
-    pub samples: u32,
+    pub(crate) samples: u32,
 }
 
 /// Work found by the block walk and not yet composited. Consecutive blocks of one kind are

@@ -158,14 +158,14 @@ impl Gather for f32 {}
 
 /// Constants of one march shared by every ray of a view.
 pub(crate) struct MarchParams<'a> {
-    pub grid: Grid<'a>,
-    pub lut: &'a Lut,
+    pub(crate) grid: Grid<'a>,
+    pub(crate) lut: &'a Lut,
     /// 1 / L (L = the box's longest side, docs/DESIGN.md density units).
-    pub inv_l: f32,
+    pub(crate) inv_l: f32,
     /// Stop once T falls below this (0 = never).
-    pub stop_below: f32,
+    pub(crate) stop_below: f32,
     /// Interpolate and classify with AVX2 (`simd::available()`); results are bit-identical.
-    pub simd: bool,
+    pub(crate) simd: bool,
 }
 
 /// A sample's value through the LUT.
@@ -215,12 +215,12 @@ pub(super) const CHUNK: usize = 8;
 /// τ = 0 (and the class of value 0); [`Chunk::get`] returns `None` for them.
 #[derive(Default)]
 pub(super) struct Chunk {
-    pub v: [f32; CHUNK],
-    pub j: [u32; CHUNK],
-    pub w: [f32; CHUNK],
-    pub rgb: [[f32; CHUNK]; 3],
-    pub tau: [f32; CHUNK],
-    pub ext: [f32; CHUNK],
+    pub(crate) v: [f32; CHUNK],
+    pub(crate) j: [u32; CHUNK],
+    pub(crate) w: [f32; CHUNK],
+    pub(crate) rgb: [[f32; CHUNK]; 3],
+    pub(crate) tau: [f32; CHUNK],
+    pub(crate) ext: [f32; CHUNK],
 }
 
 impl Chunk {

@@ -21,15 +21,15 @@ const _: () = assert!(BRICK_CELLS.is_power_of_two() && SUPER.is_power_of_two());
 /// Per-block flags of one block size over a level.
 pub(crate) struct Blocks {
     /// Cells per block side.
-    pub cells: usize,
+    pub(crate) cells: usize,
     /// log2(cells): block coordinates are shifts, not divisions, in the march's inner loop.
-    pub shift: u32,
+    pub(crate) shift: u32,
     /// Blocks per axis.
-    pub counts: [usize; 3],
+    pub(crate) counts: [usize; 3],
     /// The TF has σ ≤ threshold on every sample of the block (or every point is NaN).
-    pub empty: Vec<bool>,
+    pub(crate) empty: Vec<bool>,
     /// The value of every sample in the block when they are all equal, NaN otherwise.
-    pub value: Vec<f32>,
+    pub(crate) value: Vec<f32>,
 }
 
 /// [super-blocks, bricks] of a level with brick ranges `grid` for `lut`. `skip` false marks nothing empty; `uniform`
