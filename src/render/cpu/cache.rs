@@ -41,8 +41,8 @@ use crate::volume::{Level, BRICK_CELLS};
 /// A slot that holds no brick.
 const FREE: u32 = u32::MAX;
 
-/// Bytes of bookkeeping per brick of the level: its slot.
-const PER_BRICK: u64 = 4;
+/// Bytes of bookkeeping per brick of the level: its slot, and its mark while batches form.
+const PER_BRICK: u64 = 4 + 1;
 /// Bytes of bookkeeping per slot: its brick, its last use and its place in the free list.
 const PER_SLOT: u64 = 4 + 8 + 4;
 
@@ -55,7 +55,8 @@ pub struct CacheStats {
     pub loads: u64,
     /// Bricks dropped to make room for others.
     pub evictions: u64,
-    /// Bytes held: the arena and the tables.
+    /// Bytes held: the arena and the tables (not the lists of bricks each tile of the view
+    /// being rendered needs, 4 bytes per brick per tile).
     pub bytes: u64,
 }
 
@@ -80,6 +81,8 @@ struct State {
     arena: Storage,
     /// Per brick: its slot, 0 when not loaded.
     slot_of: Vec<u32>,
+    /// Per brick: already in the batch being formed (all false between batches).
+    marks: Vec<bool>,
     /// Per slot: its brick, or [`FREE`] (slot 0: always FREE, never handed out).
     brick_of: Vec<u32>,
     /// Per slot: the batch that last needed it.
@@ -109,6 +112,7 @@ impl State {
             encoding,
             arena,
             slot_of: vec![0; bricks],
+            marks: vec![false; bricks],
             brick_of: vec![FREE; slots],
             last_used: vec![0; slots],
             free: (1..slots as u32).rev().collect(),
@@ -302,19 +306,21 @@ impl BrickCache {
         let needs = needs(state.resident());
         'again: loop {
             let mut out = Vec::with_capacity(needs.len());
-            let mut marks = vec![false; self.counts.iter().product()];
             let mut start = 0;
             while start < needs.len() {
                 // The longest run of tiles from `start` whose bricks fit together.
                 let mut bricks: Vec<u32> = Vec::new();
                 let mut end = start;
                 while end < needs.len() {
-                    let new = needs[end].iter().filter(|&&b| !marks[b as usize]).count();
+                    let new = needs[end]
+                        .iter()
+                        .filter(|&&b| !state.marks[b as usize])
+                        .count();
                     if bricks.len() + new > state.slots() {
                         break;
                     }
                     for &b in &needs[end] {
-                        if !std::mem::replace(&mut marks[b as usize], true) {
+                        if !std::mem::replace(&mut state.marks[b as usize], true) {
                             bricks.push(b);
                         }
                     }
@@ -328,7 +334,7 @@ impl BrickCache {
                     });
                 }
                 for &b in &bricks {
-                    marks[b as usize] = false;
+                    state.marks[b as usize] = false;
                 }
                 if !state.ensure(&self.level, self.counts, &bricks)? {
                     // A value the narrow encoding does not hold: start over in f32.
