@@ -13,7 +13,8 @@
 //! Bricks that are not loaded point at slot 0, which holds zeros: a chunk of 8 samples
 //! interpolates up to 7 positions past the end of a sample run and discards them, and those
 //! may fall in such a brick. A tile whose bricks alone exceed the arena is an error that says
-//! how to ask for more memory.
+//! how to ask for more memory. A load that fails (the source cannot be read) or panics
+//! forgets every brick, so no half-written slot is ever sampled.
 //!
 //! A brick is read with `Level::read_box` over its 9³ points (fewer at the level's far faces,
 //! repeated as the whole copy repeats them) and stored with the same encoding as the whole
@@ -126,6 +127,16 @@ impl State {
         self.brick_of.len() - 1
     }
 
+    /// Drop every brick (after a failed or interrupted load, whose slots may be half
+    /// written).
+    fn forget_all(&mut self) {
+        self.slot_of.fill(0);
+        self.marks.fill(false);
+        self.brick_of.fill(FREE);
+        self.last_used.fill(0);
+        self.free = (1..self.brick_of.len() as u32).rev().collect();
+    }
+
     fn bytes(&self) -> u64 {
         self.arena.values().bytes() as u64
             + PER_BRICK * self.slot_of.len() as u64
@@ -185,11 +196,15 @@ impl State {
         fresh.sort_unstable();
         self.loads += fresh.len() as u64;
         let e = self.encoding;
-        match &mut self.arena {
+        let loaded = match &mut self.arena {
             Storage::U8(a) => load(a, &fresh, e, level, counts),
             Storage::U16(a) => load(a, &fresh, e, level, counts),
             Storage::F32(a) => load(a, &fresh, e, level, counts),
+        };
+        if loaded.is_err() {
+            self.forget_all();
         }
+        loaded
     }
 }
 
@@ -301,8 +316,13 @@ impl BrickCache {
         needs: impl FnOnce(Resident) -> Vec<Vec<u32>>,
         mut batch: impl FnMut(Resident, Range<usize>) -> Vec<R>,
     ) -> Result<Vec<R>, RenderError> {
-        // A panic in a render leaves the tables consistent (loads finish before rendering).
-        let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut state = self.state.lock().unwrap_or_else(|poisoned| {
+            // A panic while bricks were loading may have left slots half written.
+            let mut state = poisoned.into_inner();
+            state.forget_all();
+            state
+        });
+        self.state.clear_poison();
         let needs = needs(state.resident());
         'again: loop {
             let mut out = Vec::with_capacity(needs.len());
