@@ -106,6 +106,8 @@ impl BoxFrame {
 }
 
 /// What the per-sample visitor sees (only non-empty samples are visited).
+// Partly alike `sample::Classified` by design: that is the sampler's output, this the
+// compositor's, with the transmittance and colour the backward needs.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Sample {
     /// LUT entry below the sample and the weight of the entry above.
