@@ -25,16 +25,17 @@
 //! level, the cache on the bricks it loaded: the two differ only for a level where a value
 //! that 8/16 bits cannot hold lies in a brick no ray samples.)
 //!
-//! The march through the table runs the scalar sampler: the AVX2 gathers compute brick
-//! offsets as b · 729 in 32-bit lanes, with no table. Results do not change (the two paths are
-//! bit-identical by design), only speed.
+//! The march through the table is the same code with one more load per sample (the AVX2 path
+//! gathers the 8 samples' slots first), so results are those of the whole copy.
 
 use std::ops::Range;
 use std::sync::Mutex;
 
 use rayon::prelude::*;
 
-use super::bricked::{fill_brick, BrickValues, Buffer, Encoding, Storage, Stored, BRICK_VALUES};
+use super::bricked::{
+    fill_brick, BrickValues, Buffer, Encoding, Storage, Stored, BRICK_VALUES, PAD,
+};
 use super::read_box;
 use crate::render::RenderError;
 use crate::volume::{Level, BRICK_CELLS};
@@ -98,7 +99,8 @@ impl State {
     /// An empty cache of a level with `bricks` bricks in `budget` bytes.
     fn new(encoding: Encoding, bricks: usize, budget: u64) -> Result<State, RenderError> {
         let per_slot = (BRICK_VALUES * encoding.bytes()) as u64 + PER_SLOT;
-        let room = budget.saturating_sub(PER_BRICK * bricks as u64) / per_slot;
+        let pad = (PAD * encoding.bytes()) as u64;
+        let room = budget.saturating_sub(PER_BRICK * bricks as u64 + pad) / per_slot;
         // More slots than bricks (and the zero slot) are never used.
         let slots = room.min(bricks as u64 + 1) as usize;
         if slots < 2 {
@@ -108,7 +110,8 @@ impl State {
                 budget,
             });
         }
-        let arena = Storage::zeros(encoding, slots * BRICK_VALUES);
+        // PAD: the AVX2 gathers read 4 bytes at a value's index (bricked.rs).
+        let arena = Storage::zeros(encoding, slots * BRICK_VALUES + PAD);
         Ok(State {
             encoding,
             arena,
@@ -389,7 +392,7 @@ mod tests {
         let e = Encoding::of(level.narrow());
         let per_slot = (BRICK_VALUES * e.bytes()) as u64 + PER_SLOT;
         // The zero slot and two bricks.
-        let budget = 4 * PER_BRICK + 3 * per_slot;
+        let budget = 4 * PER_BRICK + 3 * per_slot + (PAD * e.bytes()) as u64;
         let mut s = State::new(e, 4, budget).unwrap();
         assert_eq!(s.slots(), 2);
         assert!(s.bytes() <= budget);

@@ -484,7 +484,7 @@ pub(crate) fn bricks_touched(g: &Grid, ray: &Ray, mut f: impl FnMut(usize)) {
 ///
 /// With `p.simd` the whole march is compiled for AVX2 (the scalar parts too: VEX encoding,
 /// `roundss` for the block boundaries' ceilings), through a `target_feature` copy. A brick
-/// cache's grid (`slots`) is marched by its own copy, with one slot lookup per sample.
+/// cache's grid (`slots`) is marched by its own copies, with one slot lookup per sample.
 #[inline(always)]
 pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, visit: F) -> Marched {
     match (p.grid.values, p.grid.slots) {
@@ -505,7 +505,7 @@ fn march_typed<T: Voxel, S: Slots, F: FnMut(&Sample)>(
     visit: F,
 ) -> Marched {
     #[cfg(target_arch = "x86_64")]
-    if p.simd && S::IN_PLACE {
+    if p.simd {
         // SAFETY: `simd` is set only where `simd::available()` found AVX2 on this CPU.
         return unsafe { march_avx2(p, d, ray, visit) };
     }

@@ -52,21 +52,20 @@ impl<'a> Grid<'a> {
         }
     }
 
-    /// Whether every index into the values fits the signed 32-bit lanes of an AVX2 gather
-    /// (2³¹ values: a 1290³-point level in 8 bits is past it). Larger levels take the scalar
-    /// path, whose index arithmetic is 64-bit ([`value_index`]).
-    /// The AVX2 path computes brick b at slot b, so a brick cache takes the scalar path.
+    /// Whether every index into the values, and every brick number of a slot table, fits
+    /// the signed 32-bit lanes of an AVX2 gather (2³¹ values: a 1290³-point level in 8 bits
+    /// is past it). Larger levels take the scalar path, whose index arithmetic is 64-bit
+    /// ([`value_index`]).
     pub(crate) fn gathers_fit(&self) -> bool {
-        self.values.len() <= i32::MAX as usize && self.slots.is_none()
+        let table_fits = self.slots.is_none_or(|t| t.len() <= i32::MAX as usize);
+        self.values.len() <= i32::MAX as usize && table_fits
     }
 }
 
 /// Where each brick's values start in a grid's values: the march is compiled once per layout,
 /// so the whole level's copy ([`InPlace`]) keeps its arithmetic and a brick cache ([`Table`])
-/// adds one table load per sample.
-pub(super) trait Slots: Copy {
-    /// Whether brick b is at slot b (what the AVX2 gathers compute).
-    const IN_PLACE: bool;
+/// adds one table load (one more gather with AVX2) per sample.
+pub(super) trait Slots: Copy + GatherSlots {
     /// Index of the first value of brick `brick`.
     fn first_value(self, brick: usize) -> usize;
 }
@@ -76,7 +75,6 @@ pub(super) trait Slots: Copy {
 pub(super) struct InPlace;
 
 impl Slots for InPlace {
-    const IN_PLACE: bool = true;
     #[inline(always)]
     fn first_value(self, brick: usize) -> usize {
         brick * BRICK_VALUES
@@ -88,7 +86,6 @@ impl Slots for InPlace {
 pub(super) struct Table<'a>(pub(super) &'a [u32]);
 
 impl Slots for Table<'_> {
-    const IN_PLACE: bool = false;
     #[inline(always)]
     fn first_value(self, brick: usize) -> usize {
         debug_assert!(brick < self.0.len(), "brick outside the slot table");
@@ -145,6 +142,25 @@ pub(crate) trait Gather {
         off: i32,
     ) -> (std::arch::x86_64::__m256, std::arch::x86_64::__m256);
 }
+
+/// [`Slots::first_value`] of 8 bricks at once (implemented for AVX2 in `simd.rs`).
+#[cfg(target_arch = "x86_64")]
+pub(crate) trait GatherSlots {
+    /// The first value's index of each lane's brick.
+    ///
+    /// # Safety
+    /// AVX2; every lane a brick of the grid (below a slot table's length), and every result
+    /// within i32 (`Grid::gathers_fit`).
+    unsafe fn first_values(self, brick: std::arch::x86_64::__m256i) -> std::arch::x86_64::__m256i;
+}
+
+/// Elsewhere no layout gathers.
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) trait GatherSlots {}
+#[cfg(not(target_arch = "x86_64"))]
+impl GatherSlots for InPlace {}
+#[cfg(not(target_arch = "x86_64"))]
+impl GatherSlots for Table<'_> {}
 
 /// Elsewhere no stored type gathers.
 #[cfg(not(target_arch = "x86_64"))]
