@@ -10,7 +10,7 @@
 //!
 //! ```text
 //! cargo build --release --bin t2tf
-//! cargo run --release --example bench_large [-- --n 2048] [--dir DIR] [--keep] [--optimize]
+//! cargo run --release --features bench --example bench_large [-- --n 2048] [--dir DIR] [--keep] [--optimize]
 //! ```
 //!
 //! The default N = 512 (256 MiB) runs in seconds; `--n 2048` is the issue's 16 GiB target.
@@ -141,6 +141,7 @@ fn optimize(
         ])
         .arg(&out)
         .env("XDG_CACHE_HOME", dir)
+        .stdout(std::process::Stdio::null())
         .status()?;
     let secs = t.elapsed().as_secs_f64();
     anyhow::ensure!(status.success(), "t2tf optimize failed: {status}");

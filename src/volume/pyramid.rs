@@ -19,6 +19,9 @@ use super::{Geometry, VolumeError};
 /// Cells per brick side.
 pub const BRICK_CELLS: usize = 8;
 
+/// Slices of at least this many points are reduced on several threads (bit-identical).
+const PAR_POINTS: usize = 1 << 16;
+
 /// Stop reducing once every axis has at most this many points.
 const MIN_LEVEL_POINTS: usize = 8;
 
@@ -48,6 +51,8 @@ pub(crate) struct LevelCell {
     data: OnceLock<Arc<Vec<f32>>>,
     /// What makes them when they are not held: the source and this level's index.
     origin: Option<(Arc<Streamed>, usize)>,
+    /// Held while the samples are made, so that threads asking at once make one copy.
+    making: std::sync::Mutex<()>,
 }
 
 impl Level {
@@ -60,6 +65,7 @@ impl Level {
             cell: Arc::new(LevelCell {
                 data: OnceLock::from(Arc::new(data)),
                 origin: None,
+                making: Default::default(),
             }),
             narrow,
         }
@@ -79,6 +85,7 @@ impl Level {
         let cell = LevelCell {
             data: data.map(Arc::new).map(OnceLock::from).unwrap_or_default(),
             origin: Some((streamed.clone(), index)),
+            making: Default::default(),
         };
         Level {
             dims,
@@ -127,7 +134,11 @@ impl Level {
             .origin
             .as_ref()
             .expect("a level without samples has a source");
-        // Two threads asking at once may both make the samples; one copy is kept.
+        // A panic while making them leaves nothing behind the lock: ignore the poison.
+        let _making = self.cell.making.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(d) = self.cell.data.get() {
+            return Ok(d);
+        }
         let data = streamed.materialize(*index)?;
         Ok(self.cell.data.get_or_init(|| Arc::new(data)))
     }
@@ -305,25 +316,41 @@ impl BrickGridBuilder {
         lo..=hi
     }
 
-    /// The next z-slice (x fastest).
+    /// The next z-slice (x fastest). Each brick sees its points in the order of the slices,
+    /// then rows, then x, whatever the loop nesting: its min/max (even of ±0) are those of a
+    /// point-by-point pass.
     pub(crate) fn push(&mut self, slice: &[f32]) {
         let k = self.k;
         self.k += 1;
         let [nx, _, _] = self.dims;
         let counts = self.counts;
+        // The x-range of points of each x-brick: cells bi·B .. bi·B + B, the last to the end.
+        let spans: Vec<(usize, usize)> = (0..counts[0])
+            .map(|bi| {
+                let end = if bi + 1 == counts[0] {
+                    nx - 1
+                } else {
+                    bi * BRICK_CELLS + BRICK_CELLS
+                };
+                (bi * BRICK_CELLS, end)
+            })
+            .collect();
         for (j, row) in slice.chunks_exact(nx).enumerate() {
-            for (i, &v) in row.iter().enumerate() {
-                for bk in self.bricks_of(k, 2) {
-                    for bj in self.bricks_of(j, 1) {
-                        for bi in self.bricks_of(i, 0) {
-                            let b = bi + counts[0] * (bj + counts[1] * bk);
+            for bk in self.bricks_of(k, 2) {
+                for bj in self.bricks_of(j, 1) {
+                    let base = counts[0] * (bj + counts[1] * bk);
+                    for (bi, &(start, end)) in spans.iter().enumerate() {
+                        let b = base + bi;
+                        let (mut lo, mut hi, mut nan) = (self.min[b], self.max[b], self.nan[b]);
+                        for &v in &row[start..=end] {
                             if v.is_nan() {
-                                self.nan[b] = true;
+                                nan = true;
                             } else {
-                                self.min[b] = self.min[b].min(v);
-                                self.max[b] = self.max[b].max(v);
+                                lo = lo.min(v);
+                                hi = hi.max(v);
                             }
                         }
+                        (self.min[b], self.max[b], self.nan[b]) = (lo, hi, nan);
                     }
                 }
             }
@@ -551,25 +578,44 @@ impl Stage {
 
     /// Reduce one x-y slice of the input along x, then y.
     fn reduce_xy(&self, slice: &[f32]) -> Vec<f32> {
+        use rayon::prelude::*;
         let [nx, ny, _] = self.input;
         let [ox, oy, _] = self.output;
+        // Rows are independent and each value is the same sum whichever thread takes it:
+        // large slices are split over threads without changing a bit.
+        let par = nx * ny >= PAR_POINTS;
         let xr: Vec<f32> = match &self.taps[0] {
             None => slice.to_vec(),
-            Some(t) => (0..ny)
-                .flat_map(|y| {
-                    let row = &slice[y * nx..][..nx];
-                    t.iter().map(move |tj| filter(tj, |s| row[s]))
-                })
-                .collect(),
+            Some(t) => {
+                let mut xr = vec![0.0f32; ox * ny];
+                let row = |(o, row): (&mut [f32], &[f32])| {
+                    for (v, tj) in o.iter_mut().zip(t) {
+                        *v = filter(tj, |s| row[s]);
+                    }
+                };
+                if par {
+                    xr.par_chunks_mut(ox)
+                        .zip(slice.par_chunks(nx))
+                        .for_each(row);
+                } else {
+                    xr.chunks_mut(ox).zip(slice.chunks(nx)).for_each(row);
+                }
+                xr
+            }
         };
         match &self.taps[1] {
             None => xr,
             Some(t) => {
                 let mut out = vec![0.0f32; ox * oy];
-                for (j, tj) in t.iter().enumerate() {
-                    for (x, o) in out[ox * j..][..ox].iter_mut().enumerate() {
-                        *o = filter(tj, |s| xr[x + ox * s]);
+                let row = |(o, tj): (&mut [f32], &Vec<(usize, f32)>)| {
+                    for (x, v) in o.iter_mut().enumerate() {
+                        *v = filter(tj, |s| xr[x + ox * s]);
                     }
+                };
+                if par {
+                    out.par_chunks_mut(ox).zip(t.par_iter()).for_each(row);
+                } else {
+                    out.chunks_mut(ox).zip(t).for_each(row);
                 }
                 out
             }
@@ -597,9 +643,18 @@ impl Stage {
             }
             let first = self.window.front().map_or(0, |w| w.0);
             let w = &self.window;
-            let out: Vec<f32> = (0..area)
-                .map(|i| filter(tj, |s| w[s - first].1[i]))
-                .collect();
+            let mut out = vec![0.0f32; area];
+            let fill = |(c, o): (usize, &mut [f32])| {
+                for (i, v) in o.iter_mut().enumerate() {
+                    *v = filter(tj, |s| w[s - first].1[c * PAR_POINTS + i]);
+                }
+            };
+            if area >= PAR_POINTS {
+                use rayon::prelude::*;
+                out.par_chunks_mut(PAR_POINTS).enumerate().for_each(fill);
+            } else {
+                out.chunks_mut(PAR_POINTS).enumerate().for_each(fill);
+            }
             if let Some(level) = &mut self.out {
                 level.extend_from_slice(&out);
             }
@@ -822,6 +877,77 @@ mod tests {
         }
     }
 
+    /// The brick ranges as they were built before the row-wise [`BrickGridBuilder`]: point by
+    /// point, each into every brick it touches.
+    fn bricks_by_points(dims: [usize; 3], data: &[f32]) -> (Vec<f32>, Vec<f32>, Vec<bool>) {
+        let counts = dims.map(|d| d.saturating_sub(1).max(1).div_ceil(BRICK_CELLS));
+        let total = counts.iter().product();
+        let (mut min, mut max) = (vec![f32::INFINITY; total], vec![f32::NEG_INFINITY; total]);
+        let mut nan = vec![false; total];
+        let of = |p: usize, a: usize| {
+            (p.saturating_sub(1) / BRICK_CELLS).min(counts[a] - 1)
+                ..=(p / BRICK_CELLS).min(counts[a] - 1)
+        };
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    let v = data[i + dims[0] * (j + dims[1] * k)];
+                    for bk in of(k, 2) {
+                        for bj in of(j, 1) {
+                            for bi in of(i, 0) {
+                                let b = bi + counts[0] * (bj + counts[1] * bk);
+                                if v.is_nan() {
+                                    nan[b] = true;
+                                } else {
+                                    min[b] = min[b].min(v);
+                                    max[b] = max[b].max(v);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let uniform = (0..total).map(|b| !nan[b] && min[b] == max[b]).collect();
+        (min, max, uniform)
+    }
+
+    /// Row starts past 2³² points (a level of 70000 × 70000 × 2, not allocated).
+    #[test]
+    fn box_rows_index_past_32_bits() {
+        let dims = [70_000, 70_000, 2];
+        let rows: Vec<u64> = box_rows(dims, [5, 69_998, 1], [9, 70_000, 2]).collect();
+        let plane = 70_000u64 * 70_000;
+        assert!(plane > u32::MAX as u64);
+        assert_eq!(
+            rows,
+            [5 + 69_998 * 70_000 + plane, 5 + 69_999 * 70_000 + plane]
+        );
+    }
+
+    /// Row by row equals point by point, bit for bit (both zeros, NaN), on odd sizes.
+    #[test]
+    fn brick_rows_match_point_by_point() {
+        let cases = [[1, 1, 1], [2, 3, 1], [9, 17, 33], [17, 8, 9], [33, 20, 9]];
+        for dims in cases.into_iter().chain([[64, 3, 2]]) {
+            let n: usize = dims.iter().product();
+            // Every 11th point from NaN, −0, +0, −0, +0; the rest a scramble of [0, 1].
+            let special = [f32::NAN, -0.0, 0.0, -0.0, 0.0];
+            let data: Vec<f32> = (0..n)
+                .map(|i| {
+                    let scrambled = ((i * 7919) % 1013) as f32 / 1012.0;
+                    special.get(i % 11).copied().unwrap_or(scrambled)
+                })
+                .collect();
+            let g = BrickGrid::build(dims, &data);
+            let (min, max, uniform) = bricks_by_points(dims, &data);
+            let bits = |d: &[f32]| d.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&g.min), bits(&min), "{dims:?}");
+            assert_eq!(bits(&g.max), bits(&max), "{dims:?}");
+            assert_eq!(g.uniform, uniform, "{dims:?}");
+        }
+    }
+
     /// Level by level, bit for bit (NaN where NaN), and the same shapes and spacings.
     fn assert_same_levels(a: &[Level], b: &[Level], what: &str) {
         assert_eq!(a.len(), b.len(), "{what}: level count");
@@ -854,7 +980,8 @@ mod tests {
                 }
             }
         }
-        cases.extend([[127, 127, 127], [9, 17, 33], [64, 64, 64]]);
+        // The last: slices large enough to be reduced on several threads (PAR_POINTS).
+        cases.extend([[127, 127, 127], [9, 17, 33], [64, 64, 64], [301, 233, 5]]);
         for dims in cases {
             let n: usize = dims.iter().product();
             let mut data: Vec<f32> = (0..n)

@@ -68,7 +68,18 @@ impl Source {
         let file = std::fs::File::open(path).map_err(io)?;
         // SAFETY: the map is read only; the file changing underneath is documented above
         // as unsupported (as for any reader that reads a file twice).
-        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
+        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| {
+            // Mostly an address-space limit (`ulimit -v`) smaller than the file.
+            let len = file.metadata().map_or(0, |m| m.len());
+            VolumeError::file(
+                path,
+                format!(
+                    "cannot map its {} into memory ({e}); raise the address-space limit \
+                     (ulimit -v) or use a smaller volume",
+                    crate::units::human_bytes(len as u128)
+                ),
+            )
+        })?;
         let need = (count as u64)
             .checked_mul(ty.size() as u64)
             .and_then(|n| n.checked_add(offset));
@@ -375,7 +386,7 @@ pub(crate) fn stream(
         return Ok(None);
     };
     let shapes = pyramid::level_shapes(geometry);
-    let kept = keep(&shapes);
+    let kept = keep(&shapes, crate::memory::budget());
     stream_keeping(geometry, declared, source, stats, shapes, &kept)
 }
 
@@ -388,15 +399,26 @@ fn stream_keeping(
     shapes: Vec<([usize; 3], [f64; 3])>,
     kept: &[bool],
 ) -> Result<Option<Streaming>, VolumeError> {
-    let bytes: u64 = kept
+    // Held whatever is kept: every level's brick ranges (`level_bytes` less the samples, plus
+    // the builder's NaN flag per brick of about 512 points), and a slice of level 0 as f32
+    // with the reducer's few.
+    let held: u64 = shapes
         .iter()
-        .zip(&shapes)
-        .filter(|(k, _)| **k)
-        .map(|(_, s)| pyramid::level_bytes(s.0) as u64)
-        .sum();
+        .map(|(d, _)| {
+            let samples = 4 * d.iter().product::<usize>() as u64;
+            pyramid::level_bytes(*d) as u64 - samples + samples.div_ceil(4 * 512)
+        })
+        .sum::<u64>()
+        + 16 * (geometry.dims[0] * geometry.dims[1]) as u64
+        + kept
+            .iter()
+            .zip(&shapes)
+            .filter(|(k, _)| **k)
+            .map(|(_, s)| pyramid::level_bytes(s.0) as u64)
+            .sum::<u64>();
     crate::memory::check(
-        "the volume's coarse mip levels",
-        Some(bytes),
+        "the volume's brick ranges and coarse mip levels",
+        Some(held),
         1,
         "use a smaller volume",
     )
@@ -444,14 +466,21 @@ fn stream_keeping(
     Ok(Some(Streaming { stats, levels }))
 }
 
-/// Which levels a stream keeps in f32: the coarse ones. A level above [`KEEP_POINTS`] points
-/// (finer than 512³) is made only when asked for; level 0 always is.
-pub(crate) fn keep(shapes: &[([usize; 3], [f64; 3])]) -> Vec<bool> {
-    shapes
-        .iter()
-        .enumerate()
-        .map(|(l, (dims, _))| l > 0 && dims.iter().product::<usize>() <= KEEP_POINTS)
-        .collect()
+/// Which levels a stream keeps in f32: the coarse ones that fit half of `budget` bytes,
+/// coarsest first, none above [`KEEP_POINTS`] points (finer than 512³); level 0 never. The
+/// others are made when asked for.
+pub(crate) fn keep(shapes: &[([usize; 3], [f64; 3])], budget: u64) -> Vec<bool> {
+    let mut kept = vec![false; shapes.len()];
+    let mut used = 0u64;
+    for l in (1..shapes.len()).rev() {
+        let dims = shapes[l].0;
+        used = used.saturating_add(pyramid::level_bytes(dims) as u64);
+        if dims.iter().product::<usize>() > KEEP_POINTS || used > budget / 2 {
+            break;
+        }
+        kept[l] = true;
+    }
+    kept
 }
 
 /// Points of the finest level a stream keeps: 512³ (512 MiB of f32).
@@ -473,6 +502,27 @@ pub(super) fn narrow_for(scalar_type: ScalarType, norm_range: [f64; 2]) -> Narro
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn keeps_the_coarse_levels_that_fit() {
+        let geometry = Geometry {
+            dims: [2048, 2048, 2048],
+            spacing: [1.0; 3],
+            origin: [0.0; 3],
+        };
+        let shapes = pyramid::level_shapes(geometry);
+        assert_eq!(shapes[2].0, [512; 3]);
+        // 512³ and coarser: levels 2..; not 1024³ nor level 0.
+        let kept = keep(&shapes, 8 << 30);
+        assert!(
+            !kept[0] && !kept[1] && kept[2..].iter().all(|&k| k),
+            "{kept:?}"
+        );
+        // A small budget keeps only what fits in half of it, coarsest first.
+        let kept = keep(&shapes, 200 << 20);
+        assert!(!kept[2] && kept[3..].iter().all(|&k| k), "{kept:?}");
+        assert_eq!(keep(&shapes, 0), vec![false; shapes.len()]);
+    }
 
     /// Levels that are not held: `read_box` (reduced from level 0's box on the source) and
     /// `try_data` (a second stream) equal the in-memory pyramid bit for bit, on odd boxes.

@@ -76,7 +76,6 @@ fn spacings_that_single_precision_cannot_hold_are_refused() {
 #[test]
 fn info_streams_a_volume_larger_than_its_address_space_allows() {
     use std::io::Write;
-    use std::os::unix::process::CommandExt;
     const N: usize = 512;
     const LIMIT: u64 = 384 << 20;
     let dir = tempfile::tempdir().unwrap();
@@ -94,20 +93,7 @@ fn info_streams_a_volume_larger_than_its_address_space_allows() {
 
     let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_t2tf"));
     cmd.arg("info").arg(&path).arg("--json");
-    // SAFETY: setrlimit is async-signal-safe and touches no memory of the parent.
-    unsafe {
-        cmd.pre_exec(|| {
-            let lim = libc::rlimit {
-                rlim_cur: LIMIT,
-                rlim_max: LIMIT,
-            };
-            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
-    let out = cmd.output().unwrap();
+    let out = limit_address_space(&mut cmd, LIMIT).output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "t2tf info failed: {stderr}");
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -121,4 +107,26 @@ fn info_streams_a_volume_larger_than_its_address_space_allows() {
         .sum();
     assert_eq!(counts, (N * N * N) as u64);
     assert_eq!(report["pyramid"][1], serde_json::json!([256, 256, 256]));
+}
+
+/// `cmd` run under an address-space limit of `bytes` (`RLIMIT_AS`).
+// The same helper as tests/cli/hostile_cli.rs's: another test binary, which cannot share it.
+pub(crate) fn limit_address_space(
+    cmd: &mut std::process::Command,
+    bytes: u64,
+) -> &mut std::process::Command {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: setrlimit is async-signal-safe and touches no memory of the parent.
+    unsafe {
+        cmd.pre_exec(move || {
+            let lim = libc::rlimit {
+                rlim_cur: bytes,
+                rlim_max: bytes,
+            };
+            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        })
+    }
 }

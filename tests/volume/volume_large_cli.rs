@@ -34,23 +34,10 @@ fn write_volume(path: &Path) {
 
 /// `t2tf` under the address-space limit.
 fn t2tf() -> Command {
-    use std::os::unix::process::CommandExt;
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_t2tf"));
     // One malloc arena: each thread's arena reserves address space it may never use.
     cmd.env("MALLOC_ARENA_MAX", "1");
-    // SAFETY: setrlimit is async-signal-safe and touches no memory of the parent.
-    unsafe {
-        cmd.pre_exec(|| {
-            let lim = libc::rlimit {
-                rlim_cur: AS_LIMIT,
-                rlim_max: AS_LIMIT,
-            };
-            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
+    crate::hostile_volumes::limit_address_space(&mut cmd, AS_LIMIT);
     cmd
 }
 

@@ -86,31 +86,21 @@ fn streaming_equals_in_memory_on_every_shared_volume() {
     assert!(checked >= 7, "only {checked} shared volumes");
 }
 
-/// `values` stored as `ty` in `order`.
+/// `values` stored as `ty` in `order` (integers as the low bytes of their two's complement).
 fn encode(values: &[f64], ty: ScalarType, order: ByteOrder) -> Vec<u8> {
-    macro_rules! enc {
-        ($t:ty) => {
-            values
-                .iter()
-                .flat_map(|&v| match order {
-                    ByteOrder::Little => (v as $t).to_le_bytes().to_vec(),
-                    ByteOrder::Big => (v as $t).to_be_bytes().to_vec(),
-                })
-                .collect()
+    let mut out = Vec::with_capacity(values.len() * ty.size());
+    for &v in values {
+        let mut b = match ty {
+            ScalarType::F32 => (v as f32).to_le_bytes().to_vec(),
+            ScalarType::F64 => v.to_le_bytes().to_vec(),
+            _ => (v as i64).to_le_bytes()[..ty.size()].to_vec(),
         };
+        if order == ByteOrder::Big {
+            b.reverse();
+        }
+        out.extend_from_slice(&b);
     }
-    match ty {
-        ScalarType::U8 => enc!(u8),
-        ScalarType::I8 => enc!(i8),
-        ScalarType::U16 => enc!(u16),
-        ScalarType::I16 => enc!(i16),
-        ScalarType::U32 => enc!(u32),
-        ScalarType::I32 => enc!(i32),
-        ScalarType::U64 => enc!(u64),
-        ScalarType::I64 => enc!(i64),
-        ScalarType::F32 => enc!(f32),
-        ScalarType::F64 => enc!(f64),
-    }
+    out
 }
 
 /// Sizes 1, 2, 3 and 127 per axis; float data with NaN, Inf and both zeros, and integer data
