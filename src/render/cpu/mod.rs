@@ -9,7 +9,7 @@
 //! none of them imports the others back.
 //!
 //! **Levels larger than memory.** A level's whole bricked copy is built when it fits the
-//! memory budget ([`crate::memory::budget`], `--max-memory`), slab by slab from
+//! memory budget (`memory::budget`, `--max-memory`), slab by slab from
 //! `Level::read_box` (no f32 copy of the level is made for it). Otherwise the level gets a
 //! brick cache (`cache.rs`: an LRU arena of at most half the budget and 2 GiB, loaded per
 //! batch of tiles); the march reaches bricks through a slot table there, and is compiled
@@ -191,7 +191,7 @@ struct CacheEntry {
 static CACHE: Mutex<Vec<CacheEntry>> = Mutex::new(Vec::new());
 
 /// The prepared copy of `level`, built on first use (whole, or a brick cache when the whole
-/// copy does not fit [`crate::memory::budget`]). The global lock is held only to find or add
+/// copy does not fit `memory::budget`). The global lock is held only to find or add
 /// the entry; the build runs under the entry's own lock, so views of one level wait for one
 /// build instead of each making a copy.
 fn cached(level: &Level) -> Result<Arc<CpuLevel>, RenderError> {
@@ -230,7 +230,7 @@ impl CpuBackend {
     /// Prepare level `level` of `volume` within `budget` bytes: its whole bricked copy when
     /// that fits, else a brick cache of at most `budget` bytes (arena and tables). Not shared
     /// with [`Backend::prepare`]'s cache of levels, whose budget is the process's
-    /// ([`crate::memory::budget`], `--max-memory`).
+    /// (`memory::budget`, `--max-memory`).
     pub fn prepare_within(
         &self,
         volume: &Volume,
