@@ -66,6 +66,22 @@ pub enum RenderError {
         /// Height found.
         got_h: usize,
     },
+    /// The brick cache of a level too large for memory cannot hold what one tile needs.
+    #[error(
+        "the brick cache holds {slots} bricks of the level in {} but one 16x16-pixel tile's rays need {needed}; raise --max-memory or render a coarser --level",
+        crate::units::human_bytes(*.budget as u128)
+    )]
+    BrickBudget {
+        /// Bricks one tile needs.
+        needed: usize,
+        /// Bricks the cache holds.
+        slots: usize,
+        /// Bytes the cache may use.
+        budget: u64,
+    },
+    /// The level's values could not be read (its source file, or memory to make them).
+    #[error("{0}")]
+    Source(crate::volume::VolumeError),
     /// A gradient (or the forward's result) does not have the image's size.
     #[error("{what} has {got} values; {expected} expected for a {w}×{h} image")]
     GradientSize {
@@ -260,6 +276,7 @@ pub trait Backend: Send + Sync {
     /// ∂L/∂LUT of a shot rendered by `forward` (which returned `tape`), given ∂L/∂image
     /// (H·W·3, row-major from the top) and ∂L/∂T_N (H·W, or empty for zero) at the
     /// background's size.
+    // Alike `optimize::Renderer::backward` by design: `optimize::adapters` implements it with this.
     fn backward(
         &self,
         prepared: &Self::Prepared,

@@ -35,7 +35,8 @@
 //! arithmetic: rays read the level's bricked copy (`cpu::bricked`, made when the [`Backend`]
 //! prepares the level: 9³ points per brick with aprons, 8 or 16 bits for integer volumes, huge
 //! pages), so a 256³ `uint8` volume is 23 MiB
-//! instead of 64 MiB of f32. The block walk merges consecutive non-uniform bricks into one
+//! instead of 64 MiB of f32. A level whose copy does not fit the memory budget is rendered
+//! through an LRU brick cache instead (`cpu/cache.rs`), with the same results. The block walk merges consecutive non-uniform bricks into one
 //! sample range, which is interpolated and classified 8 samples at a time (AVX2 gathers where
 //! the CPU has them, `cpu/simd.rs`, bit-identical to the scalar code) before the serial
 //! compositing.
@@ -85,14 +86,12 @@ pub fn backward(
     d_transmittance: &[f32],
 ) -> Result<LutGrad, RenderError> {
     let fin = cpu::Final::Background(background);
-    fin.check(d_image, d_transmittance)?;
-    let level = level_for(volume, lut, camera, fin.size(), opts)?;
-    let prepared = CpuBackend.prepare(volume, level)?;
-    cpu::backward(&prepared, lut, camera, fin, opts, d_image, d_transmittance)
+    backward_to(volume, lut, camera, fin, opts, (d_image, d_transmittance))
 }
 
 /// Like [`backward`], with the image and transmittance of the forward of the same view,
 /// LUT and options (its background is already in `rendered.image`).
+// The same parameters as `backward` but one: both are public API and share `backward_to`.
 pub fn backward_from(
     volume: &Volume,
     lut: &Lut,
@@ -103,6 +102,18 @@ pub fn backward_from(
     d_transmittance: &[f32],
 ) -> Result<LutGrad, RenderError> {
     let fin = cpu::Final::Rendered(rendered);
+    backward_to(volume, lut, camera, fin, opts, (d_image, d_transmittance))
+}
+
+/// [`backward`] and [`backward_from`], given where the final colour comes from.
+fn backward_to(
+    volume: &Volume,
+    lut: &Lut,
+    camera: &Camera,
+    fin: cpu::Final,
+    opts: &RenderOptions,
+    (d_image, d_transmittance): (&[f32], &[f32]),
+) -> Result<LutGrad, RenderError> {
     fin.check(d_image, d_transmittance)?;
     let level = level_for(volume, lut, camera, fin.size(), opts)?;
     let prepared = CpuBackend.prepare(volume, level)?;

@@ -6,6 +6,7 @@
 #[path = "../render_util/mod.rs"]
 mod render_util;
 
+mod render_cache;
 mod render_cases;
 mod render_defaults;
 mod render_grad;

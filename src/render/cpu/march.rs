@@ -10,11 +10,13 @@ use glam::DVec3;
 use super::bricked::BrickValues;
 use super::fastmath::ceil;
 use super::sample::{
-    cell, classify, trilinear, Chunk, Classified, Grid, MarchParams, Ray, Voxel, CHUNK,
+    brick_of_cell, cell, classify, trilinear, Chunk, Classified, Grid, InPlace, MarchParams, Ray,
+    Slots, Table, Voxel, CHUNK,
 };
 use super::simd;
 use super::skip::Blocks;
 use crate::math::fast_exp;
+use crate::volume::BRICK_CELLS;
 
 /// One view's box in a level's index space, with what every ray's clipping shares.
 #[derive(Clone, Copy, Debug)]
@@ -104,31 +106,33 @@ impl BoxFrame {
 }
 
 /// What the per-sample visitor sees (only non-empty samples are visited).
+// Partly alike `sample::Classified` by design: that is the sampler's output, this the
+// compositor's, with the transmittance and colour the backward needs.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Sample {
     /// LUT entry below the sample and the weight of the entry above.
-    pub lut_index: usize,
-    pub lut_weight: f32,
-    pub rgb: [f32; 3],
+    pub(crate) lut_index: usize,
+    pub(crate) lut_weight: f32,
+    pub(crate) rgb: [f32; 3],
     /// Segment length in normalized units (δ / L).
-    pub delta_norm: f32,
+    pub(crate) delta_norm: f32,
     /// How many identical consecutive samples this stands for (> 1 across a uniform brick,
     /// where the per-sample terms of the backward are equal and are summed in one go).
-    pub count: f32,
+    pub(crate) count: f32,
     /// Transmittance before and after the sample.
-    pub t_before: f32,
-    pub t_after: f32,
+    pub(crate) t_before: f32,
+    pub(crate) t_after: f32,
     /// Colour accumulated up to and including this sample (no background).
-    pub acc: [f32; 3],
+    pub(crate) acc: [f32; 3],
 }
 
 /// Result of one march.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Marched {
-    pub acc: [f32; 3],
-    pub transmittance: f32,
+    pub(crate) acc: [f32; 3],
+    pub(crate) transmittance: f32,
     /// Samples whose scalar was interpolated (skipped ones excluded).
-    pub samples: u32,
+    pub(crate) samples: u32,
 }
 
 /// Work found by the block walk and not yet composited. Consecutive blocks of one kind are
@@ -151,10 +155,10 @@ enum Pending {
 }
 
 /// Where a ray is in its front-to-back compositing.
-struct Compositor<'a, 'p, T, F> {
+struct Compositor<'a, 'p, T, S, F> {
     p: &'p MarchParams<'a>,
-    /// The grid's values.
-    data: &'p [T],
+    /// The grid's values and where each brick is in them.
+    data: (&'p [T], S),
     ray: &'p Ray,
     visit: F,
     /// A full segment's length in normalized units (δ / L).
@@ -165,7 +169,7 @@ struct Compositor<'a, 'p, T, F> {
     pending: Pending,
 }
 
-impl<T: Voxel, F: FnMut(&Sample)> Compositor<'_, '_, T, F> {
+impl<T: Voxel, S: Slots, F: FnMut(&Sample)> Compositor<'_, '_, T, S, F> {
     /// Composite `count` consecutive samples of value `v` (a NaN value is empty space), each of
     /// normalized length `delta_norm`. Breaks once the ray is saturated.
     #[inline(always)]
@@ -362,10 +366,116 @@ fn walk(
     }
 }
 
+/// What the block walk finds on a ray's samples 0 … N − 2, front to back.
+#[derive(Clone, Copy)]
+enum Work {
+    /// Samples `n0..n1` all have this value (a uniform block).
+    Uniform(f32, u32, u32),
+    /// Samples `n0..n1` must be interpolated.
+    Samples(u32, u32),
+}
+
+/// Walk the blocks `ray` crosses, calling `f` with the [`Work`] of each block that is not
+/// empty: a walk over the super-blocks, and inside each one that is neither empty nor uniform
+/// a walk over its bricks. Shared by the march and by [`bricks_touched`], so a brick cache
+/// loads exactly the blocks the march will sample.
+#[inline(always)]
+fn walk_blocks(g: &Grid, ray: &Ray, mut f: impl FnMut(Work) -> ControlFlow<()>) -> ControlFlow<()> {
+    let [supers, bricks] = g.blocks;
+    let last = ray.segments - 1;
+    let jit = ray.jitter;
+    // Sample n lies in [u_in, u_out) when n ∈ [⌈u_in − jitter⌉, ⌈u_out − jitter⌉).
+    let first_at = |u: f32| (ceil(u - jit).max(0.0) as u32).min(last);
+    let whole = |ax: usize| supers.counts[ax] - 1;
+    let per_super = supers.cells / bricks.cells;
+    walk(
+        g,
+        supers,
+        ray,
+        (0.0, last as f32 + jit),
+        ([0; 3], [whole(0), whole(1), whole(2)]),
+        |s, sc, u_in, u_out| {
+            let (n0, n1) = (first_at(u_in), first_at(u_out));
+            if n0 >= n1 || supers.empty[s] {
+                return ControlFlow::Continue(());
+            }
+            if !supers.value[s].is_nan() {
+                return f(Work::Uniform(supers.value[s], n0, n1));
+            }
+            let lo = [sc[0] * per_super, sc[1] * per_super, sc[2] * per_super];
+            let hi_of = |ax: usize| (lo[ax] + per_super - 1).min(bricks.counts[ax] - 1);
+            let hi = [hi_of(0), hi_of(1), hi_of(2)];
+            walk(
+                g,
+                bricks,
+                ray,
+                (u_in, u_out),
+                (lo, hi),
+                // Alike the super-block step above by design: the same tests one level finer.
+                |b, _, u_in, u_out| {
+                    let (n0, n1) = (first_at(u_in), first_at(u_out));
+                    if n0 >= n1 || bricks.empty[b] {
+                        return ControlFlow::Continue(());
+                    }
+                    if !bricks.value[b].is_nan() {
+                        return f(Work::Uniform(bricks.value[b], n0, n1));
+                    }
+                    f(Work::Samples(n0, n1))
+                },
+            )
+        },
+    )
+}
+
+/// The last segment's sample: its index-space position and its brick. It sits at
+/// jitter · δ_last into the segment.
+#[inline(always)]
+fn last_sample(g: &Grid, ray: &Ray) -> ([f32; 3], usize) {
+    let u = (ray.segments - 1) as f32 + ray.jitter * ray.delta_last / ray.delta;
+    let (a, bd) = (ray.a, ray.bd);
+    let pos = [a[0] + u * bd[0], a[1] + u * bd[1], a[2] + u * bd[2]];
+    let c = [cell(g, pos[0], 0), cell(g, pos[1], 1), cell(g, pos[2], 2)];
+    (pos, brick_of_cell(g.brick_stride, c))
+}
+
+/// Call `f` with every brick whose values the march of `ray` may read (a superset: early
+/// termination is not foreseen), possibly more than once. Sample n's cell on each axis comes
+/// from a + u·b with u = n + jitter, rounded as the samplers round it; rounding is monotonic,
+/// so the cells of samples n0 … n1 − 1 lie between those of the first and the last, and the
+/// bricks between theirs hold them all (one brick, or two along an axis when a sample sits on
+/// a brick face). Chunks read up to 7 samples past a run's end and discard them: those reads
+/// may find bricks not loaded, which a cache maps to its zero slot.
+pub(crate) fn bricks_touched(g: &Grid, ray: &Ray, mut f: impl FnMut(usize)) {
+    let cells = |n: u32| {
+        let u = n as f32 + ray.jitter;
+        std::array::from_fn::<u32, 3, _>(|ax| cell(g, ray.a[ax] + u * ray.bd[ax], ax))
+    };
+    let _ = walk_blocks(g, ray, |w| {
+        if let Work::Samples(n0, n1) = w {
+            let (c0, c1) = (cells(n0), cells(n1 - 1));
+            let lo: [u32; 3] = std::array::from_fn(|ax| c0[ax].min(c1[ax]));
+            let hi: [u32; 3] = std::array::from_fn(|ax| c0[ax].max(c1[ax]));
+            let step = BRICK_CELLS as u32;
+            for z in (lo[2] / step)..=(hi[2] / step) {
+                for y in (lo[1] / step)..=(hi[1] / step) {
+                    for x in (lo[0] / step)..=(hi[0] / step) {
+                        f(brick_of_cell(g.brick_stride, [x, y, z].map(|b| b * step)));
+                    }
+                }
+            }
+        }
+        ControlFlow::Continue(())
+    });
+    let (_, b) = last_sample(g, ray);
+    let bricks = &g.blocks[1];
+    if !bricks.empty[b] && bricks.value[b].is_nan() {
+        f(b);
+    }
+}
+
 /// March `ray` front to back, calling `visit` after each non-empty sample.
 ///
-/// Samples 0 … N − 2 are found block by block: a walk over the super-blocks, and inside each
-/// one that is neither empty nor uniform a walk over its bricks. An empty block's samples are
+/// Samples 0 … N − 2 are found block by block ([`walk_blocks`]). An empty block's samples are
 /// skipped (sample positions do not move, so this only drops samples that are empty anyway); a
 /// uniform block's samples are all its value, exactly (a + w·0), and are composited in one
 /// step; the others, merged across consecutive blocks, are interpolated in chunks
@@ -373,20 +483,24 @@ fn walk(
 /// taken on its own.
 ///
 /// With `p.simd` the whole march is compiled for AVX2 (the scalar parts too: VEX encoding,
-/// `roundss` for the block boundaries' ceilings), through a `target_feature` copy.
+/// `roundss` for the block boundaries' ceilings), through a `target_feature` copy. A brick
+/// cache's grid (`slots`) is marched by its own copies, with one slot lookup per sample.
 #[inline(always)]
 pub(crate) fn march<F: FnMut(&Sample)>(p: &MarchParams, ray: &Ray, visit: F) -> Marched {
-    match p.grid.values {
-        BrickValues::U8(d) => march_typed(p, d, ray, visit),
-        BrickValues::U16(d) => march_typed(p, d, ray, visit),
-        BrickValues::F32(d) => march_typed(p, d, ray, visit),
+    match (p.grid.values, p.grid.slots) {
+        (BrickValues::U8(d), None) => march_typed(p, (d, InPlace), ray, visit),
+        (BrickValues::U16(d), None) => march_typed(p, (d, InPlace), ray, visit),
+        (BrickValues::F32(d), None) => march_typed(p, (d, InPlace), ray, visit),
+        (BrickValues::U8(d), Some(t)) => march_typed(p, (d, Table(t)), ray, visit),
+        (BrickValues::U16(d), Some(t)) => march_typed(p, (d, Table(t)), ray, visit),
+        (BrickValues::F32(d), Some(t)) => march_typed(p, (d, Table(t)), ray, visit),
     }
 }
 
 #[inline(always)]
-fn march_typed<T: Voxel, F: FnMut(&Sample)>(
+fn march_typed<T: Voxel, S: Slots, F: FnMut(&Sample)>(
     p: &MarchParams,
-    d: &[T],
+    d: (&[T], S),
     ray: &Ray,
     visit: F,
 ) -> Marched {
@@ -406,9 +520,9 @@ fn march_typed<T: Voxel, F: FnMut(&Sample)>(
 /// behaviour (an illegal instruction at best).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn march_avx2<T: Voxel, F: FnMut(&Sample)>(
+unsafe fn march_avx2<T: Voxel, S: Slots, F: FnMut(&Sample)>(
     p: &MarchParams,
-    d: &[T],
+    d: (&[T], S),
     ray: &Ray,
     visit: F,
 ) -> Marched {
@@ -416,14 +530,13 @@ unsafe fn march_avx2<T: Voxel, F: FnMut(&Sample)>(
 }
 
 #[inline(always)]
-fn march_body<T: Voxel, F: FnMut(&Sample)>(
+fn march_body<T: Voxel, S: Slots, F: FnMut(&Sample)>(
     p: &MarchParams,
-    d: &[T],
+    d: (&[T], S),
     ray: &Ray,
     visit: F,
 ) -> Marched {
     let g = &p.grid;
-    let [supers, bricks] = g.blocks;
     let mut c = Compositor {
         p,
         data: d,
@@ -435,55 +548,13 @@ fn march_body<T: Voxel, F: FnMut(&Sample)>(
         samples: 0,
         pending: Pending::None,
     };
-    let last = ray.segments - 1;
-    let jit = ray.jitter;
-    // Sample n lies in [u_in, u_out) when n ∈ [⌈u_in − jitter⌉, ⌈u_out − jitter⌉).
-    let first_at = |u: f32| (ceil(u - jit).max(0.0) as u32).min(last);
-    let whole = |ax: usize| supers.counts[ax] - 1;
-    let per_super = supers.cells / bricks.cells;
-    let done = walk(
-        g,
-        supers,
-        ray,
-        (0.0, last as f32 + jit),
-        ([0; 3], [whole(0), whole(1), whole(2)]),
-        |s, sc, u_in, u_out| {
-            let (n0, n1) = (first_at(u_in), first_at(u_out));
-            if n0 >= n1 || supers.empty[s] {
-                return ControlFlow::Continue(());
-            }
-            if !supers.value[s].is_nan() {
-                return c.uniform(supers.value[s], n0, n1);
-            }
-            let lo = [sc[0] * per_super, sc[1] * per_super, sc[2] * per_super];
-            let hi_of = |ax: usize| (lo[ax] + per_super - 1).min(bricks.counts[ax] - 1);
-            let hi = [hi_of(0), hi_of(1), hi_of(2)];
-            walk(
-                g,
-                bricks,
-                ray,
-                (u_in, u_out),
-                (lo, hi),
-                |b, _, u_in, u_out| {
-                    let (n0, n1) = (first_at(u_in), first_at(u_out));
-                    if n0 >= n1 || bricks.empty[b] {
-                        return ControlFlow::Continue(());
-                    }
-                    if !bricks.value[b].is_nan() {
-                        return c.uniform(bricks.value[b], n0, n1);
-                    }
-                    c.interpolated(n0, n1)
-                },
-            )
-        },
-    );
+    let done = walk_blocks(g, ray, |w| match w {
+        Work::Uniform(v, n0, n1) => c.uniform(v, n0, n1),
+        Work::Samples(n0, n1) => c.interpolated(n0, n1),
+    });
     if done.is_continue() && c.flush().is_continue() {
-        // The last segment: its sample sits at jitter · δ_last into it.
-        let u = last as f32 + jit * ray.delta_last / ray.delta;
-        let (a, bd) = (ray.a, ray.bd);
-        let (x, y, z) = (a[0] + u * bd[0], a[1] + u * bd[1], a[2] + u * bd[2]);
-        let bc = [cell(g, x, 0), cell(g, y, 1), cell(g, z, 2)].map(|c| c as usize >> bricks.shift);
-        let b = bc[0] + bricks.counts[0] * (bc[1] + bricks.counts[1] * bc[2]);
+        let ([x, y, z], b) = last_sample(g, ray);
+        let bricks = &g.blocks[1];
         if !bricks.empty[b] {
             // A uniform brick's value is what interpolation would give, without the load (this
             // sample sits on the box's far face, rarely in cache).
@@ -546,10 +617,12 @@ mod tests {
         let with = super::super::skip::blocks(&level.bricks, &lut, false, 0.0, true);
         let without = super::super::skip::blocks(&level.bricks, &lut, false, 0.0, false);
         for stop in [0.0, 0.05] {
+            // Built like simd.rs's test parameters: both tests vary one field of the same struct.
             let params = |uniform: bool| MarchParams {
                 grid: Grid::new(
                     dims,
-                    &prepared.data.bricked,
+                    super::super::tests::whole(&prepared),
+                    None,
                     if uniform { &with } else { &without },
                 ),
                 lut: &lut,

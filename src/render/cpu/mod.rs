@@ -8,19 +8,27 @@
 //! `render` facade; inside, `sample` is used by `march` and `simd`, `simd` by `march`, and
 //! none of them imports the others back.
 //!
+//! **Levels larger than memory.** A level's whole bricked copy is built when it fits the
+//! memory budget (`memory::budget`, `--max-memory`), slab by slab from
+//! `Level::read_box` (no f32 copy of the level is made for it). Otherwise the level gets a
+//! brick cache (`cache.rs`: an LRU arena of at most half the budget and 2 GiB, loaded per
+//! batch of tiles); the march reaches bricks through a slot table there, and is compiled
+//! separately for the whole copy, whose path is unchanged. Both give bit-identical results.
+//!
 //! **Prepared levels are cached** per level allocation (`volume::Level` shares its samples in
 //! an `Arc` that never changes): preparing the same level again — every view of an
 //! optimization — costs a lookup. An entry is dropped at the next `prepare` after its level's
 //! samples are freed, so a dropped volume's copies do not outlive the next render by much.
 
 mod bricked;
+mod cache;
 mod fastmath;
 mod march;
 mod sample;
 mod simd;
 mod skip;
 
-use std::sync::{Arc, Mutex, OnceLock, Weak};
+use std::sync::{Arc, Mutex, Weak};
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -29,11 +37,13 @@ use super::backend::{validate, Backend, RenderError, RenderOptions, Rendered, Sh
 use crate::camera::Camera;
 use crate::image::{resize_bilinear, resize_bilinear_adjoint, Image};
 use crate::tf::{Lut, LutGrad};
-use crate::volume::{BrickGrid, Volume};
+use crate::volume::{BrickGrid, Level, Volume, BRICK_CELLS};
 
 pub use bricked::BrickValues;
-use bricked::BrickedData;
-use march::{march, BoxFrame};
+use bricked::{BrickedData, Encoding, BRICK_VALUES, PAD};
+use cache::BrickCache;
+pub use cache::CacheStats;
+use march::{bricks_touched, march, BoxFrame};
 use sample::{Grid, MarchParams, Ray};
 use skip::Blocks;
 
@@ -44,12 +54,25 @@ const TILE: usize = 16;
 #[derive(Clone, Copy, Debug, Default)]
 pub struct CpuBackend;
 
+/// Largest brick cache a level gets when its bricked copy does not fit the memory budget: a
+/// final render is bound by reading bricks, not by how many stay resident, and the rest of the
+/// budget is left to the process.
+const BRICK_CACHE_MAX: u64 = 2 << 30;
+
 /// A level in the renderer's layout: what the cache holds. `dims` and `grid` are those the
 /// bricks were built from, so the march's unchecked indexing always agrees with the data.
 struct CpuLevel {
     dims: [usize; 3],
     grid: BrickGrid,
-    bricked: BrickedData,
+    store: Store,
+}
+
+/// Where a prepared level's bricks are.
+enum Store {
+    /// All of them, in memory (`bricked.rs`).
+    Whole(BrickedData),
+    /// Loaded on demand into a bounded arena (`cache.rs`).
+    Cache(Box<BrickCache>),
 }
 
 /// A mip level of a volume, prepared for the CPU backend.
@@ -69,84 +92,173 @@ impl CpuPrepared {
         self.level
     }
 
-    /// The stored values (8, 16 or 32 bits per point; `bricked.rs`).
+    /// The stored values (8, 16 or 32 bits per point; `bricked.rs`). A brick cache's bricks
+    /// come and go: for it, the kind with no values.
     pub fn values(&self) -> BrickValues<'_> {
-        self.data.bricked.values()
+        match &self.data.store {
+            Store::Whole(b) => b.values(),
+            Store::Cache(c) => c.kind(),
+        }
     }
 
-    /// Bytes held by the bricked copy.
+    /// Bytes held by the bricked copy, or by the brick cache's arena and tables.
     pub fn memory_bytes(&self) -> usize {
-        self.data.bricked.memory_bytes()
+        match &self.data.store {
+            Store::Whole(b) => b.memory_bytes(),
+            Store::Cache(c) => c.stats().bytes as usize,
+        }
+    }
+
+    /// What the brick cache holds and has done; `None` for a level held whole in memory.
+    pub fn cache_stats(&self) -> Option<CacheStats> {
+        match &self.data.store {
+            Store::Whole(_) => None,
+            Store::Cache(c) => Some(c.stats()),
+        }
     }
 }
 
 impl std::fmt::Debug for CpuPrepared {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let store = match &self.data.store {
+            Store::Whole(b) => format!("{b:?}"),
+            Store::Cache(c) => format!("{:?}", c.stats()),
+        };
         write!(
             f,
-            "CpuPrepared(level {}, {:?} points, {:?})",
-            self.level, self.data.dims, self.data.bricked
+            "CpuPrepared(level {}, {:?} points, {store})",
+            self.level, self.data.dims
         )
     }
 }
 
-/// One cached level: its samples' allocation (dead once the level is dropped) and the copy.
+/// The normalized values of the points in [lo, hi) of `level`, x fastest, into `out`: from
+/// the level's samples when it holds them, else from its source (level 0 of a memory-mapped
+/// file is read in place, `volume::Level::read_box`).
+fn read_box(
+    level: &Level,
+    lo: [usize; 3],
+    hi: [usize; 3],
+    out: &mut [f32],
+) -> Result<(), RenderError> {
+    level.read_box(lo, hi, out).map_err(RenderError::Source)
+}
+
+/// Bytes of the whole bricked copy of a level with `counts` bricks stored as `encoding`.
+fn whole_bytes(counts: [usize; 3], encoding: Encoding) -> u64 {
+    let values = counts.iter().product::<usize>() as u64 * BRICK_VALUES as u64 + PAD as u64;
+    values.saturating_mul(encoding.bytes() as u64)
+}
+
+/// `level` in the renderer's layout: the whole bricked copy when it takes at most `budget`
+/// bytes, else a brick cache of at most `cache_budget` bytes.
+fn build(level: &Level, budget: u64, cache_budget: u64) -> Result<CpuLevel, RenderError> {
+    let dims = level.dims;
+    // The level's own ranges when they are those of its dims (always, unless a caller
+    // changed the public fields); rebuilt otherwise, since the march trusts them.
+    let counts = dims.map(|d| d.saturating_sub(1).max(1).div_ceil(BRICK_CELLS));
+    let grid = if level.bricks.counts == counts
+        && level.bricks.min.len() == counts.iter().product::<usize>()
+    {
+        level.bricks.clone()
+    } else {
+        BrickGrid::build(dims, level.try_data().map_err(RenderError::Source)?)
+    };
+    let encoding = Encoding::of(level.narrow());
+    let store = if whole_bytes(counts, encoding) <= budget {
+        let read = |lo, hi, out: &mut [f32]| read_box(level, lo, hi, out);
+        Store::Whole(BrickedData::build(dims, &grid, level.narrow(), &read)?)
+    } else {
+        Store::Cache(Box::new(BrickCache::new(
+            level,
+            counts,
+            encoding,
+            cache_budget,
+        )?))
+    };
+    Ok(CpuLevel { dims, grid, store })
+}
+
+/// One cached level: its samples' cell (dead once the level is dropped) and the copy, built
+/// under the entry's own lock.
 struct CacheEntry {
-    key: Weak<Vec<f32>>,
-    level: Arc<OnceLock<Arc<CpuLevel>>>,
+    /// `Level::cell`, type-erased (the cell's type is private to `volume`).
+    key: Weak<dyn std::any::Any + Send + Sync>,
+    level: Arc<Mutex<Option<Arc<CpuLevel>>>>,
 }
 
 /// Every level prepared so far whose samples still exist.
 static CACHE: Mutex<Vec<CacheEntry>> = Mutex::new(Vec::new());
 
-/// The prepared copy of `level`, built on first use. The global lock is held only to find or
-/// add the entry; the build runs under the entry's own `OnceLock`, so views of one level
-/// wait for one build instead of each making a copy.
-fn cached(level: &crate::volume::Level) -> Arc<CpuLevel> {
-    let shared = level.shared_data();
+/// The prepared copy of `level`, built on first use (whole, or a brick cache when the whole
+/// copy does not fit `memory::budget`). The global lock is held only to find or add
+/// the entry; the build runs under the entry's own lock, so views of one level wait for one
+/// build instead of each making a copy.
+fn cached(level: &Level) -> Result<Arc<CpuLevel>, RenderError> {
+    let shared = level.cell();
     let slot = {
         // A panic elsewhere while the lock was held leaves the list itself consistent.
         let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
         cache.retain(|e| e.key.strong_count() > 0);
         match cache
             .iter()
-            .find(|e| std::ptr::eq(e.key.as_ptr(), Arc::as_ptr(shared)))
+            .find(|e| std::ptr::addr_eq(e.key.as_ptr(), Arc::as_ptr(shared)))
         {
             Some(e) => e.level.clone(),
             None => {
-                let slot = Arc::new(OnceLock::new());
+                let slot = Arc::new(Mutex::new(None));
                 cache.push(CacheEntry {
-                    key: Arc::downgrade(shared),
+                    key: Arc::downgrade(shared) as Weak<dyn std::any::Any + Send + Sync>,
                     level: slot.clone(),
                 });
                 slot
             }
         }
     };
-    slot.get_or_init(|| {
-        let dims = level.dims;
-        // The level's own ranges when they are those of its dims (always, unless a caller
-        // changed the public fields); rebuilt otherwise, since the march trusts them.
-        let counts = dims.map(|d| {
-            d.saturating_sub(1)
-                .max(1)
-                .div_ceil(crate::volume::BRICK_CELLS)
-        });
-        let grid = if level.bricks.counts == counts
-            && level.bricks.min.len() == counts.iter().product::<usize>()
-        {
-            level.bricks.clone()
-        } else {
-            BrickGrid::build(dims, level.data())
-        };
-        let bricked = BrickedData::build(dims, level.data(), &grid, level.narrow());
-        Arc::new(CpuLevel {
-            dims,
-            grid,
-            bricked,
-        })
+    // A build that panicked left `None`: the next view builds again.
+    let mut entry = slot.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(l) = entry.as_ref() {
+        return Ok(l.clone());
+    }
+    let budget = crate::memory::budget();
+    let built = Arc::new(build(level, budget, (budget / 2).min(BRICK_CACHE_MAX))?);
+    *entry = Some(built.clone());
+    Ok(built)
+}
+
+impl CpuBackend {
+    /// Prepare level `level` of `volume` within `budget` bytes: its whole bricked copy when
+    /// that fits, else a brick cache of at most `budget` bytes (arena and tables). Not shared
+    /// with [`Backend::prepare`]'s cache of levels, whose budget is the process's
+    /// (`memory::budget`, `--max-memory`).
+    pub fn prepare_within(
+        &self,
+        volume: &Volume,
+        level: usize,
+        budget: u64,
+    ) -> Result<CpuPrepared, RenderError> {
+        let l = level_of(volume, level)?;
+        Ok(prepared(volume, level, Arc::new(build(l, budget, budget)?)))
+    }
+}
+
+/// Level `level` of `volume`, or the error naming the levels there are.
+fn level_of(volume: &Volume, level: usize) -> Result<&Level, RenderError> {
+    volume.levels.get(level).ok_or(RenderError::Level {
+        level,
+        max: volume.levels.len() - 1,
     })
-    .clone()
+}
+
+/// A prepared level from its copy.
+fn prepared(volume: &Volume, level: usize, data: Arc<CpuLevel>) -> CpuPrepared {
+    CpuPrepared {
+        level,
+        spacing: volume.levels[level].spacing,
+        origin: volume.geometry.origin,
+        inv_l: (1.0 / volume.geometry.longest_side()) as f32,
+        data,
+    }
 }
 
 impl Backend for CpuBackend {
@@ -155,19 +267,8 @@ impl Backend for CpuBackend {
     type Tape = Rendered;
 
     fn prepare(&self, volume: &Volume, level: usize) -> Result<CpuPrepared, RenderError> {
-        let Some(l) = volume.levels.get(level) else {
-            return Err(RenderError::Level {
-                level,
-                max: volume.levels.len() - 1,
-            });
-        };
-        Ok(CpuPrepared {
-            level,
-            spacing: l.spacing,
-            origin: volume.geometry.origin,
-            inv_l: (1.0 / volume.geometry.longest_side()) as f32,
-            data: cached(l),
-        })
+        let l = level_of(volume, level)?;
+        Ok(prepared(volume, level, cached(l)?))
     }
 
     fn forward(
@@ -250,7 +351,6 @@ struct View<'a> {
     jitter_seed: Option<u64>,
     width: usize,
     height: usize,
-    level: usize,
 }
 
 impl<'a> View<'a> {
@@ -262,14 +362,14 @@ impl<'a> View<'a> {
         self.frame.clip(self.rays.dir(px, py), jitter)
     }
 
-    /// Set up a view of `prepared` with its `blocks` (from [`view_blocks`]).
+    /// Set up a view of `prepared` sampling `grid` (its bricks with the view's block tables).
     fn new(
-        prepared: &'a CpuPrepared,
+        prepared: &CpuPrepared,
         lut: &'a Lut,
         camera: &Camera,
         (width, height): (usize, usize),
         opts: &RenderOptions,
-        blocks: &'a [Blocks; 2],
+        grid: Grid<'a>,
     ) -> View<'a> {
         let level = &prepared.data;
         let voxel = prepared
@@ -277,7 +377,6 @@ impl<'a> View<'a> {
             .iter()
             .copied()
             .fold(f64::INFINITY, f64::min);
-        let grid = Grid::new(level.dims, &level.bricked, blocks);
         let simd = simd::available() && grid.gathers_fit();
         View {
             params: MarchParams {
@@ -298,18 +397,7 @@ impl<'a> View<'a> {
             jitter_seed: opts.jitter_seed,
             width,
             height,
-            level: prepared.level,
         }
-    }
-
-    fn tiles(&self) -> Vec<(usize, usize)> {
-        let mut t = Vec::new();
-        for ty in (0..self.height).step_by(TILE) {
-            for tx in (0..self.width).step_by(TILE) {
-                t.push((tx, ty));
-            }
-        }
-        t
     }
 
     fn tile_pixels(&self, (tx, ty): (usize, usize)) -> impl Iterator<Item = (usize, usize)> + '_ {
@@ -339,6 +427,81 @@ fn view_blocks(prepared: &CpuPrepared, lut: &Lut, opts: &RenderOptions) -> [Bloc
     )
 }
 
+/// The tiles of a `width` × `height` view, by their top-left pixel, row by row.
+fn tiles((width, height): (usize, usize)) -> Vec<(usize, usize)> {
+    let mut t = Vec::new();
+    for ty in (0..height).step_by(TILE) {
+        for tx in (0..width).step_by(TILE) {
+            t.push((tx, ty));
+        }
+    }
+    t
+}
+
+/// `per_tile` of every tile of a `size` view of `prepared`, in tile order (tiles run in
+/// parallel; through a brick cache, batch by batch, `cache.rs`).
+fn each_tile<R: Send>(
+    prepared: &CpuPrepared,
+    lut: &Lut,
+    camera: &Camera,
+    size: (usize, usize),
+    opts: &RenderOptions,
+    per_tile: impl Fn(&View, (usize, usize)) -> R + Sync,
+) -> Result<Vec<R>, RenderError> {
+    let blocks = view_blocks(prepared, lut, opts);
+    let tiles = tiles(size);
+    let dims = prepared.data.dims;
+    match &prepared.data.store {
+        Store::Whole(b) => {
+            let grid = Grid::new(dims, (b.values(), b.scale()), None, &blocks);
+            let v = View::new(prepared, lut, camera, size, opts, grid);
+            Ok(tiles.par_iter().map(|&t| per_tile(&v, t)).collect())
+        }
+        Store::Cache(cache) => cache.run(
+            |r| {
+                let v = resident_view(prepared, lut, camera, size, opts, (r, &blocks));
+                tiles
+                    .par_iter()
+                    .map(|&t| {
+                        let mut bricks = Vec::new();
+                        for (px, py) in v.tile_pixels(t) {
+                            if let Some(ray) = v.ray(px, py) {
+                                bricks_touched(&v.params.grid, &ray, |b| bricks.push(b as u32));
+                            }
+                        }
+                        bricks.sort_unstable();
+                        bricks.dedup();
+                        bricks
+                    })
+                    .collect()
+            },
+            |r, range| {
+                let v = resident_view(prepared, lut, camera, size, opts, (r, &blocks));
+                tiles[range].par_iter().map(|&t| per_tile(&v, t)).collect()
+            },
+        ),
+    }
+}
+
+/// A view of `prepared` sampling a brick cache's resident bricks `r`, with block tables
+/// `blocks`.
+fn resident_view<'a>(
+    prepared: &CpuPrepared,
+    lut: &'a Lut,
+    camera: &Camera,
+    size: (usize, usize),
+    opts: &RenderOptions,
+    (r, blocks): (cache::Resident<'a>, &'a [Blocks; 2]),
+) -> View<'a> {
+    let grid = Grid::new(
+        prepared.data.dims,
+        (r.values, r.scale),
+        Some(r.slots),
+        blocks,
+    );
+    View::new(prepared, lut, camera, size, opts, grid)
+}
+
 /// Render `prepared` with `lut` from `camera` over `background` (whose size is the image size).
 pub(super) fn forward(
     prepared: &CpuPrepared,
@@ -355,34 +518,27 @@ pub(super) fn forward(
             got_h: size.1,
         });
     }
-    let blocks = view_blocks(prepared, lut, opts);
-    let v = View::new(prepared, lut, camera, size, opts, &blocks);
-    let tiles = v.tiles();
     // Per tile: (pixel, rgb, T) triples and the sample count.
-    type TileOut = (Vec<(usize, [f32; 3], f32)>, u64);
-    let done: Vec<TileOut> = tiles
-        .par_iter()
-        .map(|&tile| {
-            let mut out = Vec::with_capacity(TILE * TILE);
-            let mut samples = 0u64;
-            for (px, py) in v.tile_pixels(tile) {
-                let p = py * v.width + px;
-                let bg = background.pixel(px, py);
-                let (acc, t) = match v.ray(px, py) {
-                    Some(ray) => {
-                        let m = march(&v.params, &ray, |_| {});
-                        samples += m.samples as u64;
-                        (m.acc, m.transmittance)
-                    }
-                    None => ([0.0; 3], 1.0),
-                };
-                out.push((p, std::array::from_fn(|c| acc[c] + t * bg[c]), t));
-            }
-            (out, samples)
-        })
-        .collect();
-    let mut image = Image::new(v.width, v.height);
-    let mut transmittance = vec![1.0; v.width * v.height];
+    let done = each_tile(prepared, lut, camera, size, opts, |v, tile| {
+        let mut out: Vec<(usize, [f32; 3], f32)> = Vec::with_capacity(TILE * TILE);
+        let mut samples = 0u64;
+        for (px, py) in v.tile_pixels(tile) {
+            let p = py * v.width + px;
+            let bg = background.pixel(px, py);
+            let (acc, t) = match v.ray(px, py) {
+                Some(ray) => {
+                    let m = march(&v.params, &ray, |_| {});
+                    samples += m.samples as u64;
+                    (m.acc, m.transmittance)
+                }
+                None => ([0.0; 3], 1.0),
+            };
+            out.push((p, std::array::from_fn(|c| acc[c] + t * bg[c]), t));
+        }
+        (out, samples)
+    })?;
+    let mut image = Image::new(size.0, size.1);
+    let mut transmittance = vec![1.0; size.0 * size.1];
     let mut samples = 0;
     for (pixels, s) in done {
         samples += s;
@@ -394,7 +550,7 @@ pub(super) fn forward(
     Ok(Rendered {
         image,
         transmittance,
-        level: v.level,
+        level: prepared.level,
         samples,
     })
 }
@@ -466,39 +622,33 @@ pub(super) fn backward(
     if w == 0 || h == 0 {
         return Err(RenderError::EmptyImage { got_w: w, got_h: h });
     }
-    let blocks = view_blocks(prepared, lut, opts);
-    let v = View::new(prepared, lut, camera, (w, h), opts, &blocks);
     let n = lut.entries.len();
-    let tiles = v.tiles();
-    let grads: Vec<Vec<[f64; 4]>> = tiles
-        .par_iter()
-        .map(|&tile| {
-            let mut grad = vec![[0.0f64; 4]; n];
-            for (px, py) in v.tile_pixels(tile) {
-                let p = py * w + px;
-                let g = [d_image[3 * p], d_image[3 * p + 1], d_image[3 * p + 2]];
-                let g_t = d_transmittance.get(p).copied().unwrap_or(0.0);
-                if g == [0.0; 3] && g_t == 0.0 {
-                    continue;
-                }
-                let Some(ray) = v.ray(px, py) else { continue };
-                let (image, t_final) = match fin {
-                    Final::Rendered(r) => (r.image.pixel(px, py), r.transmittance[p]),
-                    Final::Background(bg) => {
-                        let m = march(&v.params, &ray, |_| {});
-                        let b = bg.pixel(px, py);
-                        let rgb = std::array::from_fn(|c| m.acc[c] + m.transmittance * b[c]);
-                        (rgb, m.transmittance)
-                    }
-                };
-                let tail = g_t * t_final;
-                march(&v.params, &ray, |s| {
-                    accumulate(&mut grad, s, g, image, tail)
-                });
+    let grads = each_tile(prepared, lut, camera, (w, h), opts, |v, tile| {
+        let mut grad = vec![[0.0f64; 4]; n];
+        for (px, py) in v.tile_pixels(tile) {
+            let p = py * w + px;
+            let g = [d_image[3 * p], d_image[3 * p + 1], d_image[3 * p + 2]];
+            let g_t = d_transmittance.get(p).copied().unwrap_or(0.0);
+            if g == [0.0; 3] && g_t == 0.0 {
+                continue;
             }
-            grad
-        })
-        .collect();
+            let Some(ray) = v.ray(px, py) else { continue };
+            let (image, t_final) = match fin {
+                Final::Rendered(r) => (r.image.pixel(px, py), r.transmittance[p]),
+                Final::Background(bg) => {
+                    let m = march(&v.params, &ray, |_| {});
+                    let b = bg.pixel(px, py);
+                    let rgb = std::array::from_fn(|c| m.acc[c] + m.transmittance * b[c]);
+                    (rgb, m.transmittance)
+                }
+            };
+            let tail = g_t * t_final;
+            march(&v.params, &ray, |s| {
+                accumulate(&mut grad, s, g, image, tail)
+            });
+        }
+        grad
+    })?;
     // Fixed-order reduction: independent of how rayon scheduled the tiles.
     let mut total = LutGrad::zeros(n);
     for g in grads {
@@ -541,16 +691,36 @@ mod tests {
     use crate::volume::{Geometry, TypedBuffer};
     use std::path::Path;
 
-    fn volume(seed: usize) -> Volume {
-        let dims = [12, 10, 9];
-        let n: usize = dims.iter().product();
-        let vals = (0..n).map(|i| ((i * 31 + seed) % 17) as f64).collect();
+    /// The values and scale of a level prepared whole.
+    pub(super) fn whole(p: &CpuPrepared) -> (BrickValues<'_>, f32) {
+        match &p.data.store {
+            Store::Whole(b) => (b.values(), b.scale()),
+            Store::Cache(_) => panic!("a whole level expected"),
+        }
+    }
+
+    /// A float volume of `dims` points at unit spacing with value `f(i, j, k)` at (i, j, k).
+    pub(super) fn volume_of(dims: [usize; 3], f: impl Fn(usize, usize, usize) -> f64) -> Volume {
+        let mut vals = Vec::with_capacity(dims.iter().product());
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    vals.push(f(i, j, k));
+                }
+            }
+        }
         let g = Geometry {
             dims,
             spacing: [1.0; 3],
             origin: [0.0; 3],
         };
         Volume::from_buffer(Path::new("t"), g, &TypedBuffer::from_f64(vals)).unwrap()
+    }
+
+    fn volume(seed: usize) -> Volume {
+        volume_of([12, 10, 9], |i, j, k| {
+            (((i + 12 * (j + 10 * k)) * 31 + seed) % 17) as f64
+        })
     }
 
     /// A level is bricked once (clones of the volume share it), and the copy goes once the

@@ -2,16 +2,19 @@
 //! classification, in scalar code. The march (`march.rs`) and the AVX2 path (`simd.rs`) both
 //! build on this module, which imports neither (so there is no import loop between them).
 
-use super::bricked::{BrickValues, BrickedData, BRICK_POINTS, BRICK_VALUES};
+use super::bricked::{BrickValues, BRICK_POINTS, BRICK_VALUES};
 use super::skip::Blocks;
 use crate::math::fast_exp;
 use crate::tf::Lut;
 use crate::volume::BRICK_CELLS;
 
-/// A level's samples (brick by brick, [`BrickedData`]) with the index arithmetic
-/// precomputed.
+/// A level's samples (brick by brick, `bricked::BrickedData`, or the resident bricks of a
+/// `cache::BrickCache`) with the index arithmetic precomputed.
 pub(crate) struct Grid<'a> {
     pub(super) values: BrickValues<'a>,
+    /// Per brick, the slot of `values` holding it (a brick cache); `None`: brick b is at
+    /// slot b (the whole level).
+    pub(super) slots: Option<&'a [u32]>,
     /// Normalized value per unit of a stored value.
     pub(super) scale: f32,
     /// Largest valid coordinate per axis: dims − 1.
@@ -25,16 +28,23 @@ pub(crate) struct Grid<'a> {
 }
 
 impl<'a> Grid<'a> {
-    /// The grid of a level with `dims` points stored as `bricked`, with its block tables.
+    /// The grid of a level with `dims` points whose bricks are `values` (stored `q`, value
+    /// `q · scale`), brick b at slot `slots[b]` (`None`: at slot b), with its block tables.
     pub(crate) fn new(
         dims: [usize; 3],
-        bricked: &'a BrickedData,
+        (values, scale): (BrickValues<'a>, f32),
+        slots: Option<&'a [u32]>,
         blocks: &'a [Blocks; 2],
     ) -> Grid<'a> {
         let c = blocks[1].counts;
+        if let Some(t) = slots {
+            // `Table` reads it unchecked: one entry per brick of these dims.
+            assert_eq!(t.len(), c.iter().product::<usize>(), "one slot per brick");
+        }
         Grid {
-            values: bricked.values(),
-            scale: bricked.scale(),
+            values,
+            slots,
+            scale,
             max_coord: dims.map(|n| (n - 1) as f32),
             max_cell: dims.map(|n| n.saturating_sub(2) as u32),
             brick_stride: [c[0], c[0] * c[1]],
@@ -42,11 +52,47 @@ impl<'a> Grid<'a> {
         }
     }
 
-    /// Whether every index into the values fits the signed 32-bit lanes of an AVX2 gather
-    /// (2³¹ values: a 1290³-point level in 8 bits is past it). Larger levels take the scalar
-    /// path, whose index arithmetic is 64-bit ([`value_index`]).
+    /// Whether every index into the values, and every brick number of a slot table, fits
+    /// the signed 32-bit lanes of an AVX2 gather (2³¹ values: a 1290³-point level in 8 bits
+    /// is past it). Larger levels take the scalar path, whose index arithmetic is 64-bit
+    /// ([`value_index`]).
     pub(crate) fn gathers_fit(&self) -> bool {
-        self.values.len() <= i32::MAX as usize
+        let table_fits = self.slots.is_none_or(|t| t.len() <= i32::MAX as usize);
+        self.values.len() <= i32::MAX as usize && table_fits
+    }
+}
+
+/// Where each brick's values start in a grid's values: the march is compiled once per layout,
+/// so the whole level's copy ([`InPlace`]) keeps its arithmetic and a brick cache ([`Table`])
+/// adds one table load (one more gather with AVX2) per sample.
+pub(super) trait Slots: Copy + GatherSlots {
+    /// Index of the first value of brick `brick`.
+    fn first_value(self, brick: usize) -> usize;
+}
+
+/// Brick b at slot b: a whole level's bricked copy.
+#[derive(Clone, Copy)]
+pub(super) struct InPlace;
+
+impl Slots for InPlace {
+    #[inline(always)]
+    fn first_value(self, brick: usize) -> usize {
+        brick * BRICK_VALUES
+    }
+}
+
+/// Brick b at slot `table[b]`: a brick cache (slot 0 holds zeros, for bricks not loaded).
+#[derive(Clone, Copy)]
+pub(super) struct Table<'a>(pub(super) &'a [u32]);
+
+impl Slots for Table<'_> {
+    #[inline(always)]
+    fn first_value(self, brick: usize) -> usize {
+        debug_assert!(brick < self.0.len(), "brick outside the slot table");
+        // SAFETY: `brick` comes from a cell clamped into the grid (see `trilinear`), so it is
+        // below the brick count, which is the table's length (`Grid::new` asserts it).
+        // Unchecked for the same reason as `trilinear`'s loads.
+        (unsafe { *self.0.get_unchecked(brick) }) as usize * BRICK_VALUES
     }
 }
 
@@ -97,6 +143,25 @@ pub(crate) trait Gather {
     ) -> (std::arch::x86_64::__m256, std::arch::x86_64::__m256);
 }
 
+/// [`Slots::first_value`] of 8 bricks at once (implemented for AVX2 in `simd.rs`).
+#[cfg(target_arch = "x86_64")]
+pub(crate) trait GatherSlots {
+    /// The first value's index of each lane's brick.
+    ///
+    /// # Safety
+    /// AVX2; every lane a brick of the grid (below a slot table's length), and every result
+    /// within i32 (`Grid::gathers_fit`).
+    unsafe fn first_values(self, brick: std::arch::x86_64::__m256i) -> std::arch::x86_64::__m256i;
+}
+
+/// Elsewhere no layout gathers.
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) trait GatherSlots {}
+#[cfg(not(target_arch = "x86_64"))]
+impl GatherSlots for InPlace {}
+#[cfg(not(target_arch = "x86_64"))]
+impl GatherSlots for Table<'_> {}
+
 /// Elsewhere no stored type gathers.
 #[cfg(not(target_arch = "x86_64"))]
 pub(crate) trait Gather {}
@@ -109,14 +174,14 @@ impl Gather for f32 {}
 
 /// Constants of one march shared by every ray of a view.
 pub(crate) struct MarchParams<'a> {
-    pub grid: Grid<'a>,
-    pub lut: &'a Lut,
+    pub(crate) grid: Grid<'a>,
+    pub(crate) lut: &'a Lut,
     /// 1 / L (L = the box's longest side, docs/DESIGN.md density units).
-    pub inv_l: f32,
+    pub(crate) inv_l: f32,
     /// Stop once T falls below this (0 = never).
-    pub stop_below: f32,
+    pub(crate) stop_below: f32,
     /// Interpolate and classify with AVX2 (`simd::available()`); results are bit-identical.
-    pub simd: bool,
+    pub(crate) simd: bool,
 }
 
 /// A sample's value through the LUT.
@@ -166,12 +231,12 @@ pub(super) const CHUNK: usize = 8;
 /// τ = 0 (and the class of value 0); [`Chunk::get`] returns `None` for them.
 #[derive(Default)]
 pub(super) struct Chunk {
-    pub v: [f32; CHUNK],
-    pub j: [u32; CHUNK],
-    pub w: [f32; CHUNK],
-    pub rgb: [[f32; CHUNK]; 3],
-    pub tau: [f32; CHUNK],
-    pub ext: [f32; CHUNK],
+    pub(crate) v: [f32; CHUNK],
+    pub(crate) j: [u32; CHUNK],
+    pub(crate) w: [f32; CHUNK],
+    pub(crate) rgb: [[f32; CHUNK]; 3],
+    pub(crate) tau: [f32; CHUNK],
+    pub(crate) ext: [f32; CHUNK],
 }
 
 impl Chunk {
@@ -189,10 +254,12 @@ impl Chunk {
 
 /// Samples n … n + CHUNK − 1 of `ray`, interpolated and classified in scalar code (what
 /// `simd` does with AVX2, operation for operation).
+// Same parameters as `simd::interpolate_classify` and its AVX2 twin on purpose: the march
+// calls whichever the CPU allows with the same arguments.
 #[inline(always)]
-pub(super) fn interpolate_classify_scalar<T: Voxel>(
+pub(super) fn interpolate_classify_scalar<T: Voxel, S: Slots>(
     p: &MarchParams,
-    d: &[T],
+    (d, slots): (&[T], S),
     ray: &Ray,
     n: u32,
     delta_norm: f32,
@@ -202,7 +269,13 @@ pub(super) fn interpolate_classify_scalar<T: Voxel>(
     let (a, bd, jit) = (ray.a, ray.bd, ray.jitter);
     for i in 0..CHUNK {
         let u = (n + i as u32) as f32 + jit;
-        let v = trilinear(g, d, a[0] + u * bd[0], a[1] + u * bd[1], a[2] + u * bd[2]);
+        let v = trilinear(
+            g,
+            (d, slots),
+            a[0] + u * bd[0],
+            a[1] + u * bd[1],
+            a[2] + u * bd[2],
+        );
         let k = classify(lut, v, delta_norm).unwrap_or_else(|| {
             let mut k = classify(lut, 0.0, delta_norm).expect("0 is not NaN");
             k.tau = 0.0;
@@ -247,10 +320,16 @@ pub(super) fn cell(g: &Grid, p: f32, ax: usize) -> u32 {
     cell_of_clamped(g, clamp_coord(g, p, ax), ax)
 }
 
-/// The trilinear sample of `d` (the grid's values) at index position (x, y, z), clamped into
-/// the box first, as a normalized value.
+/// The trilinear sample of `d` (the grid's values, bricks at `slots`) at index position
+/// (x, y, z), clamped into the box first, as a normalized value.
 #[inline(always)]
-pub(super) fn trilinear<T: Voxel>(g: &Grid, d: &[T], x: f32, y: f32, z: f32) -> f32 {
+pub(super) fn trilinear<T: Voxel, S: Slots>(
+    g: &Grid,
+    (d, slots): (&[T], S),
+    x: f32,
+    y: f32,
+    z: f32,
+) -> f32 {
     let (x, y, z) = (
         clamp_coord(g, x, 0),
         clamp_coord(g, y, 1),
@@ -262,7 +341,7 @@ pub(super) fn trilinear<T: Voxel>(g: &Grid, d: &[T], x: f32, y: f32, z: f32) -> 
         cell_of_clamped(g, z, 2),
     );
     let (fx, fy, fz) = (x - cx as f32, y - cy as f32, z - cz as f32);
-    let base = value_index(g.brick_stride, [cx, cy, cz]);
+    let base = value_index(g.brick_stride, slots, [cx, cy, cz]);
     let (sy, sz) = (BRICK_POINTS, BRICK_POINTS * BRICK_POINTS);
     debug_assert!(
         base + 1 + sy + sz < d.len(),
@@ -270,8 +349,10 @@ pub(super) fn trilinear<T: Voxel>(g: &Grid, d: &[T], x: f32, y: f32, z: f32) -> 
     );
     // SAFETY: c ≤ max_cell = dims − 2 per axis, so the brick (c >> 3) is below the brick count
     // ⌈(dims − 1)/8⌉ (both from the same dims, `Grid::new`; the index is computed in 64 bits,
-    // so it does not wrap on levels of more than 2³² values), and the local corner (c & 7) + 1
-    // ≤ 8 < BRICK_POINTS: every corner lies in this brick's BRICK_VALUES, inside `data`.
+    // so it does not wrap on levels of more than 2³² values), its slot is inside `data` (the
+    // whole level, or a cache's slot table, which only holds slots of its arena), and the
+    // local corner (c & 7) + 1 ≤ 8 < BRICK_POINTS: every corner lies in the brick's
+    // BRICK_VALUES, inside `data`.
     // Unchecked because a bounds check is a branch, which keeps the chunk loop from
     // vectorising: this is the renderer's innermost loop.
     let at = |i: usize| -> f32 { unsafe { *d.get_unchecked(i) }.into() };
@@ -282,20 +363,27 @@ pub(super) fn trilinear<T: Voxel>(g: &Grid, d: &[T], x: f32, y: f32, z: f32) -> 
     lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz) * g.scale
 }
 
-/// Where corner (0, 0, 0) of cell `c` lies in the bricked values (brick `c >> 3`, local point
-/// `c & 7`), for bricks `stride` = [along x, per xy-layer]. In 64-bit arithmetic: a level can
-/// hold more than 2³² values (a 1626³-point level has 2³² bricked values), and a 32-bit index
-/// would wrap onto another brick.
+/// Where corner (0, 0, 0) of cell `c` lies in the bricked values (brick `c >> 3` at its slot
+/// in `slots`, local point `c & 7`), for bricks `stride` = [along x, per xy-layer]. In 64-bit
+/// arithmetic: a level can hold more than 2³² values (a 1626³-point level has 2³² bricked
+/// values), and a 32-bit index would wrap onto another brick.
 #[inline(always)]
-pub(super) fn value_index(stride: [usize; 2], c: [u32; 3]) -> usize {
+pub(super) fn value_index<S: Slots>(stride: [usize; 2], slots: S, c: [u32; 3]) -> usize {
     const P: usize = BRICK_POINTS;
-    const SHIFT: u32 = BRICK_CELLS.trailing_zeros();
     const MASK: u32 = BRICK_CELLS as u32 - 1;
-    let brick = (c[0] >> SHIFT) as usize
-        + stride[0] * (c[1] >> SHIFT) as usize
-        + stride[1] * (c[2] >> SHIFT) as usize;
+    let brick = brick_of_cell(stride, c);
     let local = (c[0] & MASK) as usize + P * ((c[1] & MASK) as usize + P * (c[2] & MASK) as usize);
-    brick * BRICK_VALUES + local
+    slots.first_value(brick) + local
+}
+
+/// The brick holding cell `c`, for bricks `stride` = [along x, per xy-layer] (64-bit, as
+/// [`value_index`]).
+#[inline(always)]
+pub(super) fn brick_of_cell(stride: [usize; 2], c: [u32; 3]) -> usize {
+    const SHIFT: u32 = BRICK_CELLS.trailing_zeros();
+    (c[0] >> SHIFT) as usize
+        + stride[0] * (c[1] >> SHIFT) as usize
+        + stride[1] * (c[2] >> SHIFT) as usize
 }
 
 #[cfg(test)]
@@ -320,11 +408,37 @@ mod tests {
             brick * BRICK_VALUES as u128 + l[0] + p * (l[1] + p * l[2])
         };
         for c in [[0, 0, 0], [7, 8, 9], [1234, 17, 1700], last] {
-            assert_eq!(value_index(stride, c) as u128, reference(c), "cell {c:?}");
+            assert_eq!(
+                value_index(stride, InPlace, c) as u128,
+                reference(c),
+                "cell {c:?}"
+            );
         }
         // The last cell's corner (1, 1, 1) is the last value of the last brick.
-        let i = value_index(stride, last) + 1 + BRICK_POINTS + BRICK_POINTS * BRICK_POINTS;
+        let i = value_index(stride, InPlace, last) + 1 + BRICK_POINTS + BRICK_POINTS * BRICK_POINTS;
         assert_eq!(i, values - 1);
         assert!(i > u32::MAX as usize);
+    }
+
+    /// Through a brick cache's slot table the same cell is found in 64 bits: the brick number
+    /// of the last cell of a level past 2³² values, and its slot's values (the table is
+    /// allocated: 54 MB).
+    #[test]
+    fn slot_table_index_is_64_bit() {
+        let dims = [2001usize, 1897, 1801];
+        let counts = dims.map(|d| (d - 1).div_ceil(BRICK_CELLS));
+        let stride = [counts[0], counts[0] * counts[1]];
+        let bricks: usize = counts.iter().product();
+        let last = dims.map(|d| (d - 2) as u32);
+        assert_eq!(brick_of_cell(stride, last), bricks - 1);
+        let mut table = vec![0u32; bricks];
+        // A slot past 2³² / 729 so that its first value is past 2³².
+        table[bricks - 1] = 6_000_000;
+        let local = value_index(stride, InPlace, last) - (bricks - 1) * BRICK_VALUES;
+        let i = value_index(stride, Table(&table), last);
+        assert_eq!(i, 6_000_000 * BRICK_VALUES + local);
+        assert!(i > u32::MAX as usize);
+        // A brick that is not loaded reads slot 0 (zeros).
+        assert_eq!(value_index(stride, Table(&table), [0, 0, 0]), 0);
     }
 }

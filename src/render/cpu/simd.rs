@@ -8,7 +8,7 @@
 //! fused multiply-add, the same order), so both paths give bit-identical results — a test
 //! checks it — and the result does not depend on which one the CPU takes.
 
-use super::sample::{interpolate_classify_scalar, Chunk, MarchParams, Ray, Voxel, CHUNK};
+use super::sample::{interpolate_classify_scalar, Chunk, MarchParams, Ray, Slots, Voxel, CHUNK};
 
 /// Whether this CPU can run [`interpolate_classify`].
 pub(crate) fn available() -> bool {
@@ -22,12 +22,12 @@ pub(crate) fn available() -> bool {
     }
 }
 
-/// Interpolate and classify samples n … n + 7 of `ray` (values `d`, the grid's) into `out`
-/// (see `Chunk`); without `p.simd` through the scalar code.
+/// Interpolate and classify samples n … n + 7 of `ray` (values `d`, the grid's, bricks at
+/// `slots`) into `out` (see `Chunk`); without `p.simd` through the scalar code.
 #[inline(always)]
-pub(crate) fn interpolate_classify<T: Voxel>(
+pub(crate) fn interpolate_classify<T: Voxel, S: Slots>(
     p: &MarchParams,
-    d: &[T],
+    (d, slots): (&[T], S),
     ray: &Ray,
     n: u32,
     delta_norm: f32,
@@ -39,16 +39,16 @@ pub(crate) fn interpolate_classify<T: Voxel>(
         // grid's indices fit 32-bit lanes (`View` sets it from `available()` and
         // `Grid::gathers_fit`; tests from there too); `p.grid` holds `Grid`'s invariants
         // and a `Lut` has at least two entries (`render::backend::validate`).
-        unsafe { avx2::interpolate_classify(p, d, ray, n, delta_norm, out) };
+        unsafe { avx2::interpolate_classify(p, (d, slots), ray, n, delta_norm, out) };
         return;
     }
-    interpolate_classify_scalar(p, d, ray, n, delta_norm, out);
+    interpolate_classify_scalar(p, (d, slots), ray, n, delta_norm, out);
 }
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use super::super::bricked::{BRICK_POINTS, BRICK_VALUES};
-    use super::super::sample::Gather;
+    use super::super::sample::{Gather, GatherSlots, InPlace, Table};
     use super::*;
     use crate::volume::BRICK_CELLS;
     use std::arch::x86_64::*;
@@ -58,6 +58,22 @@ mod avx2 {
     #[inline(always)]
     unsafe fn lerp(a: __m256, b: __m256, w: __m256) -> __m256 {
         _mm256_add_ps(a, _mm256_mul_ps(w, _mm256_sub_ps(b, a)))
+    }
+
+    impl GatherSlots for InPlace {
+        #[inline(always)]
+        unsafe fn first_values(self, brick: __m256i) -> __m256i {
+            _mm256_mullo_epi32(brick, _mm256_set1_epi32(BRICK_VALUES as i32))
+        }
+    }
+
+    impl GatherSlots for Table<'_> {
+        /// One gather of the slot table, then the slot's first value.
+        #[inline(always)]
+        unsafe fn first_values(self, brick: __m256i) -> __m256i {
+            let slot = _mm256_i32gather_epi32::<4>(self.0.as_ptr().cast(), brick);
+            _mm256_mullo_epi32(slot, _mm256_set1_epi32(BRICK_VALUES as i32))
+        }
     }
 
     impl Gather for f32 {
@@ -98,14 +114,17 @@ mod avx2 {
         }
     }
 
-    /// SAFETY (callers): the CPU has AVX2; `p.grid` satisfies `Grid`'s invariants and `d` is
-    /// its value slice (every index below is then inside `d`, as in the scalar `trilinear`,
-    /// plus `bricked::PAD` for the 4-byte gathers), its values fit 32-bit indices
-    /// (`Grid::gathers_fit`), and the LUT has at least two entries.
+    /// SAFETY (callers): the CPU has AVX2; `p.grid` satisfies `Grid`'s invariants, `d` is
+    /// its value slice and `slots` its layout (every index below is then inside `d`, as in
+    /// the scalar `trilinear`, plus `bricked::PAD` for the 4-byte gathers), its values and
+    /// slot table fit 32-bit indices (`Grid::gathers_fit`), and the LUT has at least two
+    /// entries.
+    // Same parameters as the dispatcher above and the scalar twin, on purpose (they are
+    // interchangeable).
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn interpolate_classify<T: Voxel>(
+    pub(super) unsafe fn interpolate_classify<T: Voxel, S: Slots>(
         p: &MarchParams,
-        d: &[T],
+        (d, slots): (&[T], S),
         ray: &Ray,
         n: u32,
         delta_norm: f32,
@@ -160,10 +179,7 @@ mod avx2 {
                 ),
             ),
         );
-        let base = _mm256_add_epi32(
-            _mm256_mullo_epi32(brick, _mm256_set1_epi32(BRICK_VALUES as i32)),
-            local,
-        );
+        let base = _mm256_add_epi32(slots.first_values(brick), local);
         let d = d.as_ptr();
         let (sy, sz) = (BRICK_POINTS as i32, (BRICK_POINTS * BRICK_POINTS) as i32);
         let pair = |off: i32| T::pair(d, base, off);
@@ -240,8 +256,8 @@ mod avx2 {
 mod tests {
     use super::super::bricked::BrickValues;
     use super::super::march::BoxFrame;
-    use super::super::sample::Grid;
-    use super::super::{skip, CpuBackend};
+    use super::super::sample::{Grid, InPlace};
+    use super::super::{skip, tests::whole, CpuBackend};
     use super::*;
     use crate::render::backend::Backend;
     use crate::tf::Lut;
@@ -302,7 +318,7 @@ mod tests {
             });
             let blocks = skip::blocks(&level.bricks, &lut, false, 0.0, false);
             let params = |simd: bool| MarchParams {
-                grid: Grid::new(dims, &prepared.data.bricked, &blocks),
+                grid: Grid::new(dims, whole(&prepared), None, &blocks),
                 lut: &lut,
                 inv_l: 1.0 / 20.0,
                 stop_below: 0.0,
@@ -322,9 +338,15 @@ mod tests {
                 for n in (0..ray.segments()).step_by(CHUNK) {
                     let (mut fast, mut slow) = (Chunk::default(), Chunk::default());
                     let run = |p: &MarchParams, out: &mut Chunk| match p.grid.values {
-                        BrickValues::U8(x) => interpolate_classify(p, x, &ray, n, p.inv_l, out),
-                        BrickValues::U16(x) => interpolate_classify(p, x, &ray, n, p.inv_l, out),
-                        BrickValues::F32(x) => interpolate_classify(p, x, &ray, n, p.inv_l, out),
+                        BrickValues::U8(x) => {
+                            interpolate_classify(p, (x, InPlace), &ray, n, p.inv_l, out)
+                        }
+                        BrickValues::U16(x) => {
+                            interpolate_classify(p, (x, InPlace), &ray, n, p.inv_l, out)
+                        }
+                        BrickValues::F32(x) => {
+                            interpolate_classify(p, (x, InPlace), &ray, n, p.inv_l, out)
+                        }
                     };
                     run(&vector, &mut fast);
                     run(&scalar, &mut slow);

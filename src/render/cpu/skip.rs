@@ -21,15 +21,15 @@ const _: () = assert!(BRICK_CELLS.is_power_of_two() && SUPER.is_power_of_two());
 /// Per-block flags of one block size over a level.
 pub(crate) struct Blocks {
     /// Cells per block side.
-    pub cells: usize,
+    pub(crate) cells: usize,
     /// log2(cells): block coordinates are shifts, not divisions, in the march's inner loop.
-    pub shift: u32,
+    pub(crate) shift: u32,
     /// Blocks per axis.
-    pub counts: [usize; 3],
+    pub(crate) counts: [usize; 3],
     /// The TF has σ ≤ threshold on every sample of the block (or every point is NaN).
-    pub empty: Vec<bool>,
+    pub(crate) empty: Vec<bool>,
     /// The value of every sample in the block when they are all equal, NaN otherwise.
-    pub value: Vec<f32>,
+    pub(crate) value: Vec<f32>,
 }
 
 /// [super-blocks, bricks] of a level with brick ranges `grid` for `lut`. `skip` false marks nothing empty; `uniform`
@@ -125,26 +125,8 @@ pub(crate) fn empty_bricks(grid: &BrickGrid, lut: &Lut, threshold: f32) -> Vec<b
 
 #[cfg(test)]
 mod tests {
+    use super::super::tests::volume_of as volume;
     use super::*;
-    use crate::volume::{Geometry, TypedBuffer, Volume};
-    use std::path::Path;
-
-    fn volume(dims: [usize; 3], f: impl Fn(usize, usize, usize) -> f64) -> Volume {
-        let mut vals = Vec::new();
-        for k in 0..dims[2] {
-            for j in 0..dims[1] {
-                for i in 0..dims[0] {
-                    vals.push(f(i, j, k));
-                }
-            }
-        }
-        let geometry = Geometry {
-            dims,
-            spacing: [1.0; 3],
-            origin: [0.0; 3],
-        };
-        Volume::from_buffer(Path::new("t"), geometry, &TypedBuffer::from_f64(vals)).unwrap()
-    }
 
     #[test]
     fn bricks_are_empty_exactly_where_the_tf_is_zero_on_their_range() {
