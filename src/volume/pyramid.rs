@@ -154,9 +154,19 @@ impl Level {
 
     /// What identifies this level's samples without making them: the same allocation for
     /// every clone of the level, dropped with the last one.
-    #[allow(dead_code)] // For render::cpu's cache of prepared levels (helper B's branch).
     pub(crate) fn cell(&self) -> &Arc<LevelCell> {
         &self.cell
+    }
+
+    /// Stop counting the pages of a memory-mapped source that [`Level::read_box`] touched as
+    /// this process's memory (`MADV_DONTNEED`; the values stay readable, from the page cache
+    /// or the file). Nothing for a level whose samples are held or a decoded source. Random
+    /// box reads of a file larger than memory (a level-0 render through the brick cache) call
+    /// it between batches, so the file's pages do not add up in the process's memory.
+    pub(crate) fn release_source(&self) {
+        if let (None, Some((streamed, _))) = (self.cell.data.get(), &self.cell.origin) {
+            streamed.source.release(0..streamed.source.len());
+        }
     }
 
     /// Normalized samples of the points in the box [`lo`, `hi`) into `out` (x fastest, then

@@ -143,8 +143,9 @@ impl Source {
     }
 
     /// Stop counting the mapped pages of values `range` as this process's memory (nothing for
-    /// decoded sources). Called behind sequential passes; the values stay readable.
-    fn release(&self, range: Range<usize>) {
+    /// decoded sources). Called behind sequential passes and between the renderer's random
+    /// box reads (`Level::release_source`); the values stay readable.
+    pub(crate) fn release(&self, range: Range<usize>) {
         if let Bytes::Map { map, offset } = &self.bytes {
             let size = self.ty.size();
             let start = offset + range.start * size;

@@ -66,8 +66,6 @@ fn info_on_512_cubed_under_an_address_space_limit() {
 }
 
 #[test]
-#[ignore = "the final preview renders level 0: needs render::cpu to read bricks with \
-            Level::read_box instead of Level::data (issue #15, helper B's branch)"]
 fn optimize_on_512_cubed_under_an_address_space_limit() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join(format!("ball_{N}x{N}x{N}_uint8.raw"));

@@ -220,7 +220,6 @@ fn load<T: Stored>(
     level: &Level,
     c: [usize; 3],
 ) -> Result<bool, RenderError> {
-    let dims = level.dims;
     let mut jobs = Vec::with_capacity(fresh.len());
     let mut next = fresh.iter().peekable();
     for (s, dst) in arena
@@ -235,8 +234,37 @@ fn load<T: Stored>(
             }
         }
     }
-    jobs.into_par_iter()
+    // In source order, a chunk at a time: the pages of a memory-mapped level 0 that a chunk
+    // touched are released before the next (`Level::release_source`). A brick's 81 rows may
+    // each sit on its own page, so without this a batch of a file larger than memory could
+    // keep most of the file's pages counted as this process's memory.
+    jobs.sort_unstable_by_key(|&(_, b)| b);
+    for chunk in jobs.chunks_mut(RELEASE_EVERY) {
+        let exact = load_chunk(chunk, encoding, level, c)?;
+        level.release_source();
+        if !exact {
+            return Ok(false); // the caller starts over in f32
+        }
+    }
+    Ok(true)
+}
+
+/// Bricks loaded between two releases of the source's pages: at most 81 pages each, so about
+/// 330 MiB of pages at the worst.
+const RELEASE_EVERY: usize = 1024;
+
+/// Read `jobs` (destination, brick) of `level`, in parallel. Whether `encoding` represented
+/// every value.
+fn load_chunk<T: Stored>(
+    jobs: &mut [(&mut [T], usize)],
+    encoding: Encoding,
+    level: &Level,
+    c: [usize; 3],
+) -> Result<bool, RenderError> {
+    let dims = level.dims;
+    jobs.par_iter_mut()
         .map(|(dst, b)| {
+            let b = *b;
             let origin = [b % c[0], (b / c[0]) % c[1], b / (c[0] * c[1])].map(|x| x * BRICK_CELLS);
             let hi: [usize; 3] =
                 std::array::from_fn(|ax| (origin[ax] + BRICK_CELLS + 1).min(dims[ax]));

@@ -166,7 +166,14 @@ fn build(level: &Level, budget: u64, cache_budget: u64) -> Result<CpuLevel, Rend
     };
     let encoding = Encoding::of(level.narrow());
     let store = if whole_bytes(counts, encoding) <= budget {
-        let read = |lo, hi, out: &mut [f32]| read_box(level, lo, hi, out);
+        // Each read is a slab of bricks; the mapped file's pages it touched are released
+        // behind it (`Level::release_source`), so a level read from a memory-mapped file adds
+        // its bricked copy to the process's memory, not the file.
+        let read = |lo, hi, out: &mut [f32]| {
+            let read = read_box(level, lo, hi, out);
+            level.release_source();
+            read
+        };
         Store::Whole(BrickedData::build(dims, &grid, level.narrow(), &read)?)
     } else {
         Store::Cache(Box::new(BrickCache::new(
