@@ -11,7 +11,7 @@
 //! **Levels larger than memory.** A level's whole bricked copy is built when it fits the
 //! memory budget (`memory::budget`, `--max-memory`), slab by slab from
 //! `Level::read_box` (no f32 copy of the level is made for it). Otherwise the level gets a
-//! brick cache (`cache.rs`: an LRU arena of at most half the budget and 2 GiB, loaded per
+//! brick cache (`cache.rs`: an LRU arena of at most half the budget and 1 GiB, loaded per
 //! batch of tiles); the march reaches bricks through a slot table there, and is compiled
 //! separately for the whole copy, whose path is unchanged. Both give bit-identical results.
 //!
@@ -55,9 +55,11 @@ const TILE: usize = 16;
 pub struct CpuBackend;
 
 /// Largest brick cache a level gets when its bricked copy does not fit the memory budget: a
-/// final render is bound by reading bricks, not by how many stay resident, and the rest of the
-/// budget is left to the process.
-const BRICK_CACHE_MAX: u64 = 2 << 30;
+/// final render is bound by reading bricks, not by how many stay resident (a view of a level
+/// larger than memory touches more bricks than any cache holds, and a batch of tiles needs
+/// far less than this), and the rest of the budget is left to the process. 1 GiB keeps a
+/// 2048³ `t2tf optimize` (whose preview renders level 0) under 3 GiB (BENCHMARKS.md).
+const BRICK_CACHE_MAX: u64 = 1 << 30;
 
 /// A level in the renderer's layout: what the cache holds. `dims` and `grid` are those the
 /// bricks were built from, so the march's unchecked indexing always agrees with the data.
