@@ -27,8 +27,8 @@
 
 use rayon::prelude::*;
 
-use crate::render::RenderError;
-use crate::volume::{BrickGrid, Narrow, BRICK_CELLS};
+use crate::render::backend::RenderError;
+use crate::volume::{BrickGrid, Level, Narrow, BRICK_CELLS};
 
 /// Points per brick side: its cells plus one.
 pub(crate) const BRICK_POINTS: usize = BRICK_CELLS + 1;
@@ -383,6 +383,18 @@ impl<T: Stored> Clone for Buffer<T> {
         b.as_mut_slice().copy_from_slice(src);
         b
     }
+}
+
+/// The normalized values of the points in [lo, hi) of `level`, x fastest, into `out`: from
+/// the level's samples when it holds them, else from its source (level 0 of a memory-mapped
+/// file is read in place, `volume::Level::read_box`).
+pub(super) fn read_box(
+    level: &Level,
+    lo: [usize; 3],
+    hi: [usize; 3],
+    out: &mut [f32],
+) -> Result<(), RenderError> {
+    level.read_box(lo, hi, out).map_err(RenderError::Source)
 }
 
 #[cfg(test)]

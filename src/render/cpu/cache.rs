@@ -34,10 +34,9 @@ use std::sync::Mutex;
 use rayon::prelude::*;
 
 use super::bricked::{
-    fill_brick, BrickValues, Buffer, Encoding, Storage, Stored, BRICK_VALUES, PAD,
+    fill_brick, read_box, BrickValues, Buffer, Encoding, Storage, Stored, BRICK_VALUES, PAD,
 };
-use super::read_box;
-use crate::render::RenderError;
+use crate::render::backend::RenderError;
 use crate::volume::{Level, BRICK_CELLS};
 
 /// A slot that holds no brick.

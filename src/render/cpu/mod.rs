@@ -40,7 +40,7 @@ use crate::tf::{Lut, LutGrad};
 use crate::volume::{BrickGrid, Level, Volume, BRICK_CELLS};
 
 pub use bricked::BrickValues;
-use bricked::{BrickedData, Encoding, BRICK_VALUES, PAD};
+use bricked::{read_box, BrickedData, Encoding, BRICK_VALUES, PAD};
 use cache::BrickCache;
 pub use cache::CacheStats;
 use march::{bricks_touched, march, BoxFrame};
@@ -132,18 +132,6 @@ impl std::fmt::Debug for CpuPrepared {
             self.level, self.data.dims
         )
     }
-}
-
-/// The normalized values of the points in [lo, hi) of `level`, x fastest, into `out`: from
-/// the level's samples when it holds them, else from its source (level 0 of a memory-mapped
-/// file is read in place, `volume::Level::read_box`).
-fn read_box(
-    level: &Level,
-    lo: [usize; 3],
-    hi: [usize; 3],
-    out: &mut [f32],
-) -> Result<(), RenderError> {
-    level.read_box(lo, hi, out).map_err(RenderError::Source)
 }
 
 /// Bytes of the whole bricked copy of a level with `counts` bricks stored as `encoding`.
