@@ -152,6 +152,7 @@ fn paraview_lut_is_close_to_the_exact_tf_but_not_equal() {
     let pv = run("pv.png", &["--paraview-lut"]);
     let p = psnr(&exact, &pv);
     eprintln!("exact vs --paraview-lut: {p:.1} dB");
-    // A 1024-entry table of a TF with nodes far apart changes little, but something.
-    assert!(p > 35.0 && p.is_finite(), "{p:.1} dB");
+    // A 1024-entry table of a TF with nodes far apart changes little, but something (equal
+    // images would score psnr's 200 dB ceiling, so compare the pixels themselves).
+    assert!(p > 35.0 && exact.data != pv.data, "{p:.1} dB");
 }

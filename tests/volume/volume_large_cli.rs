@@ -86,6 +86,17 @@ fn optimize_on_512_cubed_under_an_address_space_limit() {
     );
     let report = std::fs::read_to_string(out_dir.join("report.json")).unwrap();
     let report: serde_json::Value = serde_json::from_str(&report).unwrap();
-    assert!(report.is_object(), "{report}");
-    assert!(out_dir.join("preview.png").is_file());
+    assert_eq!(report["steps_run"], 2, "{report}");
+    assert_eq!(
+        report["volume"]["dims"],
+        serde_json::json!([N, N, N]),
+        "{report}"
+    );
+    // The preview drew the ball: not one flat colour.
+    let preview = t2tf::image::Image::load_png(&out_dir.join("preview.png")).unwrap();
+    let first = &preview.data[..3];
+    assert!(
+        preview.data.chunks_exact(3).any(|px| px != first),
+        "preview.png is one colour"
+    );
 }
