@@ -79,19 +79,18 @@ fn histogram_rows(v: &Summary, rows: usize) -> Vec<Row> {
 }
 
 fn format_name(v: &Summary) -> String {
-    match Some(&v.source.format) {
-        Some(SourceFormat::Raw { byte_order, .. }) => format!(
+    match &v.source.format {
+        SourceFormat::Raw { byte_order, .. } => format!(
             "raw, {}-endian",
             match byte_order {
                 ByteOrder::Little => "little",
                 ByteOrder::Big => "big",
             }
         ),
-        Some(SourceFormat::Vti { array }) => format!("VTK XML image data, array '{array}'"),
-        Some(SourceFormat::LegacyVtk { array }) => {
+        SourceFormat::Vti { array } => format!("VTK XML image data, array '{array}'"),
+        SourceFormat::LegacyVtk { array } => {
             format!("legacy VTK structured points, array '{array}'")
         }
-        None => "in memory".into(),
     }
 }
 
@@ -207,8 +206,8 @@ fn text_report(a: &InfoArgs, v: &Summary, file_bytes: u64, rows: &[Row], secs: f
 fn json_report(a: &InfoArgs, v: &Summary, file_bytes: u64, rows: &[Row], secs: f64) -> String {
     let g = &v.geometry;
     let level0 = v.level0_bytes;
-    let (format, array, byte_order) = match Some(&v.source.format) {
-        Some(SourceFormat::Raw { byte_order, .. }) => (
+    let (format, array, byte_order) = match &v.source.format {
+        SourceFormat::Raw { byte_order, .. } => (
             "raw",
             None,
             Some(match byte_order {
@@ -216,9 +215,8 @@ fn json_report(a: &InfoArgs, v: &Summary, file_bytes: u64, rows: &[Row], secs: f
                 ByteOrder::Big => "big",
             }),
         ),
-        Some(SourceFormat::Vti { array }) => ("vti", Some(array.as_str()), None),
-        Some(SourceFormat::LegacyVtk { array }) => ("vtk", Some(array.as_str()), None),
-        None => ("memory", None, None),
+        SourceFormat::Vti { array } => ("vti", Some(array.as_str()), None),
+        SourceFormat::LegacyVtk { array } => ("vtk", Some(array.as_str()), None),
     };
     let report = json!({
         "file": a.volume.to_string_lossy(),

@@ -700,9 +700,14 @@ impl Reducer {
     /// The next z-slice of level 0 (x fastest); `done(l, slice)` sees every slice of level
     /// `l` ≥ 1 as it is completed, in order.
     pub(crate) fn push(&mut self, slice: &[f32], mut done: impl FnMut(usize, &[f32])) {
-        let mut pending = vec![slice.to_vec()];
+        // Level 0's slice is borrowed (no copy of the volume per load); coarser slices are
+        // the stages' own outputs.
+        let mut pending: Vec<Vec<f32>> = Vec::new();
         for (l, stage) in self.stages.iter_mut().enumerate() {
             let mut next = Vec::new();
+            if l == 0 {
+                next.extend(stage.push(slice));
+            }
             for s in &pending {
                 next.extend(stage.push(s));
             }

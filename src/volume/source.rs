@@ -150,8 +150,14 @@ impl Source {
             let size = self.ty.size();
             let start = offset + range.start * size;
             let len = (range.end - range.start) * size;
-            // Only whole pages inside the range, so neighbouring values' pages stay.
-            let page = 4096;
+            // Only whole pages inside the range, so neighbouring values' pages stay. The
+            // system's page size (4 KiB on x86-64, 16/64 KiB on some ARM systems, where a
+            // 4 KiB-aligned range would make madvise fail and nothing be released).
+            // SAFETY: sysconf only reads a system constant.
+            let page = match unsafe { libc::sysconf(libc::_SC_PAGESIZE) } {
+                p if p > 0 => p as usize,
+                _ => 4096,
+            };
             let first = start.div_ceil(page) * page;
             let end = (start + len) / page * page;
             if end > first {
@@ -252,8 +258,9 @@ impl Norm {
         }
     }
 
-    /// Normalized samples of values `start..start + out.len()` of `src` into `out`; counts
-    /// each finite value's bin into `histogram` when given.
+    /// Normalized samples of values `start..start + out.len()` of `src` into `out`. For wider
+    /// types (no table) it also counts each finite value's bin into `histogram` when given;
+    /// 8/16-bit sources have their histogram from the first pass's code counts.
     pub(crate) fn read(
         &self,
         src: &Source,

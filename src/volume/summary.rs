@@ -1,13 +1,15 @@
 //! What `t2tf info` reports about a volume file, computed without making the volume: no f32
 //! copy, no pyramid. A `.raw` file is streamed in blocks of [`BLOCK_BYTES`] (memory bounded
 //! whatever the file's size; one sequential read for 8/16-bit data, two for wider types);
-//! `.vti` and `.vtk` files are decoded in memory as for a load, but not normalized. The
+//! `.vti` and `.vtk` files are decoded in memory (even where a load would map them,
+//! `source`), but not normalized. The
 //! numbers equal those of [`super::load`] bit for bit: the same per-value formula
 //! (`normalize_value`), the same range rule, and the level shapes of `pyramid`.
 
 use std::io::Read;
 use std::path::Path;
 
+use super::buffer::for_each_value;
 use super::{
     check_geometry, denormalize, half_scale, norm_range, normalize_value, pyramid, raw, ByteOrder,
     Geometry, ReadOptions, ScalarType, SourceFormat, TypedBuffer, VolumeError, VolumeSource,
@@ -131,16 +133,12 @@ fn raw_summary(path: &Path, opts: &ReadOptions) -> Result<RawSummary, VolumeErro
         }
         None => {
             let mut acc = MinMax::default();
-            blocks(&mut |b| {
-                TypedBuffer::new(dtype, byte_order, b.to_vec()).for_each(|v| acc.add(v))
-            })?;
+            blocks(&mut |b| for_each_value(dtype, byte_order, b, |v| acc.add(v)))?;
             match acc.norm_range() {
                 None => None,
                 Some(nr) => {
                     let mut h = Histogram::new(nr);
-                    blocks(&mut |b| {
-                        TypedBuffer::new(dtype, byte_order, b.to_vec()).for_each(|v| h.add(v))
-                    })?;
+                    blocks(&mut |b| for_each_value(dtype, byte_order, b, |v| h.add(v)))?;
                     Some(acc.stats(h.counts))
                 }
             }
