@@ -220,9 +220,10 @@ const PSNR_MSE_FLOOR: f64 = 1e-20;
 /// The PSNR of t2tf: `a` against `b` in dB, peak 1 (images are RGB in [0, 1]), from the mean
 /// squared error over every channel of every pixel, floored at 1e-20: equal images give
 /// 200 dB, not infinity, so means over views and JSON stay finite, and no two renders that
-/// differ at all come near it (one f32 ulp at 1.0 on every channel is 138 dB). Several views are compared either as the mean of this per view
-/// (`optimize::recover::psnr`, the recovery test's measure) or pooled, as the PSNR of the
-/// views side by side (`Image::grid(views, views.len())`, what the benchmarks print).
+/// differ at all come near it (one f32 ulp at 1.0 on every channel is 138 dB). Several views
+/// are compared either as the mean of this per view (`optimize::recover::psnr`, the recovery
+/// test's measure) or pooled, as the PSNR of the views side by side (`Image::grid(views,
+/// views.len())`, what the benchmarks print).
 ///
 /// # Panics
 /// If the two images differ in size (a caller's bug, not an input error).

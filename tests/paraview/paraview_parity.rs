@@ -414,7 +414,7 @@ fn renders_match_paraview_screenshots() {
     // for this reason too: the space changes nothing there, 58.3 dB either way.)
     for (a, case) in cases.iter().enumerate() {
         let space = PRESETS[case.preset].1;
-        if case.vol != 1 || space == "RGB" || PRESETS[case.preset].2 == "inferno" {
+        if vols[case.vol].id != "headsq" || space == "RGB" {
             continue;
         }
         let vol = &vols[case.vol];
