@@ -18,6 +18,7 @@ mod raw;
 mod read;
 mod small_int;
 mod source;
+mod stream;
 mod summary;
 mod vti;
 mod vti_blocks;
@@ -218,7 +219,7 @@ impl Volume {
         else {
             return Err(GeometryError::NoFiniteValues.at(name));
         };
-        let narrow = source::narrow_for(buffer.scalar_type(), norm_range);
+        let narrow = stream::narrow_for(buffer.scalar_type(), norm_range);
         let levels = pyramid::build(geometry, data, narrow);
         Ok(Volume {
             geometry,
@@ -232,7 +233,7 @@ impl Volume {
         })
     }
 
-    /// Stream `source` into a volume (two passes, `source` module docs): the statistics and
+    /// Stream `source` into a volume (two passes, `stream` module docs): the statistics and
     /// every level's brick ranges are computed now, the coarse levels are held, level 0 and
     /// any level finer than 512³ are made when asked for. Bit for bit what
     /// [`Volume::from_buffer`] gives for the same values.
@@ -243,7 +244,7 @@ impl Volume {
         source: source::Source,
     ) -> Result<Volume, VolumeError> {
         check_geometry(name, &geometry, source.len())?;
-        let Some(s) = source::stream(geometry, scalar_type, source)? else {
+        let Some(s) = stream::stream(geometry, scalar_type, source)? else {
             return Err(GeometryError::NoFiniteValues.at(name));
         };
         Ok(Volume {

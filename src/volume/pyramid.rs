@@ -13,7 +13,7 @@
 use std::collections::VecDeque;
 use std::sync::{Arc, OnceLock};
 
-use super::source::Streamed;
+use super::stream::Streamed;
 use super::{Geometry, VolumeError};
 
 /// Cells per brick side.
