@@ -184,8 +184,8 @@ impl Source {
     }
 
     /// Finite range, non-finite count and (for 8/16-bit codes) histogram: the first pass.
-    /// `None` when no value is finite.
-    pub(super) fn stats(&self) -> Option<(Stats, Option<Vec<u64>>)> {
+    /// `None` when no value is finite; an error when the values cannot be read.
+    pub(super) fn stats(&self) -> Result<Option<SourceStats>, VolumeError> {
         let blocks = (0..self.len)
             .step_by(BLOCK_VALUES)
             .map(|s| s..(s + BLOCK_VALUES).min(self.len));
@@ -213,7 +213,7 @@ impl Source {
                 }
                 self.release(block);
             }
-            return Some((code_stats(self.ty, &counts), Some(counts)));
+            return Ok(Some((code_stats(self.ty, &counts), Some(counts))));
         }
         // In index order: min/max of ±0 depend on the order, and `normalize` goes in it.
         let mut acc = MinMax::default();
@@ -223,10 +223,15 @@ impl Source {
             });
             self.release(block);
         }
-        acc.norm_range()?;
-        Some((acc.stats(Vec::new()), None))
+        if acc.norm_range().is_none() {
+            return Ok(None);
+        }
+        Ok(Some((acc.stats(Vec::new()), None)))
     }
 }
+
+/// What [`Source::stats`] finds: the statistics and, for 8/16-bit codes, each code's count.
+pub(super) type SourceStats = (Stats, Option<Vec<u64>>);
 
 /// Where a file's chosen array lies when its values can be mapped: contiguous, uncompressed,
 /// in one byte order (`vti::locate`, `legacy::locate`).

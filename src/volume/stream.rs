@@ -177,7 +177,7 @@ pub(crate) fn stream(
     declared: ScalarType,
     source: Source,
 ) -> Result<Option<Streaming>, VolumeError> {
-    let Some((stats, _counts)) = source.stats() else {
+    let Some((stats, _counts)) = source.stats()? else {
         return Ok(None);
     };
     let shapes = pyramid::level_shapes(geometry);
@@ -340,7 +340,7 @@ mod tests {
         let buffer = TypedBuffer::from_f64(values);
         let reference = super::super::Volume::from_buffer(path, geometry, &buffer).unwrap();
         let source = Source::memory(path, buffer);
-        let (stats, _) = source.stats().unwrap();
+        let (stats, _) = source.stats().unwrap().unwrap();
         let shapes = pyramid::level_shapes(geometry);
         let none = vec![false; shapes.len()];
         let s = stream_keeping(geometry, ScalarType::F64, source, stats, shapes, &none)
