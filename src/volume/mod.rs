@@ -3,20 +3,20 @@
 //! Readers (`raw`, `vti`, `legacy`) decode a file into a [`TypedBuffer`] (the file's own scalar
 //! type and byte order, untouched) plus [`Geometry`], or locate its values in the file where
 //! they lie there contiguously. [`load`] streams them from a `source` (a memory map, else the
-//! decoded bytes): values normalized to [0, 1] by the finite min/max (docs/DESIGN.md,
-//! "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as empty), the
-//! histogram, and the mip pyramid with per-brick value ranges for empty-space skipping. Only
-//! the coarse levels are held in f32; level 0 (and any level finer than 512³) is made when
-//! asked for ([`Level::try_data`]) or read box by box ([`Level::read_box`]).
-//! [`Volume::from_buffer`] is the in-memory build of the same volume (every level held), which
-//! the streamed one equals bit for bit.
+//! decoded bytes; `stream`): values normalized to [0, 1] by the finite min/max
+//! (docs/DESIGN.md, "Conventions"), NaN/Inf voxels kept as NaN (the renderer treats them as
+//! empty), the histogram, and the mip pyramid with per-brick value ranges for empty-space
+//! skipping, in one pass for 8/16-bit data and two for other types. Only the coarse levels
+//! are held, in 16 bits where they hold no NaN; level 0 (and any level finer than 512³) is
+//! made when asked for ([`Level::try_data`]) or read box by box ([`Level::read_box`]).
+//! [`Volume::from_buffer`] is the same build over values already in memory, holding every
+//! level.
 
 mod buffer;
 mod legacy;
 mod pyramid;
 mod raw;
 mod read;
-mod small_int;
 mod source;
 mod stream;
 mod summary;
@@ -209,42 +209,39 @@ impl Volume {
             "use a smaller volume or crop it",
         )
         .map_err(|e| VolumeError::file(name, e.to_string()))?;
-        let Some(Normalized {
-            range,
-            norm_range,
-            non_finite,
-            histogram,
-            data,
-        }) = small_int::normalize(buffer).or_else(|| normalize(buffer))
-        else {
-            return Err(GeometryError::NoFiniteValues.at(name));
-        };
-        let narrow = stream::narrow_for(buffer.scalar_type(), norm_range);
-        let levels = pyramid::build(geometry, data, narrow);
-        Ok(Volume {
+        let source = source::Source::memory(name, buffer.clone());
+        Self::streamed(
+            name,
             geometry,
-            scalar_type: buffer.scalar_type(),
-            range,
-            norm_range,
-            non_finite,
-            histogram,
-            levels,
-            source: None,
-        })
+            buffer.scalar_type(),
+            source,
+            stream::Hold::All,
+        )
     }
 
-    /// Stream `source` into a volume (two passes, `stream` module docs): the statistics and
-    /// every level's brick ranges are computed now, the coarse levels are held, level 0 and
-    /// any level finer than 512³ are made when asked for. Bit for bit what
-    /// [`Volume::from_buffer`] gives for the same values.
+    /// Stream `source` into a volume (`stream` module docs): the statistics and every level's
+    /// brick ranges are computed now, the coarse levels are held, level 0 and any level finer
+    /// than 512³ are made when asked for. Bit for bit what [`Volume::from_buffer`] gives for
+    /// the same values.
     pub(crate) fn from_source(
         name: &Path,
         geometry: Geometry,
         scalar_type: ScalarType,
         source: source::Source,
     ) -> Result<Volume, VolumeError> {
+        Self::streamed(name, geometry, scalar_type, source, stream::Hold::Budget)
+    }
+
+    /// The volume of `source`, holding the levels `hold` says.
+    fn streamed(
+        name: &Path,
+        geometry: Geometry,
+        scalar_type: ScalarType,
+        source: source::Source,
+        hold: stream::Hold,
+    ) -> Result<Volume, VolumeError> {
         check_geometry(name, &geometry, source.len())?;
-        let Some(s) = stream::stream(geometry, scalar_type, source)? else {
+        let Some(s) = stream::stream(geometry, scalar_type, source, hold)? else {
             return Err(GeometryError::NoFiniteValues.at(name));
         };
         Ok(Volume {
@@ -328,7 +325,9 @@ impl GeometryError {
     }
 }
 
-/// The statistics and the one f32 copy of a buffer.
+/// The statistics and the one f32 copy of a buffer: the plain per-value normalization that
+/// the streaming build is tested against (`stream`'s tests).
+#[cfg(test)]
 struct Normalized {
     range: [f64; 2],
     norm_range: [f64; 2],
@@ -410,7 +409,9 @@ fn normalize_value(v: f64, norm_range: [f64; 2], scale: f64) -> (f32, usize) {
     (t as f32, bin)
 }
 
-/// Two passes over any buffer; `None` when no value is finite.
+/// Two passes over any buffer, value by value; `None` when no value is finite. The reference
+/// for `stream` (tests only).
+#[cfg(test)]
 fn normalize(buffer: &TypedBuffer) -> Option<Normalized> {
     // Pass 1: finite range in f64 (f64 inputs beyond f32's range stay exact here).
     let (mut lo, mut hi, mut non_finite) = (f64::INFINITY, f64::NEG_INFINITY, 0usize);

@@ -25,7 +25,7 @@ const PAR_POINTS: usize = 1 << 16;
 /// Stop reducing once every axis has at most this many points.
 const MIN_LEVEL_POINTS: usize = 8;
 
-/// One level of the pyramid. Its shape and brick ranges are known from the start; its f32
+/// One level of the pyramid. Its shape and brick ranges are known from the start; its
 /// samples are made when first asked for ([`Level::try_data`]) unless the volume was built
 /// holding them.
 #[derive(Clone, Debug)]
@@ -44,11 +44,57 @@ pub struct Level {
     narrow: Narrow,
 }
 
+/// A level's samples as held.
+#[derive(Debug)]
+pub(crate) enum Samples {
+    /// Normalized values (level 0, and filtered levels holding NaN).
+    F32(Vec<f32>),
+    /// A filtered level without NaN, rounded to 16 bits ([`round16`]): half the memory of
+    /// f32, and exactly what the renderer stores for such a level (`render::cpu::bricked`,
+    /// `Encoding::Round16`), so renders do not change.
+    Round16(Vec<u16>),
+}
+
+impl Samples {
+    /// Values `at..at + out.len()` as normalized f32 into `out`.
+    fn copy_to(&self, at: usize, out: &mut [f32]) {
+        match self {
+            Samples::F32(d) => out.copy_from_slice(&d[at..at + out.len()]),
+            Samples::Round16(q) => {
+                let n = out.len();
+                for (o, &q) in out.iter_mut().zip(&q[at..at + n]) {
+                    *o = unround16(q);
+                }
+            }
+        }
+    }
+}
+
+/// Normalized value per unit of a level rounded to 16 bits (the renderer's `Round16` scale).
+pub(crate) const ROUND16_SCALE: f32 = 1.0 / 65535.0;
+
+/// A normalized value in [0, 1] rounded to 16 bits: `round(v · 65535)`, the renderer's
+/// `Encoding::Round16` (error ≤ 2⁻¹⁷ of the range, 1/512 of a 256-entry LUT's cell).
+#[inline]
+pub(crate) fn round16(v: f32) -> u16 {
+    (v * 65535.0).round() as u16
+}
+
+/// The normalized value of a 16-bit rounded sample: `q · ROUND16_SCALE`, which [`round16`]
+/// maps back to `q` (tested for every q).
+#[inline]
+pub(crate) fn unround16(q: u16) -> f32 {
+    q as f32 * ROUND16_SCALE
+}
+
 /// A level's samples, made at most once.
 #[derive(Debug)]
 pub(crate) struct LevelCell {
-    /// Normalized samples, x fastest; NaN = empty.
-    data: OnceLock<Arc<Vec<f32>>>,
+    /// The samples, x fastest; NaN = empty.
+    samples: OnceLock<Samples>,
+    /// Samples held as [`Samples::Round16`] in f32, made only for a caller that asks for the
+    /// whole level as f32 ([`Level::try_data`]; the renderer reads boxes instead).
+    as_f32: OnceLock<Vec<f32>>,
     /// What makes them when they are not held: the source and this level's index.
     origin: Option<(Arc<Streamed>, usize)>,
     /// Held while the samples are made, so that threads asking at once make one copy.
@@ -57,13 +103,15 @@ pub(crate) struct LevelCell {
 
 impl Level {
     /// A level holding `data`.
+    #[cfg(test)]
     fn new(dims: [usize; 3], spacing: [f64; 3], data: Vec<f32>, narrow: Narrow) -> Level {
         Level {
             dims,
             spacing,
             bricks: BrickGrid::build(dims, &data),
             cell: Arc::new(LevelCell {
-                data: OnceLock::from(Arc::new(data)),
+                samples: OnceLock::from(Samples::F32(data)),
+                as_f32: OnceLock::new(),
                 origin: None,
                 making: Default::default(),
             }),
@@ -71,19 +119,20 @@ impl Level {
         }
     }
 
-    /// Level `index` of a streamed volume, holding `data` if given, else made from
+    /// Level `index` of a streamed volume, holding `samples` if given, else made from
     /// `streamed` when asked for.
     pub(super) fn lazy(
         dims: [usize; 3],
         spacing: [f64; 3],
         bricks: BrickGrid,
         narrow: Narrow,
-        data: Option<Vec<f32>>,
+        samples: Option<Samples>,
         streamed: &Arc<Streamed>,
         index: usize,
     ) -> Level {
         let cell = LevelCell {
-            data: data.map(Arc::new).map(OnceLock::from).unwrap_or_default(),
+            samples: samples.map(OnceLock::from).unwrap_or_default(),
+            as_f32: OnceLock::new(),
             origin: Some((streamed.clone(), index)),
             making: Default::default(),
         };
@@ -102,18 +151,37 @@ impl Level {
     /// When they cannot be made (they do not fit the memory budget): callers that may ask for
     /// a level larger than memory use [`Level::try_data`] or [`Level::read_box`].
     pub fn data(&self) -> &[f32] {
-        self.shared_data()
+        match self.try_data() {
+            Ok(d) => d,
+            Err(e) => panic!("{e}"),
+        }
     }
 
     /// Normalized samples, x fastest; NaN = empty. Made on first use (reading the source
-    /// again); an error when they do not fit the memory budget.
+    /// again); an error when they do not fit the memory budget. A level held in 16 bits
+    /// ([`Samples::Round16`]) makes an f32 copy of itself for this.
     pub fn try_data(&self) -> Result<&[f32], VolumeError> {
-        self.try_shared().map(|d| d.as_slice())
+        match self.try_samples()? {
+            Samples::F32(d) => Ok(d),
+            Samples::Round16(q) => Ok(self
+                .cell
+                .as_f32
+                .get_or_init(|| q.iter().map(|&q| unround16(q)).collect())),
+        }
     }
 
     /// Whether the samples are held (made, or built with the level).
     pub fn is_materialized(&self) -> bool {
-        self.cell.data.get().is_some()
+        self.cell.samples.get().is_some()
+    }
+
+    /// Whether the held samples are rounded to 16 bits ([`Samples::Round16`]); `None` when
+    /// they are not held.
+    pub fn is_16_bit(&self) -> Option<bool> {
+        self.cell
+            .samples
+            .get()
+            .map(|s| matches!(s, Samples::Round16(_)))
     }
 
     /// Whether the samples, when not held, are read from a memory map of the volume's file
@@ -125,8 +193,8 @@ impl Level {
             .is_some_and(|(s, _)| s.source.is_mapped())
     }
 
-    fn try_shared(&self) -> Result<&Arc<Vec<f32>>, VolumeError> {
-        if let Some(d) = self.cell.data.get() {
+    fn try_samples(&self) -> Result<&Samples, VolumeError> {
+        if let Some(d) = self.cell.samples.get() {
             return Ok(d);
         }
         let (streamed, index) = self
@@ -136,20 +204,11 @@ impl Level {
             .expect("a level without samples has a source");
         // A panic while making them leaves nothing behind the lock: ignore the poison.
         let _making = self.cell.making.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(d) = self.cell.data.get() {
+        if let Some(d) = self.cell.samples.get() {
             return Ok(d);
         }
-        let data = streamed.materialize(*index)?;
-        Ok(self.cell.data.get_or_init(|| Arc::new(data)))
-    }
-
-    /// The samples' allocation: what a renderer's cache of this level is keyed by. Makes the
-    /// samples (panics as [`Level::data`]).
-    pub(crate) fn shared_data(&self) -> &Arc<Vec<f32>> {
-        match self.try_shared() {
-            Ok(d) => d,
-            Err(e) => panic!("{e}"),
-        }
+        let samples = streamed.materialize(*index)?;
+        Ok(self.cell.samples.get_or_init(|| samples))
     }
 
     /// What identifies this level's samples without making them: the same allocation for
@@ -164,15 +223,15 @@ impl Level {
     /// box reads of a file larger than memory (a level-0 render through the brick cache) call
     /// it between batches, so the file's pages do not add up in the process's memory.
     pub(crate) fn release_source(&self) {
-        if let (None, Some((streamed, _))) = (self.cell.data.get(), &self.cell.origin) {
+        if let (None, Some((streamed, _))) = (self.cell.samples.get(), &self.cell.origin) {
             streamed.source.release(0..streamed.source.len());
         }
     }
 
     /// Normalized samples of the points in the box [`lo`, `hi`) into `out` (x fastest, then
     /// y, then z; `out.len()` is the box's point count). Read from the held samples when
-    /// there are, else from the source for level 0 (nothing is kept), else the level is made
-    /// first ([`Level::try_data`]).
+    /// there are, else from the source (nothing is kept): level 0's values, or a coarser
+    /// level's reduced from level 0's box, equal to the held level's bit for bit.
     ///
     /// # Panics
     /// When the box is not inside the level or `out` is not its size.
@@ -190,15 +249,15 @@ impl Level {
         let w = hi[0] - lo[0];
         let (h, d) = (hi[1] - lo[1], hi[2] - lo[2]);
         assert_eq!(out.len(), w * h * d, "box {lo:?}..{hi:?} and output size");
-        match (self.cell.data.get(), &self.cell.origin) {
+        match (self.cell.samples.get(), &self.cell.origin) {
             (None, Some((streamed, level))) => streamed.read_box(*level, lo, hi, out),
             _ => {
-                let data = self.try_data()?;
+                let samples = self.try_samples()?;
                 for (row, at) in out
                     .chunks_exact_mut(w.max(1))
                     .zip(box_rows(self.dims, lo, hi))
                 {
-                    row.copy_from_slice(&data[at as usize..][..w]);
+                    samples.copy_to(at as usize, row);
                 }
                 Ok(())
             }
@@ -210,8 +269,10 @@ impl Level {
         self.narrow
     }
 
-    /// Memory the samples and the brick ranges take once the samples are made (a renderer's
-    /// copies not included); see [`Level::is_materialized`] for whether they are.
+    /// Memory the samples and the brick ranges take once the samples are made, as f32: an
+    /// upper bound, since a level held in 16 bits ([`Level::is_16_bit`]) takes half of its
+    /// samples' share (a renderer's copies not included); see [`Level::is_materialized`] for
+    /// whether they are made.
     pub fn memory_bytes(&self) -> usize {
         level_bytes(self.dims)
     }
@@ -288,6 +349,18 @@ impl BrickGrid {
     #[inline]
     pub(crate) fn index(&self, bi: usize, bj: usize, bk: usize) -> usize {
         bi + self.counts[0] * (bj + self.counts[1] * bk)
+    }
+
+    /// The ranges of the level's values mapped by `f`, a non-decreasing function (the
+    /// normalization of code units, the rounding to 16 bits): the min (max) of the mapped
+    /// values is the mapped min (max). The ±inf of all-NaN bricks stay. `uniform` stays: a
+    /// brick that was not uniform may become equal at its ends, and is then only not skipped.
+    pub(super) fn map(&mut self, f: impl Fn(f32) -> f32) {
+        for v in self.min.iter_mut().chain(self.max.iter_mut()) {
+            if v.is_finite() {
+                *v = f(*v);
+            }
+        }
     }
 }
 
@@ -367,6 +440,11 @@ impl BrickGridBuilder {
         }
     }
 
+    /// Whether a point pushed so far is NaN.
+    pub(crate) fn has_nan(&self) -> bool {
+        self.nan.iter().any(|&n| n)
+    }
+
     pub(crate) fn finish(self) -> BrickGrid {
         let uniform = (0..self.min.len())
             .map(|b| !self.nan[b] && self.min[b] == self.max[b])
@@ -400,9 +478,9 @@ pub(super) fn level_shapes(geometry: Geometry) -> Vec<([usize; 3], [f64; 3])> {
     }
 }
 
-/// Build all levels, level 0 taking ownership of `data` (stored by the renderer as `narrow`
-/// says; filtered levels are [`Narrow::Round16`]). The coarser levels come from one
-/// [`Reducer`] pass over level 0's z-slices, so no full-size intermediate copy exists.
+/// Build all levels from level 0's normalized `data`, every level held in f32: the
+/// [`Reducer`] alone, without normalization or rounding (what `stream` adds), for the tests.
+#[cfg(test)]
 pub(super) fn build(geometry: Geometry, data: Vec<f32>, narrow: Narrow) -> Vec<Level> {
     let shapes = level_shapes(geometry);
     let [nx, ny, nz] = geometry.dims;
@@ -1028,7 +1106,30 @@ mod tests {
             }
             let v = crate::volume::load(&path, &Default::default()).unwrap();
             let l0 = &v.levels[0];
-            let reference = build_by_axes(v.geometry, l0.data().to_vec(), l0.narrow());
+            // The stream's units (`stream` module docs): 8/16-bit codes are filtered as
+            // their values and normalized after; other types are filtered normalized.
+            let decoded = crate::volume::decode(&path, &Default::default()).unwrap();
+            let ty = decoded.buffer.scalar_type();
+            let codes = super::super::summary::small_codes(ty).is_some();
+            let units = if codes {
+                let mut values = Vec::new();
+                decoded.buffer.for_each(|x| values.push(x as f32));
+                values
+            } else {
+                l0.data().to_vec()
+            };
+            let mut reference = build_by_axes(v.geometry, units, l0.narrow());
+            let norm = super::super::stream::Norm::new(ty, v.norm_range);
+            for (l, level) in reference.iter_mut().enumerate() {
+                let mut d = level.data().to_vec();
+                if codes {
+                    d.iter_mut().for_each(|x| *x = norm.apply(*x));
+                }
+                if l > 0 && !d.iter().any(|x| x.is_nan()) {
+                    d.iter_mut().for_each(|x| *x = unround16(round16(*x)));
+                }
+                *level = Level::new(level.dims, level.spacing, d, level.narrow());
+            }
             assert_same_levels(&v.levels, &reference, &path.display().to_string());
             checked += 1;
         }

@@ -1,34 +1,48 @@
 //! The streaming build of a volume's statistics and mip pyramid over a [`Source`].
 //!
-//! [`stream`] builds a volume from a source in **two passes**: the statistics first (the
-//! normalization needs the finite range before any value is normalized), then one pass over
-//! level 0's z-slices that normalizes each slice ([`Norm`], the formula of
-//! `Volume::from_buffer`), adds it to level 0's brick ranges and the histogram, and pushes it
-//! through the pyramid's `Reducer`. Memory beyond the levels kept is one slice of level 0 and a
-//! few slices per coarser level. Level 0 is never kept by the stream: it is read from the
+//! [`stream`] reads level 0's z-slices in order and, from each, adds to the statistics,
+//! level 0's brick ranges and the pyramid's `Reducer`, which makes every coarser level's
+//! slices and brick ranges as it goes. Memory beyond the levels held is one slice of level 0
+//! and a few slices per coarser level. Level 0 is never held by the stream: it is read from the
 //! source when asked for (`Level::data`, `Level::read_box`).
+//!
+//! Levels are filtered in one of two [`Units`]:
+//! - **8/16-bit integers: one pass.** The slices go in as the codes' own values (exact in
+//!   f32), and the codes are counted on the way; the finite range, the histogram and the
+//!   normalization follow from the counts at the end, and only then are the held levels and
+//!   all brick ranges normalized (normalizing is non-decreasing, so a brick's normalized
+//!   min is its min normalized). Values up to 65535 in f32 keep ≥ 2⁻⁸ of a code, far below a
+//!   16-bit rounding step.
+//! - **Other types: two passes.** The range must be known before a value is normalized: wide
+//!   integers and floats lose their precision in f32 data units (a range of [10⁶, 10⁶ + 1]),
+//!   so the statistics come first, then the slices go in normalized.
+//!
+//! Filtered levels without NaN are rounded to 16 bits (`pyramid::Samples::Round16`): held so,
+//! read so from the source (`Level::read_box`), with brick ranges of the rounded values. It is
+//! what the renderer stores for them anyway, and it halves the held levels' memory.
+//! `Volume::from_buffer` is this build over the decoded values with every level held.
 
 use std::sync::Arc;
 
-use super::pyramid::{self, BrickGridBuilder, Level, Narrow, Reducer};
+use super::pyramid::{self, BrickGridBuilder, Level, Narrow, Reducer, Samples};
 use super::source::Source;
-use super::summary::{code_value, small_codes, Stats};
+use super::summary::{code_stats, code_value, small_codes, Stats};
 use super::{
     buffer::for_each_value, half_scale, normalize_value, ByteOrder, Geometry, ScalarType,
     VolumeError,
 };
 
-/// How a source's values become normalized samples (`normalize` of `Volume::from_buffer`).
+/// How a source's values become normalized samples (docs/DESIGN.md, "Conventions").
 #[derive(Debug)]
 pub(crate) struct Norm {
     norm_range: [f64; 2],
     scale: f64,
-    /// For 8/16-bit codes: the sample of every code (as `small_int`).
+    /// For 8/16-bit codes: the sample of every code.
     lut: Option<Vec<f32>>,
 }
 
 impl Norm {
-    fn new(ty: ScalarType, norm_range: [f64; 2]) -> Norm {
+    pub(super) fn new(ty: ScalarType, norm_range: [f64; 2]) -> Norm {
         let scale = half_scale(norm_range);
         let lut = small_codes(ty).map(|codes| {
             (0..codes)
@@ -42,9 +56,20 @@ impl Norm {
         }
     }
 
+    /// A value in data units normalized (NaN stays NaN). For a code this is its table entry:
+    /// the same f64 formula on the same number.
+    #[inline]
+    pub(super) fn apply(&self, v: f32) -> f32 {
+        if v.is_nan() {
+            f32::NAN
+        } else {
+            normalize_value(v as f64, self.norm_range, self.scale).0
+        }
+    }
+
     /// Normalized samples of values `start..start + out.len()` of `src` into `out`. For wider
     /// types (no table) it also counts each finite value's bin into `histogram` when given;
-    /// 8/16-bit sources have their histogram from the first pass's code counts.
+    /// 8/16-bit sources have their histogram from the code counts.
     pub(crate) fn read(
         &self,
         src: &Source,
@@ -56,21 +81,7 @@ impl Norm {
         let mut i = 0;
         src.for_bytes(start..start + out.len(), |bytes| {
             if let Some(lut) = &self.lut {
-                if ty.size() == 1 {
-                    for (o, &b) in out[i..].iter_mut().zip(bytes) {
-                        *o = lut[b as usize];
-                    }
-                } else {
-                    for (o, c) in out[i..].iter_mut().zip(bytes.chunks_exact(2)) {
-                        let b = [c[0], c[1]];
-                        let code = match order {
-                            ByteOrder::Little => u16::from_le_bytes(b),
-                            ByteOrder::Big => u16::from_be_bytes(b),
-                        };
-                        *o = lut[code as usize];
-                    }
-                }
-                i += bytes.len() / ty.size();
+                i += lookup(ty, order, bytes, lut, &mut out[i..], None);
                 return;
             }
             for_each_value(ty, order, bytes, |v| {
@@ -89,6 +100,89 @@ impl Norm {
     }
 }
 
+/// `table[code]` of each 8/16-bit value in `bytes` into `out`, counting the codes into
+/// `counts` when given; returns the number of values.
+#[inline]
+fn lookup(
+    ty: ScalarType,
+    order: ByteOrder,
+    bytes: &[u8],
+    table: &[f32],
+    out: &mut [f32],
+    mut counts: Option<&mut [u64]>,
+) -> usize {
+    let mut put = |o: &mut f32, c: usize| {
+        *o = table[c];
+        if let Some(k) = counts.as_deref_mut() {
+            k[c] += 1;
+        }
+    };
+    if ty.size() == 1 {
+        for (o, &b) in out.iter_mut().zip(bytes) {
+            put(o, b as usize);
+        }
+        return bytes.len();
+    }
+    for (o, c) in out.iter_mut().zip(bytes.chunks_exact(2)) {
+        let b = [c[0], c[1]];
+        let code = match order {
+            ByteOrder::Little => u16::from_le_bytes(b),
+            ByteOrder::Big => u16::from_be_bytes(b),
+        };
+        put(o, code as usize);
+    }
+    bytes.len() / 2
+}
+
+/// What the levels are filtered in (module docs).
+#[derive(Debug)]
+enum Units {
+    /// 8/16-bit codes: each code's value as f32 (the table), normalized after filtering.
+    Codes(Vec<f32>),
+    /// Normalized values.
+    Normalized,
+}
+
+impl Units {
+    fn of(ty: ScalarType) -> Units {
+        match small_codes(ty) {
+            Some(codes) => Units::Codes((0..codes).map(|c| code_value(ty, c) as f32).collect()),
+            None => Units::Normalized,
+        }
+    }
+
+    /// Values `start..start + out.len()` of `src` in these units into `out`, counting codes
+    /// into `counts` when given (codes only).
+    fn read(
+        &self,
+        src: &Source,
+        norm: Option<&Norm>,
+        start: usize,
+        out: &mut [f32],
+        mut counts: Option<&mut [u64]>,
+    ) -> Result<(), VolumeError> {
+        match self {
+            Units::Codes(table) => {
+                let (ty, order) = (src.ty(), src.order());
+                let mut i = 0;
+                src.for_bytes(start..start + out.len(), |bytes| {
+                    i += lookup(
+                        ty,
+                        order,
+                        bytes,
+                        table,
+                        &mut out[i..],
+                        counts.as_deref_mut(),
+                    );
+                })
+            }
+            Units::Normalized => norm
+                .expect("normalized units have the range first")
+                .read(src, start, out, None),
+        }
+    }
+}
+
 /// A source with its normalization and level shapes: what a lazy level is made from.
 #[derive(Debug)]
 pub(crate) struct Streamed {
@@ -96,21 +190,57 @@ pub(crate) struct Streamed {
     pub(crate) norm: Norm,
     /// Points per axis and spacing of every level ([`pyramid::level_shapes`]).
     pub(crate) shapes: Vec<([usize; 3], [f64; 3])>,
+    units: Units,
+    /// Per level: rounded to 16 bits (a filtered level without NaN).
+    rounded: Vec<bool>,
 }
 
 impl Streamed {
+    /// Filtered values of level `level` ≥ 1 (in [`Units`]) made final: normalized, then
+    /// rounded where the level is.
+    fn finish_values(&self, level: usize, values: &mut [f32]) {
+        if let Units::Codes(_) = self.units {
+            for v in values.iter_mut() {
+                *v = self.norm.apply(*v);
+            }
+        }
+        if self.rounded[level] {
+            for v in values.iter_mut() {
+                *v = pyramid::unround16(pyramid::round16(*v));
+            }
+        }
+    }
+
+    /// A held level's samples from its filtered values (in [`Units`]).
+    fn samples(&self, level: usize, mut values: Vec<f32>) -> Samples {
+        if let Units::Codes(_) = self.units {
+            for v in values.iter_mut() {
+                *v = self.norm.apply(*v);
+            }
+        }
+        if level > 0 && self.rounded[level] {
+            Samples::Round16(values.iter().map(|&v| pyramid::round16(v)).collect())
+        } else {
+            Samples::F32(values)
+        }
+    }
+
     /// The samples of level `level`, made by streaming over the source again (the levels
     /// between it and level 0 are reduced slice by slice and not kept). The memory budget is
     /// checked first.
-    pub(crate) fn materialize(&self, level: usize) -> Result<Vec<f32>, VolumeError> {
+    pub(crate) fn materialize(&self, level: usize) -> Result<Samples, VolumeError> {
         let dims = self.shapes[level].0;
+        let bytes = if self.rounded[level] { 2 } else { 4 };
         crate::memory::check(
             format!(
-                "mip level {level} ({}x{}x{} points, f32)",
-                dims[0], dims[1], dims[2]
+                "mip level {level} ({}x{}x{} points, {})",
+                dims[0],
+                dims[1],
+                dims[2],
+                if bytes == 2 { "16-bit" } else { "f32" }
             ),
             crate::memory::product(&dims),
-            4,
+            bytes,
             "render at a coarser level (--level) or use a smaller volume",
         )
         .map_err(|e| VolumeError::file(self.source.path(), e.to_string()))?;
@@ -122,24 +252,26 @@ impl Streamed {
                 self.norm.read(&self.source, z * area, slice, None)?;
                 self.source.release(z * area..(z + 1) * area);
             }
-            return Ok(out);
+            return Ok(Samples::F32(out));
         }
         let mut reducer = Reducer::new(&self.shapes[..=level], |l| l == level);
         let mut slice = vec![0.0f32; area];
         for z in 0..nz {
-            self.norm.read(&self.source, z * area, &mut slice, None)?;
+            let norm = Some(&self.norm);
+            self.units
+                .read(&self.source, norm, z * area, &mut slice, None)?;
             self.source.release(z * area..(z + 1) * area);
             reducer.push(&slice, |_, _| {});
         }
-        Ok(reducer.finish().pop().flatten().unwrap_or_default())
+        let values = reducer.finish().pop().flatten().unwrap_or_default();
+        Ok(self.samples(level, values))
     }
-}
 
-impl Streamed {
     /// Samples of level `level` in the box [`lo`, `hi`) (x fastest) without holding the
     /// level: level 0's rows are read from the source, a coarser level is reduced from the box
     /// of the finer one that its filter reads (`pyramid::reduce_box`: the streamed level's
-    /// values bit for bit). 64-bit index math: level 0 may hold more than 2³² points.
+    /// values bit for bit), then normalized and rounded as a held level is. 64-bit index
+    /// math: level 0 may hold more than 2³² points.
     pub(crate) fn read_box(
         &self,
         level: usize,
@@ -148,18 +280,50 @@ impl Streamed {
         out: &mut [f32],
     ) -> Result<(), VolumeError> {
         if level == 0 {
-            let w = hi[0] - lo[0];
-            let rows = pyramid::box_rows(self.shapes[0].0, lo, hi);
-            for (row, at) in out.chunks_exact_mut(w.max(1)).zip(rows) {
-                // A usize index: the values lie in this process's memory (a map or a buffer).
-                self.norm.read(&self.source, at as usize, row, None)?;
-            }
-            return Ok(());
+            return self.read_rows(lo, hi, out, |start, row| {
+                self.norm.read(&self.source, start, row, None)
+            });
+        }
+        self.reduce_box(level, lo, hi, out)?;
+        self.finish_values(level, out);
+        Ok(())
+    }
+
+    /// Level `level`'s filtered values in [`Units`] in the box [`lo`, `hi`).
+    fn reduce_box(
+        &self,
+        level: usize,
+        lo: [usize; 3],
+        hi: [usize; 3],
+        out: &mut [f32],
+    ) -> Result<(), VolumeError> {
+        if level == 0 {
+            return self.read_rows(lo, hi, out, |start, row| {
+                self.units
+                    .read(&self.source, Some(&self.norm), start, row, None)
+            });
         }
         let (input, output) = (self.shapes[level - 1].0, self.shapes[level].0);
         pyramid::reduce_box(input, output, lo, hi, out, |l, h, buf| {
-            self.read_box(level - 1, l, h, buf)
+            self.reduce_box(level - 1, l, h, buf)
         })
+    }
+
+    /// Level 0's rows of the box [`lo`, `hi`), each read by `read(first value, row)`.
+    fn read_rows(
+        &self,
+        lo: [usize; 3],
+        hi: [usize; 3],
+        out: &mut [f32],
+        read: impl Fn(usize, &mut [f32]) -> Result<(), VolumeError>,
+    ) -> Result<(), VolumeError> {
+        let w = hi[0] - lo[0];
+        let rows = pyramid::box_rows(self.shapes[0].0, lo, hi);
+        for (row, at) in out.chunks_exact_mut(w.max(1)).zip(rows) {
+            // A usize index: the values lie in this process's memory (a map or a buffer).
+            read(at as usize, row)?;
+        }
+        Ok(())
     }
 }
 
@@ -169,34 +333,42 @@ pub(crate) struct Streaming {
     pub(crate) levels: Vec<Level>,
 }
 
-/// Build a volume's statistics and levels from `source` (module docs: two passes). Levels 1..
-/// whose f32 samples [`keep`] accepts are held; the others, and level 0, are made when asked
-/// for. `None` when no value is finite.
+/// Which levels a stream holds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Hold {
+    /// The coarse levels that fit half the memory budget ([`keep`]).
+    Budget,
+    /// Every level but level 0 (`Volume::from_buffer`: the values are in memory already).
+    All,
+}
+
+/// Build a volume's statistics and levels from `source` (module docs). `None` when no value
+/// is finite.
 pub(crate) fn stream(
     geometry: Geometry,
     declared: ScalarType,
     source: Source,
+    hold: Hold,
 ) -> Result<Option<Streaming>, VolumeError> {
-    let Some((stats, _counts)) = source.stats()? else {
-        return Ok(None);
-    };
     let shapes = pyramid::level_shapes(geometry);
-    let kept = keep(&shapes, crate::memory::budget());
-    stream_keeping(geometry, declared, source, stats, shapes, &kept)
+    let kept = match hold {
+        Hold::Budget => keep(&shapes, crate::memory::budget()),
+        Hold::All => (0..shapes.len()).map(|l| l > 0).collect(),
+    };
+    stream_keeping(geometry, declared, source, shapes, &kept)
 }
 
-/// [`stream`] after the statistics pass, holding the levels `kept` says.
+/// [`stream`], holding the levels `kept` says.
 fn stream_keeping(
     geometry: Geometry,
     declared: ScalarType,
     source: Source,
-    mut stats: Stats,
     shapes: Vec<([usize; 3], [f64; 3])>,
     kept: &[bool],
 ) -> Result<Option<Streaming>, VolumeError> {
     // Held whatever is kept: every level's brick ranges (`level_bytes` less the samples, plus
     // the builder's NaN flag per brick of about 512 points), and a slice of level 0 as f32
-    // with the reducer's few.
+    // with the reducer's few; the kept levels in f32 until the pass ends.
     let held: u64 = shapes
         .iter()
         .map(|(d, _)| {
@@ -219,33 +391,56 @@ fn stream_keeping(
     )
     .map_err(|e| VolumeError::file(source.path(), e.to_string()))?;
 
-    let norm = Norm::new(source.ty(), stats.norm_range);
+    let units = Units::of(source.ty());
+    // Two passes for normalized units: the statistics first.
+    let first = match units {
+        Units::Normalized => match source.stats()? {
+            Some((stats, _)) => Some((Norm::new(source.ty(), stats.norm_range), stats)),
+            None => return Ok(None),
+        },
+        Units::Codes(_) => None,
+    };
     let [nx, ny, nz] = geometry.dims;
     let area = nx * ny;
     let mut grids: Vec<BrickGridBuilder> =
         shapes.iter().map(|s| BrickGridBuilder::new(s.0)).collect();
     let mut reducer = Reducer::new(&shapes, |l| kept[l]);
-    // The generic path counts the histogram while normalizing (the code path has it).
-    let mut histogram = stats
-        .histogram
-        .is_empty()
-        .then(|| vec![0u64; super::HISTOGRAM_BINS]);
+    let mut counts = small_codes(source.ty()).map(|codes| vec![0u64; codes]);
+    let mut histogram = first.is_some().then(|| vec![0u64; super::HISTOGRAM_BINS]);
     let mut slice = vec![0.0f32; area];
     for z in 0..nz {
-        norm.read(&source, z * area, &mut slice, histogram.as_mut())?;
+        match &first {
+            Some((norm, _)) => norm.read(&source, z * area, &mut slice, histogram.as_mut())?,
+            None => units.read(&source, None, z * area, &mut slice, counts.as_deref_mut())?,
+        }
         source.release(z * area..(z + 1) * area);
-        let (first, rest) = grids.split_first_mut().expect("level 0 exists");
-        first.push(&slice);
+        let (grid0, rest) = grids.split_first_mut().expect("level 0 exists");
+        grid0.push(&slice);
         reducer.push(&slice, |l, s| rest[l - 1].push(s));
     }
-    if let Some(h) = histogram {
-        stats.histogram = h;
-    }
+    let (norm, stats) = match (first, counts) {
+        (Some((norm, mut stats)), _) => {
+            stats.histogram = histogram.expect("counted with the first pass");
+            (norm, stats)
+        }
+        (None, Some(counts)) => {
+            let stats = code_stats(source.ty(), &counts);
+            (Norm::new(source.ty(), stats.norm_range), stats)
+        }
+        (None, None) => unreachable!("code units count codes"),
+    };
+    let rounded: Vec<bool> = grids
+        .iter()
+        .enumerate()
+        .map(|(l, g)| l > 0 && !g.has_nan())
+        .collect();
     let narrow = narrow_for(declared, stats.norm_range);
     let streamed = Arc::new(Streamed {
         source,
         norm,
         shapes: shapes.clone(),
+        units,
+        rounded,
     });
     let mut data = reducer.finish();
     let levels = shapes
@@ -254,16 +449,32 @@ fn stream_keeping(
         .enumerate()
         .map(|(l, ((dims, spacing), grid))| {
             let narrow = if l == 0 { narrow } else { Narrow::Round16 };
-            let data = if l == 0 { None } else { data[l - 1].take() };
-            Level::lazy(*dims, *spacing, grid.finish(), narrow, data, &streamed, l)
+            let mut grid = grid.finish();
+            let (codes, round) = (
+                matches!(streamed.units, Units::Codes(_)),
+                streamed.rounded[l],
+            );
+            if codes || round {
+                grid.map(|v| {
+                    let v = if codes { streamed.norm.apply(v) } else { v };
+                    if round {
+                        pyramid::unround16(pyramid::round16(v))
+                    } else {
+                        v
+                    }
+                });
+            }
+            let samples = if l == 0 { None } else { data[l - 1].take() };
+            let samples = samples.map(|values| streamed.samples(l, values));
+            Level::lazy(*dims, *spacing, grid, narrow, samples, &streamed, l)
         })
         .collect();
     Ok(Some(Streaming { stats, levels }))
 }
 
-/// Which levels a stream keeps in f32: the coarse ones that fit half of `budget` bytes,
-/// coarsest first, none above [`KEEP_POINTS`] points (finer than 512³); level 0 never. The
-/// others are made when asked for.
+/// Which levels a stream keeps: the coarse ones that fit half of `budget` bytes (counted as
+/// f32, which they are until the pass ends), coarsest first, none above [`KEEP_POINTS`]
+/// points (finer than 512³); level 0 never. The others are made when asked for.
 pub(crate) fn keep(shapes: &[([usize; 3], [f64; 3])], budget: u64) -> Vec<bool> {
     let mut kept = vec![false; shapes.len()];
     let mut used = 0u64;
@@ -278,7 +489,8 @@ pub(crate) fn keep(shapes: &[([usize; 3], [f64; 3])], budget: u64) -> Vec<bool> 
     kept
 }
 
-/// Points of the finest level a stream keeps: 512³ (512 MiB of f32).
+/// Points of the finest level a stream keeps: 512³ (512 MiB of f32 while streaming, 256 MiB
+/// once rounded to 16 bits).
 const KEEP_POINTS: usize = 1 << 27;
 
 /// How level 0's samples may be narrowed: integer data spanning at most 65535 steps
@@ -321,6 +533,125 @@ mod tests {
         assert_eq!(keep(&shapes, 0), vec![false; shapes.len()]);
     }
 
+    /// Deterministic bytes covering every code region (xorshift).
+    fn bytes(n: usize, seed: u64) -> Vec<u8> {
+        let mut x = seed;
+        (0..n)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                (x >> 24) as u8
+            })
+            .collect()
+    }
+
+    fn bits(d: &[f32]) -> Vec<u32> {
+        d.iter().map(|v| v.to_bits()).collect()
+    }
+
+    /// The stream's statistics and level 0 equal the plain per-value normalization
+    /// (`volume::normalize`) bit for bit: 8/16-bit types in both byte orders (one pass, codes
+    /// counted), with more and fewer values than codes, and the same values stored as f64
+    /// (two passes).
+    #[test]
+    fn stream_equals_the_per_value_normalization() {
+        for ty in [
+            ScalarType::U8,
+            ScalarType::I8,
+            ScalarType::U16,
+            ScalarType::I16,
+        ] {
+            for order in [ByteOrder::Little, ByteOrder::Big] {
+                for (len, seed) in [(5, 3), (1 << 16, 7), (3 * (1 << 16) + 5, 1)] {
+                    let buf = TypedBuffer::new(ty, order, bytes(len * ty.size(), seed));
+                    let mut values = Vec::new();
+                    buf.for_each(|v| values.push(v));
+                    let wide = TypedBuffer::from_f64(values);
+                    let reference = super::super::normalize(&wide).unwrap();
+                    let geometry = Geometry {
+                        dims: [len, 1, 1],
+                        spacing: [1.0; 3],
+                        origin: [0.0; 3],
+                    };
+                    let path = Path::new("t");
+                    for b in [&buf, &wide] {
+                        let v = super::super::Volume::from_buffer(path, geometry, b).unwrap();
+                        let what = format!("{ty} {order:?} {len} as {}", b.scalar_type());
+                        assert_eq!(v.range, reference.range, "{what}");
+                        assert_eq!(v.norm_range, reference.norm_range, "{what}");
+                        assert_eq!(v.histogram, reference.histogram, "{what}");
+                        assert_eq!(v.non_finite, reference.non_finite, "{what}");
+                        assert_eq!(bits(v.data()), bits(&reference.data), "{what}");
+                    }
+                }
+            }
+        }
+        let constant = [0xff, 0xfe].repeat(1 << 16);
+        let buf = TypedBuffer::new(ScalarType::I16, ByteOrder::Big, constant);
+        let geometry = Geometry {
+            dims: [256, 256, 1],
+            spacing: [1.0; 3],
+            origin: [0.0; 3],
+        };
+        let v = super::super::Volume::from_buffer(Path::new("t"), geometry, &buf).unwrap();
+        assert_eq!((v.range, v.norm_range), ([-2.0, -2.0], [-2.5, -1.5]));
+        assert!(v.data().iter().all(|&x| x == 0.5));
+        // Filtered levels hold 0.5 rounded to 16 bits.
+        let rounded = pyramid::unround16(pyramid::round16(0.5));
+        assert!((rounded - 0.5).abs() <= 0.5 / 65535.0);
+        assert!(v.levels[1..]
+            .iter()
+            .all(|l| l.data().iter().all(|&x| x == rounded)));
+    }
+
+    /// Filtered levels of 8/16-bit data: the reducer over the codes' values, then each value
+    /// normalized and rounded to 16 bits (module docs), held in 16 bits; their brick ranges
+    /// are those of the values held, bit for bit.
+    #[test]
+    fn code_levels_are_filtered_codes_normalized_and_rounded() {
+        let dims = [37, 29, 23];
+        let n: usize = dims.iter().product();
+        for ty in [ScalarType::U8, ScalarType::I16] {
+            let buf = TypedBuffer::new(ty, ByteOrder::Little, bytes(n * ty.size(), 5));
+            let geometry = Geometry {
+                dims,
+                spacing: [1.0, 0.5, 2.0],
+                origin: [0.0; 3],
+            };
+            let v = super::super::Volume::from_buffer(Path::new("t"), geometry, &buf).unwrap();
+            let mut codes = Vec::new();
+            buf.for_each(|x| codes.push(x as f32));
+            let reference = pyramid::build(geometry, codes, Narrow::No);
+            let norm = Norm::new(ty, v.norm_range);
+            assert!(v.levels.len() >= 3);
+            for (l, (level, want)) in v.levels.iter().zip(&reference).enumerate().skip(1) {
+                assert_eq!(level.is_16_bit(), Some(true), "{ty} level {l}");
+                let expect: Vec<f32> = want
+                    .data()
+                    .iter()
+                    .map(|&c| pyramid::unround16(pyramid::round16(norm.apply(c))))
+                    .collect();
+                assert_eq!(bits(level.data()), bits(&expect), "{ty} level {l}");
+                let grid = pyramid::BrickGrid::build(level.dims, level.data());
+                assert_eq!(bits(&level.bricks.min), bits(&grid.min), "{ty} level {l}");
+                assert_eq!(bits(&level.bricks.max), bits(&grid.max), "{ty} level {l}");
+            }
+        }
+    }
+
+    /// Every 16-bit sample reads back as the value the renderer rounds to the same sample.
+    #[test]
+    fn rounding_to_16_bits_round_trips() {
+        for q in 0..=u16::MAX {
+            let v = pyramid::unround16(q);
+            assert_eq!(pyramid::round16(v), q);
+            assert!((0.0..=1.0).contains(&v));
+        }
+        assert_eq!(pyramid::round16(0.5 / 65535.0 - 1e-9), 0);
+        assert_eq!(pyramid::round16(1.0), u16::MAX);
+    }
+
     /// Levels that are not held: `read_box` (reduced from level 0's box on the source) and
     /// `try_data` (a second stream) equal the in-memory pyramid bit for bit, on odd boxes.
     #[test]
@@ -340,10 +671,9 @@ mod tests {
         let buffer = TypedBuffer::from_f64(values);
         let reference = super::super::Volume::from_buffer(path, geometry, &buffer).unwrap();
         let source = Source::memory(path, buffer);
-        let (stats, _) = source.stats().unwrap().unwrap();
         let shapes = pyramid::level_shapes(geometry);
         let none = vec![false; shapes.len()];
-        let s = stream_keeping(geometry, ScalarType::F64, source, stats, shapes, &none)
+        let s = stream_keeping(geometry, ScalarType::F64, source, shapes, &none)
             .unwrap()
             .unwrap();
         assert_eq!(s.stats.histogram, reference.histogram);
