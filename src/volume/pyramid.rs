@@ -52,7 +52,39 @@ pub(crate) enum Samples {
     /// A filtered level without NaN, rounded to 16 bits ([`round16`]): half the memory of
     /// f32, and exactly what the renderer stores for such a level (`render::cpu::bricked`,
     /// `Encoding::Round16`), so renders do not change.
-    Round16(Vec<u16>),
+    Round16(Packed16),
+}
+
+/// 16-bit samples packed two to a word of the f32 allocation they were filtered into, so
+/// that rounding a level needs no second allocation: a 512³ level would otherwise hold its
+/// 512 MiB of f32 and 256 MiB of 16-bit samples at once, the peak of a large volume's load.
+#[derive(Debug)]
+pub(crate) struct Packed16 {
+    /// The allocation, `len.div_ceil(2)` words holding the samples in memory order.
+    words: Vec<f32>,
+    len: usize,
+}
+
+impl Packed16 {
+    /// `values` (normalized) rounded to 16 bits in place, then the allocation shrunk to half
+    /// (`realloc` shrinks in place). Sample i is written over bytes 2i..2i + 2, which belong
+    /// to value i / 2 ≤ i, already read.
+    pub(crate) fn round(mut values: Vec<f32>) -> Packed16 {
+        let len = values.len();
+        let view: &mut [u16] = bytemuck::cast_slice_mut(&mut values);
+        for i in 0..len {
+            let (lo, hi) = (view[2 * i].to_ne_bytes(), view[2 * i + 1].to_ne_bytes());
+            view[i] = round16(f32::from_ne_bytes([lo[0], lo[1], hi[0], hi[1]]));
+        }
+        values.truncate(len.div_ceil(2));
+        values.shrink_to_fit();
+        Packed16 { words: values, len }
+    }
+
+    /// The samples.
+    pub(crate) fn samples(&self) -> &[u16] {
+        &bytemuck::cast_slice(&self.words)[..self.len]
+    }
 }
 
 impl Samples {
@@ -62,7 +94,7 @@ impl Samples {
             Samples::F32(d) => out.copy_from_slice(&d[at..at + out.len()]),
             Samples::Round16(q) => {
                 let n = out.len();
-                for (o, &q) in out.iter_mut().zip(&q[at..at + n]) {
+                for (o, &q) in out.iter_mut().zip(&q.samples()[at..at + n]) {
                     *o = unround16(q);
                 }
             }
@@ -166,7 +198,7 @@ impl Level {
             Samples::Round16(q) => Ok(self
                 .cell
                 .as_f32
-                .get_or_init(|| q.iter().map(|&q| unround16(q)).collect())),
+                .get_or_init(|| q.samples().iter().map(|&q| unround16(q)).collect())),
         }
     }
 

@@ -219,7 +219,7 @@ impl Streamed {
             }
         }
         if level > 0 && self.rounded[level] {
-            Samples::Round16(values.iter().map(|&v| pyramid::round16(v)).collect())
+            Samples::Round16(pyramid::Packed16::round(values))
         } else {
             Samples::F32(values)
         }
@@ -637,6 +637,22 @@ mod tests {
                 assert_eq!(bits(&level.bricks.min), bits(&grid.min), "{ty} level {l}");
                 assert_eq!(bits(&level.bricks.max), bits(&grid.max), "{ty} level {l}");
             }
+        }
+    }
+
+    /// Packing in place keeps every sample, for odd and even lengths.
+    #[test]
+    fn packing_in_place_keeps_every_sample() {
+        for len in [0usize, 1, 2, 3, 1000, 1001] {
+            let values: Vec<f32> = (0..len)
+                .map(|i| ((i * 7919) % 1013) as f32 / 1012.0)
+                .collect();
+            let want: Vec<u16> = values.iter().map(|&v| pyramid::round16(v)).collect();
+            assert_eq!(
+                pyramid::Packed16::round(values).samples(),
+                &want[..],
+                "{len}"
+            );
         }
     }
 
