@@ -212,7 +212,7 @@ impl std::io::Write for Bounded<'_> {
 }
 
 /// Decompress one block into exactly `dst.len()` bytes.
-fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), InflateError> {
+pub(super) fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), InflateError> {
     let want = dst.len();
     let got = match c {
         Compressor::None => return Err(InflateError::NotCompressed),
