@@ -747,3 +747,69 @@ fn numbers<T: std::str::FromStr, const N: usize>(
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
     hay.windows(needle.len()).position(|w| w == needle)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// How each fixture's arrays (VTK's own writer made them) are located: every compressed
+    /// or base64 single-component array is read block by block.
+    #[test]
+    fn fixtures_locate_as_blocks_where_compressed_or_base64() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/volumes");
+        // (file, array, 'b' blocks / 'o' offset (mapped) / '-' decoded whole)
+        let cases = [
+            ("appended_base64_float32_lz4.vti", None, 'b'),
+            ("appended_base64_int8.vti", None, 'b'),
+            ("appended_base64_uint32_zlib.vti", None, 'b'),
+            ("appended_raw_float32_lzma.vti", None, 'b'),
+            ("appended_raw_float64_zlib.vti", None, 'b'),
+            ("appended_raw_int32_lz4.vti", None, 'b'),
+            ("appended_raw_uint16.vti", None, 'o'),
+            ("arrays.vti", Some("temperature"), 'b'),
+            ("arrays.vti", Some("density"), 'b'),
+            ("arrays.vti", Some("velocity"), '-'),
+            ("arrays.vti", Some("last"), 'b'),
+            ("arrays_raw.vti", None, 'o'),
+            ("arrays_raw_lz4.vti", None, 'b'),
+            ("ascii_float32.vti", None, '-'),
+            ("ascii_int16.vti", None, '-'),
+            ("bigendian_float32.vti", None, 'b'),
+            ("bigendian_int64_zlib.vti", None, 'b'),
+            ("binary_float64_lzma.vti", None, 'b'),
+            ("binary_int16_zlib.vti", None, 'b'),
+            ("binary_uint64_lz4.vti", None, 'b'),
+            ("binary_uint8.vti", None, 'b'),
+            ("binary_uint8_u64.vti", None, 'b'),
+            ("no_active.vti", None, 'b'),
+            ("no_active.vti", Some("second"), 'b'),
+            ("two_pieces.vti", None, 'b'),
+        ];
+        for (file, array, want) in cases {
+            let bytes = std::fs::read(dir.join(file)).unwrap();
+            let got = match locate(&bytes, array).map(|l| l.at) {
+                Some(At::Blocks(_)) => 'b',
+                Some(At::Offset(_)) => 'o',
+                None => '-',
+            };
+            assert_eq!(got, want, "{file} {array:?}");
+        }
+    }
+
+    /// Base64 text wrapped in lines (other writers) is decoded whole, not by character.
+    #[test]
+    fn wrapped_base64_is_decoded_whole() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/volumes");
+        let text = std::fs::read_to_string(dir.join("binary_int16_zlib.vti")).unwrap();
+        let start = text.find("format=\"binary\"").unwrap();
+        let body = text[start..].find('>').unwrap() + start + 1;
+        let data = text[body..].trim_start();
+        let at = text.len() - data.len() + 40;
+        let wrapped = format!("{}\n{}", &text[..at], &text[at..]);
+        assert!(locate(wrapped.as_bytes(), None).is_none());
+        assert!(locate(text.as_bytes(), None).is_some());
+        let a = decode(Path::new("w.vti"), wrapped.as_bytes(), None).unwrap();
+        let b = decode(Path::new("w.vti"), text.as_bytes(), None).unwrap();
+        assert_eq!(a.buffer.raw().2, b.buffer.raw().2);
+    }
+}
