@@ -48,7 +48,7 @@ pub(crate) enum Text {
 #[derive(Clone, Debug)]
 pub(crate) struct Table {
     /// The array's name, for errors.
-    pub(crate) array: String,
+    array: String,
     data: Text,
     compressor: Compressor,
     /// Decoded bytes per block (the last may be shorter).
@@ -104,11 +104,11 @@ pub(crate) fn table(
         };
         header_int(&bytes, 0, layout).ok()
     };
-    let (nblocks, block, ends, header_len) = if layout.compressor == Compressor::None {
+    let (block, ends, header_len) = if layout.compressor == Compressor::None {
         if int(0)? != nbytes {
             return None;
         }
-        (nbytes.div_ceil(TEXT_BLOCK), TEXT_BLOCK, Vec::new(), h)
+        (TEXT_BLOCK, Vec::new(), h)
     } else {
         let (nblocks, block, last) = (int(0)?, int(1)?, int(2)?);
         // The checks of `unpack`: the blocks hold exactly the array.
@@ -141,33 +141,21 @@ pub(crate) fn table(
             at = at.checked_add(header_int(&header_bytes, (3 + b) * h, layout).ok()? as u64)?;
             ends.push(at);
         }
-        (nblocks, block, ends, header_len)
+        (block, ends, header_len)
     };
-    debug_assert_eq!(nblocks, nbytes.div_ceil(block));
     let stored = ends.last().map_or(nbytes, |&e| e as usize);
     let (data, end) = if base64 {
         // One stream (header and data encoded together) or two (each padded): a header whose
         // length is not a multiple of 3 ends in '=' when it is a stream of its own.
         let last_quad = start + 4 * ((header_len - 1) / 3);
         let own = file.get(last_quad..last_quad + 4)?.ends_with(b"=");
-        let data = if own || header_len.is_multiple_of(3) {
-            Text::Base64 {
-                start: start + 4 * header_len.div_ceil(3),
-                skip: 0,
-            }
+        let (s, skip) = if own || header_len.is_multiple_of(3) {
+            (start + 4 * header_len.div_ceil(3), 0)
         } else {
-            Text::Base64 {
-                start,
-                skip: header_len,
-            }
+            (start, header_len)
         };
-        let Text::Base64 { start: s, skip } = data else {
-            unreachable!()
-        };
-        (
-            data,
-            s.checked_add(skip.checked_add(stored)?.div_ceil(3).checked_mul(4)?)?,
-        )
+        let chars = skip.checked_add(stored)?.div_ceil(3).checked_mul(4)?;
+        (Text::Base64 { start: s, skip }, s.checked_add(chars)?)
     } else {
         let s = start + header_len;
         (Text::Raw { start: s }, s.checked_add(stored)?)
@@ -188,10 +176,7 @@ pub(crate) fn table(
 
 /// Bytes `at..at + len` of the data stream `text` of `file`.
 fn stream(file: &[u8], text: Text, at: usize, len: usize) -> Result<Cow<'_, [u8]>, BlockError> {
-    let short = || BlockError::DataTruncated {
-        declared: at + len,
-        available: 0,
-    };
+    let short = || BlockError::StreamShort { end: at + len };
     match text {
         Text::Raw { start } => {
             let s = start.checked_add(at).ok_or_else(short)?;
@@ -354,17 +339,20 @@ impl Blocks {
         Ok(())
     }
 
-    /// Drop the cached blocks inside decoded bytes `range` and stop counting the mapped
-    /// pages of their stored bytes as this process's memory (`MADV_DONTNEED`).
+    /// Drop the cached blocks that decoded bytes `range` ends (from the one holding its first
+    /// byte to the last that ends inside it) and stop counting the mapped pages of their
+    /// stored bytes as this process's memory (`MADV_DONTNEED`). A forward pass releases each
+    /// block once it is past it, the block it straddles between two ranges included; a reader
+    /// that comes back decodes it again.
     pub(crate) fn release(&self, range: Range<usize>) {
+        if range.is_empty() {
+            return;
+        }
         let block = self.table.block;
-        let (first, end) = (range.start.div_ceil(block), range.end / block);
-        let blocks = self.table.blocks();
-        // The last block is shorter: inside when the range reaches the array's end.
-        let end = if range.end >= self.table.total {
-            blocks
-        } else {
-            end
+        let first = range.start / block;
+        let end = match range.end >= self.table.total {
+            true => self.table.blocks(),
+            false => range.end / block,
         };
         if first >= end {
             return;

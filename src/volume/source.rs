@@ -39,7 +39,8 @@ enum Bytes {
     /// Decoded into memory.
     Memory(TypedBuffer),
     /// Decoded block by block from a memory map of the file (compressed or base64 `.vti`).
-    Blocks(Blocks),
+    /// Boxed: its table and cache make it much larger than the other variants.
+    Blocks(Box<Blocks>),
 }
 
 impl Source {
@@ -123,7 +124,7 @@ impl Source {
             path: path.to_path_buf(),
             ty,
             order,
-            bytes: Bytes::Blocks(blocks),
+            bytes: Bytes::Blocks(Box::new(blocks)),
             len: count,
         }
     }

@@ -417,6 +417,55 @@ fn a_corrupt_block_is_an_error_naming_the_file_and_block() {
     );
 }
 
+/// A block that stops decoding after the load (the file overwritten in place: the map sees
+/// it) is an error from `read_box` and `try_data`, naming the file and the block, not a panic.
+#[test]
+fn a_block_corrupt_after_the_load_is_an_error_from_read_box_and_try_data() {
+    use std::io::{Seek, SeekFrom};
+    let dir = tempfile::tempdir().unwrap();
+    let dims = [40, 30, 20];
+    let n: usize = dims.iter().product();
+    let data = encode(
+        &values(n, ScalarType::U16),
+        ScalarType::U16,
+        ByteOrder::Little,
+    );
+    let path = dir.path().join("late.vti");
+    write_vti(
+        &path,
+        dims,
+        ScalarType::U16,
+        ByteOrder::Little,
+        &data,
+        Encoding::AppendedRaw,
+        Compressor::Zlib,
+        1001,
+        false,
+    );
+    let loaded = volume::load(&path, &ReadOptions::default()).unwrap();
+    let len = std::fs::metadata(&path).unwrap().len();
+    let tail = "\n  </AppendedData>\n</VTKFile>\n".len() as u64;
+    let mut f = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
+    f.seek(SeekFrom::Start(len - tail - 40)).unwrap();
+    f.write_all(&[0x5a; 10]).unwrap();
+    f.sync_all().unwrap();
+    let level = &loaded.levels[0];
+    let mut out = vec![0.0f32; n];
+    let e = level
+        .read_box([0; 3], dims, &mut out)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("late.vti") && e.contains("array 'v': block"),
+        "{e}"
+    );
+    let e = level.try_data().unwrap_err().to_string();
+    assert!(
+        e.contains("late.vti") && e.contains("array 'v': block"),
+        "{e}"
+    );
+}
+
 /// Every fixture VTK's writer made and every shared volume: `t2tf info` equals the load's
 /// statistics; the compressed and base64 fixtures' boxes equal slices of the in-memory build.
 #[test]
