@@ -341,9 +341,9 @@ impl Blocks {
 
     /// Drop the cached blocks that decoded bytes `range` ends (from the one holding its first
     /// byte to the last that ends inside it; not for the whole array, below) and stop counting
-    /// the mapped pages of their stored bytes as this process's memory (`MADV_DONTNEED`). A forward pass releases each
-    /// block once it is past it, the block it straddles between two ranges included; a reader
-    /// that comes back decodes it again.
+    /// the mapped pages of their stored bytes as this process's memory (`MADV_DONTNEED`). A
+    /// forward pass releases each block once it is past it, the block it straddles between two
+    /// ranges included; a reader that comes back decodes it again.
     pub(crate) fn release(&self, range: Range<usize>) {
         if range.is_empty() {
             return;

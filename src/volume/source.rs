@@ -3,10 +3,11 @@
 //! A [`Source`] holds the values as the file stores them: a memory map of the file where they
 //! lie there contiguously and uncompressed (`.raw`, appended raw `.vti`, legacy BINARY `.vtk`),
 //! decoded block by block from a map of the file where it stores them in compressed blocks or
-//! base64 text (`.vti`, [`super::blocks`]), else the decoded bytes (a [`TypedBuffer`]). Readers of the values ([`Source::for_bytes`])
-//! see whole values in order; `stream` normalizes them and builds the pyramid. Pages of a
-//! memory map are released behind each pass (`MADV_DONTNEED`: the file's pages stay in the
-//! page cache, they only stop counting as this process's memory).
+//! base64 text (`.vti`, [`super::blocks`]), else the decoded bytes (a [`TypedBuffer`]). Readers
+//! of the values ([`Source::for_bytes`]) see whole values in order; `stream` normalizes them
+//! and builds the pyramid. Pages of a memory map are released behind each pass
+//! (`MADV_DONTNEED`: the file's pages stay in the page cache, they only stop counting as this
+//! process's memory).
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};

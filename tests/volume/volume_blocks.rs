@@ -151,9 +151,10 @@ fn write_vti(
             };
             write!(
                 out,
-                "      <DataArray type=\"UInt8\" Name=\"pad\" format=\"appended\" offset=\"0\"/>\n      \
-                 <DataArray type=\"{type_name}\" Name=\"v\" format=\"appended\" offset=\"{}\"/>\n    \
-                 </PointData>\n  </Piece>\n  </ImageData>\n  <AppendedData encoding=\"{enc}\">\n   _",
+                "      <DataArray type=\"UInt8\" Name=\"pad\" format=\"appended\" \
+                 offset=\"0\"/>\n      <DataArray type=\"{type_name}\" Name=\"v\" \
+                 format=\"appended\" offset=\"{}\"/>\n    </PointData>\n  </Piece>\n  \
+                 </ImageData>\n  <AppendedData encoding=\"{enc}\">\n   _",
                 other_stream.len()
             )
             .unwrap();
