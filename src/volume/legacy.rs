@@ -9,7 +9,7 @@
 
 use std::path::Path;
 
-use super::source::Located;
+use super::source::{At, Located};
 use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer, VolumeError};
 
 /// Why a legacy `.vtk` file could not be read. Each message is one line; the reader adds the
@@ -20,6 +20,9 @@ use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer,
 pub(crate) enum LegacyError {
     #[error("not a legacy VTK file: the first line is not '# vtk DataFile Version x.x'")]
     NotLegacy,
+    /// Only from `locate`, which then lets `decode` parse (and report on) the file.
+    #[error("ASCII values cannot be mapped")]
+    AsciiNotMapped,
     #[error("line 3 must be ASCII or BINARY, found '{0}'")]
     BadEncodingLine(String),
     #[error("'{line}' is missing a field")]
@@ -226,9 +229,9 @@ pub(super) fn locate(bytes: &[u8], want: Option<&str>) -> Option<Located> {
         geometry: d.geometry,
         ty,
         order,
-        offset: offset as u64,
         count,
         format: d.format,
+        at: At::Offset(offset as u64),
     })
 }
 
@@ -245,6 +248,11 @@ fn parse(
         last_binary: None,
     };
     let ascii = header(&mut c)?;
+    // An ASCII file cannot be mapped: `locate` stops here rather than parse every number
+    // that `decode` parses again.
+    if ascii && lazy {
+        return Err(LegacyError::AsciiNotMapped);
+    }
     let mut p = Parser {
         c,
         ascii,

@@ -12,6 +12,7 @@
 //! [`Volume::from_buffer`] is the same build over values already in memory, holding every
 //! level.
 
+mod blocks;
 mod buffer;
 mod legacy;
 mod pyramid;

@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use super::source::{Located, Source};
+use super::source::{At, Located, Source};
 use super::{
     legacy, raw, vti, ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume,
     VolumeError, VolumeSource,
@@ -51,7 +51,7 @@ pub fn load(path: &Path, opts: &ReadOptions) -> Result<Volume, VolumeError> {
 }
 
 /// The geometry, declared type, format and values' source of the file at `path`.
-fn open(
+pub(super) fn open(
     path: &Path,
     opts: &ReadOptions,
 ) -> Result<(Geometry, ScalarType, SourceFormat, Source), VolumeError> {
@@ -67,8 +67,11 @@ fn open(
         };
         return Ok((geometry, dtype, format, source));
     }
-    if let Some(loc) = locate(path, kind, opts) {
-        let source = Source::map(path, loc.ty, loc.order, loc.offset, loc.count)?;
+    if let Some((loc, map)) = locate(path, kind, opts) {
+        let source = match loc.at {
+            At::Offset(offset) => Source::map(path, loc.ty, loc.order, offset, loc.count)?,
+            At::Blocks(table) => Source::blocks(path, loc.ty, loc.order, loc.count, map, table),
+        };
         let mut geometry = loc.geometry;
         if let Some(spacing) = opts.spacing {
             geometry.spacing = spacing;
@@ -114,19 +117,23 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
     decode_bytes(path, bytes, opts)
 }
 
-/// Where the chosen array of a `.vti` or `.vtk` file lies, when its values can be mapped
-/// (the readers' `locate`); `None` otherwise, or when the file cannot be mapped (`decode`
-/// then reads it and reports any error).
-fn locate(path: &Path, kind: Kind, opts: &ReadOptions) -> Option<Located> {
+/// Where the chosen array of a `.vti` or `.vtk` file lies, when its values can be read
+/// without decoding the file whole (the readers' `locate`), with the file's map (what a
+/// block-decoded source reads); `None` otherwise, or when the file cannot be mapped
+/// (`decode` then reads it and reports any error).
+fn locate(path: &Path, kind: Kind, opts: &ReadOptions) -> Option<(Located, memmap2::Mmap)> {
     let file = std::fs::File::open(path).ok()?;
-    // SAFETY: read only, and only while the readers look for the array (see `Source::map`).
+    // SAFETY: read only; the file changing underneath is unsupported (see `Source::map`).
     let map = unsafe { memmap2::Mmap::map(&file) }.ok()?;
     let want = opts.array.as_deref();
-    match kind {
+    let loc = match kind {
         Kind::Vti => vti::locate(&map, want),
         Kind::Legacy => legacy::locate(&map, want),
         Kind::Raw => None,
-    }
+    }?;
+    // The header's pages (all of an inline array's text) stop counting as this process's.
+    super::source::dont_need(&map, 0..map.len());
+    Some((loc, map))
 }
 
 /// Why a path and its flags do not pick a reader. The reader adds the file's path.
@@ -171,11 +178,6 @@ pub(super) fn file_metadata(path: &Path) -> Result<std::fs::Metadata, VolumeErro
         return Err(PathError::Directory.at(path));
     }
     Ok(meta)
-}
-
-/// Whether `path` is read as headerless raw data (after checking the flags fit its reader).
-pub(super) fn is_raw(path: &Path, opts: &ReadOptions) -> Result<bool, VolumeError> {
-    Ok(reader_for(path, opts)? == Kind::Raw)
 }
 
 /// Decode the contents of a file named `path` (the name picks the reader, the `.raw` dims and

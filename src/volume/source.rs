@@ -2,14 +2,17 @@
 //!
 //! A [`Source`] holds the values as the file stores them: a memory map of the file where they
 //! lie there contiguously and uncompressed (`.raw`, appended raw `.vti`, legacy BINARY `.vtk`),
-//! else the decoded bytes (a [`TypedBuffer`]). Readers of the values ([`Source::for_bytes`])
-//! see whole values in order; `stream` normalizes them and builds the pyramid. Pages of a
-//! memory map are released behind each pass (`MADV_DONTNEED`: the file's pages stay in the
-//! page cache, they only stop counting as this process's memory).
+//! decoded block by block from a map of the file where it stores them in compressed blocks or
+//! base64 text (`.vti`, [`super::blocks`]), else the decoded bytes (a [`TypedBuffer`]). Readers
+//! of the values ([`Source::for_bytes`]) see whole values in order; `stream` normalizes them
+//! and builds the pyramid. Pages of a memory map are released behind each pass
+//! (`MADV_DONTNEED`: the file's pages stay in the page cache, they only stop counting as this
+//! process's memory).
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
+use super::blocks::{Blocks, Table};
 use super::summary::{code_stats, count_codes, small_codes, MinMax, Stats};
 use super::{buffer::for_each_value, ByteOrder, Geometry, ScalarType, TypedBuffer, VolumeError};
 
@@ -36,6 +39,9 @@ enum Bytes {
     Map { map: memmap2::Mmap, offset: usize },
     /// Decoded into memory.
     Memory(TypedBuffer),
+    /// Decoded block by block from a memory map of the file (compressed or base64 `.vti`).
+    /// Boxed: its table and cache make it much larger than the other variants.
+    Blocks(Box<Blocks>),
 }
 
 impl Source {
@@ -104,7 +110,28 @@ impl Source {
         }
     }
 
-    /// Whether the values are read from a memory map of the file.
+    /// Values of a `.vti` array read block by block from `map`, the file at `path`.
+    pub(crate) fn blocks(
+        path: &Path,
+        ty: ScalarType,
+        order: ByteOrder,
+        count: usize,
+        map: memmap2::Mmap,
+        table: Table,
+    ) -> Source {
+        let blocks = Blocks::new(path, map, table);
+        debug_assert_eq!(blocks.len(), count * ty.size());
+        Source {
+            path: path.to_path_buf(),
+            ty,
+            order,
+            bytes: Bytes::Blocks(Box::new(blocks)),
+            len: count,
+        }
+    }
+
+    /// Whether the values are read as they lie in a memory map of the file (not decoded:
+    /// block-decoded sources map the file too, but are not "mapped" in this sense).
     pub(crate) fn is_mapped(&self) -> bool {
         matches!(self.bytes, Bytes::Map { .. })
     }
@@ -136,91 +163,55 @@ impl Source {
         range: Range<usize>,
         mut f: impl FnMut(&[u8]),
     ) -> Result<(), VolumeError> {
-        f(self.bytes(range));
-        Ok(())
-    }
-
-    /// The bytes of values `range`.
-    fn bytes(&self, range: Range<usize>) -> &[u8] {
         let size = self.ty.size();
         let all = match &self.bytes {
             Bytes::Map { map, offset } => &map[*offset..*offset + self.len * size],
             Bytes::Memory(b) => b.raw().2,
+            Bytes::Blocks(b) => return b.for_bytes(range.start * size..range.end * size, size, f),
         };
-        &all[range.start * size..range.end * size]
+        f(&all[range.start * size..range.end * size]);
+        Ok(())
     }
 
-    /// Stop counting the mapped pages of values `range` as this process's memory (nothing for
-    /// decoded sources). Called behind sequential passes and between the renderer's random
-    /// box reads (`Level::release_source`); the values stay readable.
+    /// Stop counting the mapped pages of values `range` as this process's memory, and drop
+    /// the decoded blocks of a block-decoded source there (nothing for decoded sources).
+    /// Called behind sequential passes and between the renderer's random box reads
+    /// (`Level::release_source`); the values stay readable.
     pub(crate) fn release(&self, range: Range<usize>) {
-        if let Bytes::Map { map, offset } = &self.bytes {
-            let size = self.ty.size();
-            let start = offset + range.start * size;
-            let len = (range.end - range.start) * size;
-            // Only whole pages inside the range, so neighbouring values' pages stay. The
-            // system's page size (4 KiB on x86-64, 16/64 KiB on some ARM systems, where a
-            // 4 KiB-aligned range would make madvise fail and nothing be released).
-            // SAFETY: sysconf only reads a system constant.
-            let page = match unsafe { libc::sysconf(libc::_SC_PAGESIZE) } {
-                p if p > 0 => p as usize,
-                _ => 4096,
-            };
-            let first = start.div_ceil(page) * page;
-            let end = (start + len) / page * page;
-            if end > first {
-                // SAFETY: the map is a read-only shared file mapping: after MADV_DONTNEED the
-                // pages read back from the file unchanged, so no reference sees other bytes.
-                // A failure only means the pages stay counted.
-                let _ = unsafe {
-                    map.unchecked_advise_range(
-                        memmap2::UncheckedAdvice::DontNeed,
-                        first,
-                        end - first,
-                    )
-                };
+        let size = self.ty.size();
+        match &self.bytes {
+            Bytes::Map { map, offset } => {
+                dont_need(map, offset + range.start * size..offset + range.end * size)
             }
+            Bytes::Blocks(b) => b.release(range.start * size..range.end * size),
+            Bytes::Memory(_) => {}
         }
     }
 
     /// Finite range, non-finite count and (for 8/16-bit codes) histogram: the first pass.
     /// `None` when no value is finite; an error when the values cannot be read.
     pub(super) fn stats(&self) -> Result<Option<SourceStats>, VolumeError> {
-        let blocks = (0..self.len)
-            .step_by(BLOCK_VALUES)
-            .map(|s| s..(s + BLOCK_VALUES).min(self.len));
-        if let Some(codes) = small_codes(self.ty) {
-            use rayon::prelude::*;
+        let (ty, order) = (self.ty, self.order);
+        if let Some(codes) = small_codes(ty) {
+            // Counts are integers: the split changes nothing in the result.
+            let tables = self.par_fold(
+                || vec![0u64; codes],
+                |c, bytes| count_codes(ty, order, bytes, c),
+            )?;
             let mut counts = vec![0u64; codes];
-            for block in blocks {
-                let bytes = self.bytes(block.clone());
-                let size = self.ty.size();
-                let threads = rayon::current_num_threads().max(1);
-                let share = (bytes.len().div_ceil(threads).div_ceil(size) * size).max(size);
-                // Counts are integers: the split changes nothing in the result.
-                let parts: Vec<Vec<u64>> = bytes
-                    .par_chunks(share)
-                    .map(|b| {
-                        let mut c = vec![0u64; codes];
-                        count_codes(self.ty, self.order, b, &mut c);
-                        c
-                    })
-                    .collect();
-                for p in parts {
-                    for (c, k) in counts.iter_mut().zip(p) {
-                        *c += k;
-                    }
+            for t in tables {
+                for (c, k) in counts.iter_mut().zip(t) {
+                    *c += k;
                 }
-                self.release(block);
             }
-            return Ok(Some((code_stats(self.ty, &counts), Some(counts))));
+            return Ok(Some((code_stats(ty, &counts), Some(counts))));
         }
         // In index order: min/max of ±0 depend on the order, and `normalize` goes in it.
         let mut acc = MinMax::default();
-        for block in blocks {
-            for_each_value(self.ty, self.order, self.bytes(block.clone()), |v| {
-                acc.add(v)
-            });
+        for block in blocks(self.len) {
+            self.for_bytes(block.clone(), |b| {
+                for_each_value(ty, order, b, |v| acc.add(v))
+            })?;
             self.release(block);
         }
         if acc.norm_range().is_none() {
@@ -228,21 +219,83 @@ impl Source {
         }
         Ok(Some((acc.stats(Vec::new()), None)))
     }
+
+    /// Every value's bytes folded into one state per thread (made once by `init`), in blocks
+    /// of [`BLOCK_VALUES`] released behind the pass; each thread folds a share of each block,
+    /// in no particular order between threads.
+    pub(super) fn par_fold<T: Send>(
+        &self,
+        init: impl Fn() -> T,
+        fold: impl Fn(&mut T, &[u8]) + Sync,
+    ) -> Result<Vec<T>, VolumeError> {
+        use rayon::prelude::*;
+        let threads = rayon::current_num_threads().max(1);
+        let mut states: Vec<T> = (0..threads).map(|_| init()).collect();
+        for block in blocks(self.len) {
+            let share = block.len().div_ceil(threads);
+            states
+                .par_iter_mut()
+                .enumerate()
+                .try_for_each(|(t, state)| {
+                    let s = (block.start + t * share).min(block.end);
+                    let e = (s + share).min(block.end);
+                    self.for_bytes(s..e, |b| fold(state, b))
+                })?;
+            self.release(block);
+        }
+        Ok(states)
+    }
+}
+
+/// The ranges of [`BLOCK_VALUES`] values that cover `len` values.
+fn blocks(len: usize) -> impl Iterator<Item = Range<usize>> {
+    (0..len)
+        .step_by(BLOCK_VALUES)
+        .map(move |s| s..(s + BLOCK_VALUES).min(len))
+}
+
+/// Stop counting the pages of `map` in `range` as this process's memory (`MADV_DONTNEED`).
+pub(super) fn dont_need(map: &memmap2::Mmap, range: Range<usize>) {
+    // Only whole pages inside the range, so neighbouring values' pages stay. The system's
+    // page size (4 KiB on x86-64, 16/64 KiB on some ARM systems, where a 4 KiB-aligned range
+    // would make madvise fail and nothing be released).
+    // SAFETY: sysconf only reads a system constant.
+    let page = match unsafe { libc::sysconf(libc::_SC_PAGESIZE) } {
+        p if p > 0 => p as usize,
+        _ => 4096,
+    };
+    let first = range.start.div_ceil(page) * page;
+    let end = range.end.min(map.len()) / page * page;
+    if end > first {
+        // SAFETY: the map is a read-only shared file mapping: after MADV_DONTNEED the pages
+        // read back from the file unchanged, so no reference sees other bytes. A failure
+        // only means the pages stay counted.
+        let _ = unsafe {
+            map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, first, end - first)
+        };
+    }
 }
 
 /// What [`Source::stats`] finds: the statistics and, for 8/16-bit codes, each code's count.
 pub(super) type SourceStats = (Stats, Option<Vec<u64>>);
 
-/// Where a file's chosen array lies when its values can be mapped: contiguous, uncompressed,
-/// in one byte order (`vti::locate`, `legacy::locate`).
+/// Where a file's chosen array lies when its values can be read without decoding it whole
+/// (`vti::locate`, `legacy::locate`).
 pub(crate) struct Located {
     pub(crate) geometry: Geometry,
     /// The stored type (what the file declares).
     pub(crate) ty: ScalarType,
     pub(crate) order: ByteOrder,
-    /// Byte offset of the first value in the file.
-    pub(crate) offset: u64,
     /// Number of values.
     pub(crate) count: usize,
     pub(crate) format: super::SourceFormat,
+    pub(crate) at: At,
+}
+
+/// How the located values lie in the file.
+pub(crate) enum At {
+    /// Contiguous and uncompressed from this byte offset: mapped ([`Source::map`]).
+    Offset(u64),
+    /// In compressed blocks or base64 text: decoded block by block ([`Source::blocks`]).
+    Blocks(Table),
 }

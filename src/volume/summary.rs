@@ -1,23 +1,19 @@
 //! What `t2tf info` reports about a volume file, computed without making the volume: no f32
-//! copy, no pyramid. A `.raw` file is streamed in blocks of [`BLOCK_BYTES`] (memory bounded
-//! whatever the file's size; one sequential read for 8/16-bit data, two for wider types);
-//! `.vti` and `.vtk` files are decoded in memory (even where a load would map them,
-//! `source`), but not normalized. The
-//! numbers equal those of [`super::load`] bit for bit: the same per-value formula
+//! copy, no pyramid. The file is opened as a load opens it (`read::open`: a memory map, a
+//! block-decoded `.vti`, or the values decoded in memory) and its statistics are the load's
+//! first pass (`Source::stats`), plus a histogram pass for types wider than 16 bits; passes
+//! over a map release its pages behind them, so memory stays bounded whatever the file's
+//! size. The numbers equal those of [`super::load`] bit for bit: the same per-value formula
 //! (`normalize_value`), the same range rule, and the level shapes of `pyramid`.
 
-use std::io::Read;
 use std::path::Path;
 
 use super::buffer::for_each_value;
+use super::source::Source;
 use super::{
-    check_geometry, denormalize, half_scale, norm_range, normalize_value, pyramid, raw, ByteOrder,
-    Geometry, ReadOptions, ScalarType, SourceFormat, TypedBuffer, VolumeError, VolumeSource,
-    HISTOGRAM_BINS,
+    check_geometry, denormalize, half_scale, norm_range, normalize_value, pyramid, ByteOrder,
+    Geometry, ReadOptions, ScalarType, VolumeError, VolumeSource, HISTOGRAM_BINS,
 };
-
-/// Bytes read at a time from a `.raw` file (a multiple of every scalar size).
-const BLOCK_BYTES: usize = 8 << 20;
 
 /// A volume file's statistics, as [`super::Volume`] would hold them after a load.
 // The statistics fields repeat `Volume`'s on purpose: both are public structs the CLI and
@@ -64,23 +60,20 @@ pub(super) struct Stats {
 
 /// Summarize the volume file at `path` read with `opts`.
 pub fn summarize(path: &Path, opts: &ReadOptions) -> Result<Summary, VolumeError> {
-    // The checks `decode` makes, in its order.
-    let meta = super::read::file_metadata(path)?;
-    let (geometry, scalar_type, format, stats) = if super::read::is_raw(path, opts)? {
-        raw::check_size(path, opts, meta.len())?;
-        raw_summary(path, opts)?
-    } else {
-        let d = super::decode(path, opts)?;
-        check_geometry(path, &d.geometry, d.buffer.len())?;
-        let stats = buffer_stats(&d.buffer);
-        (d.geometry, d.buffer.scalar_type(), d.format, stats)
-    };
-    let Some(stats) = stats else {
+    // The source a load reads (`read::open`: the checks and errors of `load`).
+    let (geometry, scalar_type, format, source) = super::read::open(path, opts)?;
+    check_geometry(path, &geometry, source.len())?;
+    let Some((mut stats, _)) = source.stats()? else {
         return Err(VolumeError::file(
             path,
             "every value is NaN or infinite: nothing to render",
         ));
     };
+    if stats.histogram.is_empty() {
+        // Wider types: `stats` finds the range; their bins need a second pass (a load counts
+        // them while normalizing, `stream`).
+        stats.histogram = histogram(&source, stats.norm_range)?;
+    }
     let levels: Vec<[usize; 3]> = pyramid::level_shapes(geometry)
         .into_iter()
         .map(|(d, _)| d)
@@ -103,142 +96,20 @@ pub fn summarize(path: &Path, opts: &ReadOptions) -> Result<Summary, VolumeError
     })
 }
 
-/// Geometry, type, format and statistics (`None`: no finite value) of a file.
-type RawSummary = (Geometry, ScalarType, SourceFormat, Option<Stats>);
-
-/// A `.raw` file (its size checked against its layout), streamed block by block.
-fn raw_summary(path: &Path, opts: &ReadOptions) -> Result<RawSummary, VolumeError> {
-    let io = |error| VolumeError::Io {
-        path: path.to_path_buf(),
-        error,
-    };
-    // The geometry and format exactly as the raw reader gives them (decoding no bytes).
-    let (geometry, dtype, byte_order) = raw::header(path, opts)?;
-    check_geometry(path, &geometry, geometry.voxel_count())?;
-    let blocks = |f: &mut dyn FnMut(&[u8])| -> Result<(), VolumeError> {
-        let mut file = std::fs::File::open(path).map_err(io)?;
-        let mut block = vec![0u8; BLOCK_BYTES];
-        loop {
-            let n = read_full(&mut file, &mut block).map_err(io)?;
-            if n == 0 {
-                return Ok(());
-            }
-            f(&block[..n]);
-        }
-    };
-    let stats = match small_codes(dtype) {
-        Some(codes) => {
-            let counts = count_file(path, dtype, byte_order, codes)?;
-            Some(code_stats(dtype, &counts))
-        }
-        None => {
-            let mut acc = MinMax::default();
-            blocks(&mut |b| for_each_value(dtype, byte_order, b, |v| acc.add(v)))?;
-            match acc.norm_range() {
-                None => None,
-                Some(nr) => {
-                    let mut h = Histogram::new(nr);
-                    blocks(&mut |b| for_each_value(dtype, byte_order, b, |v| h.add(v)))?;
-                    Some(acc.stats(h.counts))
-                }
-            }
-        }
-    };
-    let format = SourceFormat::Raw {
-        scalar_type: dtype,
-        byte_order,
-    };
-    Ok((geometry, dtype, format, stats))
-}
-
-/// Code counts of an 8/16-bit file. One thread reads blocks while every rayon thread counts a
-/// share of the previous one into its own table, so reading and counting overlap: on a 16 GiB
-/// file, counting on one thread after each read took 2.4× one sequential read (BENCHMARKS.md).
-/// Counts are integers, so the split changes nothing in the result.
-fn count_file(
-    path: &Path,
-    ty: ScalarType,
-    order: ByteOrder,
-    codes: usize,
-) -> Result<Vec<u64>, VolumeError> {
-    use rayon::prelude::*;
-    let io = |error| VolumeError::Io {
-        path: path.to_path_buf(),
-        error,
-    };
-    let mut file = std::fs::File::open(path).map_err(io)?;
-    let threads = rayon::current_num_threads().max(1);
-    let mut tables = vec![vec![0u64; codes]; threads];
-    // Two blocks in flight and one being counted; emptied blocks go back to the reader.
-    let (full_tx, full_rx) = std::sync::mpsc::sync_channel::<Vec<u8>>(2);
-    let (empty_tx, empty_rx) = std::sync::mpsc::channel::<Vec<u8>>();
-    let read = std::thread::scope(|scope| {
-        let reader = scope.spawn(move || -> std::io::Result<()> {
-            loop {
-                let mut block = empty_rx.try_recv().unwrap_or_default();
-                block.resize(BLOCK_BYTES, 0);
-                let n = read_full(&mut file, &mut block)?;
-                if n == 0 {
-                    return Ok(());
-                }
-                block.truncate(n);
-                if full_tx.send(block).is_err() {
-                    return Ok(());
-                }
-            }
-        });
-        for block in full_rx {
-            // Shares of whole values (a multiple of the value size).
-            let size = ty.size();
-            let share = block.len().div_ceil(threads).div_ceil(size) * size;
-            tables
-                .par_iter_mut()
-                .zip(block.par_chunks(share.max(size)))
-                .for_each(|(table, bytes)| count_codes(ty, order, bytes, table));
-            let _ = empty_tx.send(block);
-        }
-        reader.join()
-    });
-    match read {
-        Ok(result) => result.map_err(io)?,
-        Err(panic) => std::panic::resume_unwind(panic),
-    }
-    let mut counts = vec![0u64; codes];
-    for table in &tables {
-        for (c, t) in counts.iter_mut().zip(table) {
-            *c += t;
+/// Counts of the finite values in `HISTOGRAM_BINS` equal bins over `norm_range`.
+fn histogram(source: &Source, norm_range: [f64; 2]) -> Result<Vec<u64>, VolumeError> {
+    let (ty, order) = (source.ty(), source.order());
+    let parts = source.par_fold(
+        || Histogram::new(norm_range),
+        |h, bytes| for_each_value(ty, order, bytes, |v| h.add(v)),
+    )?;
+    let mut counts = vec![0u64; HISTOGRAM_BINS];
+    for p in parts {
+        for (c, k) in counts.iter_mut().zip(p.counts) {
+            *c += k;
         }
     }
     Ok(counts)
-}
-
-/// Fill `buf` from `r` (short only at the end of the file); bytes read.
-fn read_full(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
-    let mut n = 0;
-    while n < buf.len() {
-        match r.read(&mut buf[n..]) {
-            Ok(0) => break,
-            Ok(k) => n += k,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(n)
-}
-
-/// Statistics of values held in memory.
-fn buffer_stats(buffer: &TypedBuffer) -> Option<Stats> {
-    let (ty, order, bytes) = buffer.raw();
-    if let Some(codes) = small_codes(ty) {
-        let mut counts = vec![0u64; codes];
-        count_codes(ty, order, bytes, &mut counts);
-        return Some(code_stats(ty, &counts));
-    }
-    let mut acc = MinMax::default();
-    buffer.for_each(|v| acc.add(v));
-    let mut h = Histogram::new(acc.norm_range()?);
-    buffer.for_each(|v| h.add(v));
-    Some(acc.stats(h.counts))
 }
 
 /// Distinct codes of an 8- or 16-bit integer type; `None` for other types.
@@ -364,12 +235,12 @@ impl Histogram {
 mod tests {
     use super::*;
 
-    /// Several blocks, a short last one, an odd share size: the overlapped, split count equals
-    /// a plain count, for both byte orders of 16-bit data and for 8-bit data.
+    /// Several passes' blocks, a short last one, odd shares: the mapped source's split count
+    /// equals a plain count, for both byte orders of 16-bit data and for 8-bit data.
     #[test]
-    fn overlapped_count_equals_a_plain_count() {
+    fn split_count_equals_a_plain_count() {
         let dir = tempfile::tempdir().unwrap();
-        let values = BLOCK_BYTES + BLOCK_BYTES / 2 + 3; // 16-bit: 3 blocks, the last short
+        let values = (4 << 20) + (2 << 20) + 3; // 16-bit: 2 blocks of the pass, the last short
         let mut x = 0x2545_f491_u32;
         let bytes: Vec<u8> = (0..2 * values)
             .map(|_| {
@@ -388,11 +259,10 @@ mod tests {
         ] {
             let mut want = vec![0u64; codes];
             count_codes(ty, order, &bytes, &mut want);
-            assert_eq!(
-                count_file(&path, ty, order, codes).unwrap(),
-                want,
-                "{ty:?} {order:?}"
-            );
+            let n = bytes.len() / ty.size();
+            let source = Source::map(&path, ty, order, 0, n).unwrap();
+            let (_, counts) = source.stats().unwrap().unwrap();
+            assert_eq!(counts.unwrap(), want, "{ty:?} {order:?}");
         }
     }
 

@@ -27,7 +27,7 @@ use std::path::Path;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
-use super::source::Located;
+use super::source::{At, Located};
 use super::vti_blocks::{base64_streams, header_int, unpack, BlockError, Compressor, Layout};
 use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer, VolumeError};
 
@@ -142,6 +142,9 @@ pub(crate) enum ArrayError {
     OffsetPastEnd { offset: usize, len: usize },
     #[error("unknown format '{0}' (expected ascii, binary or appended)")]
     UnknownFormat(String),
+    /// A block that does not decode, found when its values are read (`blocks::Blocks`).
+    #[error("{0}")]
+    Decode(String),
 }
 
 /// One point-data array as declared in the XML.
@@ -192,35 +195,84 @@ fn decode_inner(bytes: &[u8], want: Option<&str>) -> Result<Decoded, VtiError> {
     })
 }
 
-/// Where the array `want` (as [`decode`] chooses it) lies in a `.vti` file that stores it as
-/// appended *raw*, uncompressed data: after its length header the values are contiguous in
-/// the file and can be read from a memory map. `None` for every other file (inline, base64,
-/// compressed, multi-component) and for any file [`decode`] rejects (it then reports why).
+/// Where the array `want` (as [`decode`] chooses it) lies in a `.vti` file when its values can
+/// be read without decoding it whole: appended raw uncompressed data is contiguous after its
+/// length header ([`At::Offset`], mapped); compressed blocks (appended raw, appended base64 or
+/// inline base64) and uncompressed base64 are read block by block ([`At::Blocks`]). `None`
+/// for ASCII and multi-component arrays, for base64 text with whitespace inside (other
+/// writers wrap lines: the whole decode skips it, random access by character cannot), for
+/// blocks larger than [`super::blocks::MAX_BLOCK`], and for any file [`decode`] rejects (it
+/// then reports why).
 pub(super) fn locate(bytes: &[u8], want: Option<&str>) -> Option<Located> {
-    let split = find(bytes, b"<AppendedData")?;
+    let split = find(bytes, b"<AppendedData").unwrap_or(bytes.len());
     let xml = std::str::from_utf8(&bytes[..split]).ok()?;
-    let app = appended_section(&bytes[split..]).ok()?;
+    let app = match split < bytes.len() {
+        true => Some(appended_section(&bytes[split..]).ok()?),
+        false => None,
+    };
     let h = parse_header(xml).ok()?;
-    if app.base64 || h.layout.compressor != Compressor::None {
-        return None;
-    }
     let (dims, origin) = grid(&h).ok()?;
     let decl = select(&h, want).ok()?;
-    if decl.format != "appended" || decl.components != 1 {
+    if decl.components != 1 {
         return None;
     }
     let ty: ScalarType = decl.type_name.parse().ok()?;
     let count: usize = dims.iter().product();
     let nbytes = count.checked_mul(ty.size())?;
-    let start = app.data.get(decl.offset?..)?;
-    // The checks `unpack` makes: the length header names exactly the array, all present.
-    let len = header_int(start, 0, h.layout).ok()?;
-    let values = h.layout.header_size.checked_add(len)?;
-    if len != nbytes || start.len() < values {
-        return None;
-    }
-    // `start` points into `bytes`: its distance from the file's first byte.
-    let offset = start.as_ptr() as usize - bytes.as_ptr() as usize + h.layout.header_size;
+    // Distance of a slice of `bytes` from the file's first byte.
+    let pos = |s: &[u8]| s.as_ptr() as usize - bytes.as_ptr() as usize;
+    // Only whitespace from `end` to `limit`: the text held nothing the table did not count.
+    let clean = |end: usize, limit: usize| {
+        bytes
+            .get(end..limit)
+            .is_some_and(|t| t.iter().all(u8::is_ascii_whitespace))
+    };
+    let table =
+        |start, base64| super::blocks::table(bytes, start, base64, h.layout, nbytes, &decl.name);
+    let at = match decl.format.as_str() {
+        "appended" => {
+            let app = app?;
+            let offset = decl.offset?;
+            let start = app.data.get(offset..)?;
+            if app.base64 {
+                let t = table(pos(start), true)?;
+                // The array's text ends where the next array's starts, else with the section.
+                let next = h.offsets.iter().filter(|&&o| o > offset).min();
+                let limit = match next {
+                    Some(&o) => pos(app.data) + o,
+                    None => pos(app.data) + app.data.len(),
+                };
+                if !clean(t.end, limit) {
+                    return None;
+                }
+                At::Blocks(t)
+            } else if h.layout.compressor != Compressor::None {
+                At::Blocks(table(pos(start), false)?)
+            } else {
+                // The checks `unpack` makes: the length header names exactly the array, all
+                // present.
+                let len = header_int(start, 0, h.layout).ok()?;
+                let values = h.layout.header_size.checked_add(len)?;
+                if len != nbytes || start.len() < values {
+                    return None;
+                }
+                At::Offset((pos(start) + h.layout.header_size) as u64)
+            }
+        }
+        "binary" => {
+            // Text borrowed from the file (not joined from several XML text events).
+            let Cow::Borrowed(text) = &decl.text else {
+                return None;
+            };
+            let body = text.trim_start_matches(|c: char| c.is_ascii_whitespace());
+            let t = table(pos(body.as_bytes()), true)?;
+            if !clean(t.end, pos(text.as_bytes()) + text.len()) {
+                return None;
+            }
+            At::Blocks(t)
+        }
+        _ => return None,
+    };
     Some(Located {
         geometry: Geometry {
             dims,
@@ -229,11 +281,11 @@ pub(super) fn locate(bytes: &[u8], want: Option<&str>) -> Option<Located> {
         },
         ty,
         order: h.layout.order,
-        offset: offset as u64,
         count,
         format: SourceFormat::Vti {
             array: decl.name.clone(),
         },
+        at,
     })
 }
 
@@ -250,6 +302,9 @@ struct Header<'a> {
     /// Point-data arrays of the first piece, in file order.
     arrays: Vec<ArrayDecl<'a>>,
     cell_names: Vec<String>,
+    /// The `offset` of every appended DataArray (any piece, point or cell data): where each
+    /// array's text ends (`locate`).
+    offsets: Vec<usize>,
 }
 
 /// The XML part's declarations, gathered element by element ([`HeaderParser`]).
@@ -273,6 +328,7 @@ fn parse_header(xml: &str) -> Result<Header<'_>, VtiError> {
         in_cell: false,
         arrays: Vec::new(),
         open_array: None,
+        offsets: Vec::new(),
     };
     loop {
         let event = reader
@@ -314,11 +370,17 @@ struct HeaderParser<'a> {
     arrays: Vec<ArrayDecl<'a>>,
     /// Index into `arrays` of the DataArray whose text is being collected.
     open_array: Option<usize>,
+    offsets: Vec<usize>,
 }
 
 impl<'a> HeaderParser<'a> {
     /// An opening (`is_start`) or empty element.
     fn element(&mut self, e: &BytesStart<'_>, is_start: bool) -> Result<(), VtiError> {
+        if e.name().as_ref() == "DataArray" {
+            if let Some(o) = attr(e, "offset")?.and_then(|o| o.trim().parse().ok()) {
+                self.offsets.push(o);
+            }
+        }
         match e.name().as_ref() {
             "VTKFile" => self.root(e)?,
             "ImageData" => self.image_data(e)?,
@@ -469,6 +531,7 @@ impl<'a> HeaderParser<'a> {
             active: self.active,
             arrays: self.arrays,
             cell_names: self.cell_names,
+            offsets: self.offsets,
         })
     }
 }
@@ -683,4 +746,70 @@ fn numbers<T: std::str::FromStr, const N: usize>(
 /// First occurrence of `needle` in `hay`.
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
     hay.windows(needle.len()).position(|w| w == needle)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// How each fixture's arrays (VTK's own writer made them) are located: every compressed
+    /// or base64 single-component array is read block by block.
+    #[test]
+    fn fixtures_locate_as_blocks_where_compressed_or_base64() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/volumes");
+        // (file, array, 'b' blocks / 'o' offset (mapped) / '-' decoded whole)
+        let cases = [
+            ("appended_base64_float32_lz4.vti", None, 'b'),
+            ("appended_base64_int8.vti", None, 'b'),
+            ("appended_base64_uint32_zlib.vti", None, 'b'),
+            ("appended_raw_float32_lzma.vti", None, 'b'),
+            ("appended_raw_float64_zlib.vti", None, 'b'),
+            ("appended_raw_int32_lz4.vti", None, 'b'),
+            ("appended_raw_uint16.vti", None, 'o'),
+            ("arrays.vti", Some("temperature"), 'b'),
+            ("arrays.vti", Some("density"), 'b'),
+            ("arrays.vti", Some("velocity"), '-'),
+            ("arrays.vti", Some("last"), 'b'),
+            ("arrays_raw.vti", None, 'o'),
+            ("arrays_raw_lz4.vti", None, 'b'),
+            ("ascii_float32.vti", None, '-'),
+            ("ascii_int16.vti", None, '-'),
+            ("bigendian_float32.vti", None, 'b'),
+            ("bigendian_int64_zlib.vti", None, 'b'),
+            ("binary_float64_lzma.vti", None, 'b'),
+            ("binary_int16_zlib.vti", None, 'b'),
+            ("binary_uint64_lz4.vti", None, 'b'),
+            ("binary_uint8.vti", None, 'b'),
+            ("binary_uint8_u64.vti", None, 'b'),
+            ("no_active.vti", None, 'b'),
+            ("no_active.vti", Some("second"), 'b'),
+            ("two_pieces.vti", None, 'b'),
+        ];
+        for (file, array, want) in cases {
+            let bytes = std::fs::read(dir.join(file)).unwrap();
+            let got = match locate(&bytes, array).map(|l| l.at) {
+                Some(At::Blocks(_)) => 'b',
+                Some(At::Offset(_)) => 'o',
+                None => '-',
+            };
+            assert_eq!(got, want, "{file} {array:?}");
+        }
+    }
+
+    /// Base64 text wrapped in lines (other writers) is decoded whole, not by character.
+    #[test]
+    fn wrapped_base64_is_decoded_whole() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/volumes");
+        let text = std::fs::read_to_string(dir.join("binary_int16_zlib.vti")).unwrap();
+        let start = text.find("format=\"binary\"").unwrap();
+        let body = text[start..].find('>').unwrap() + start + 1;
+        let data = text[body..].trim_start();
+        let at = text.len() - data.len() + 40;
+        let wrapped = format!("{}\n{}", &text[..at], &text[at..]);
+        assert!(locate(wrapped.as_bytes(), None).is_none());
+        assert!(locate(text.as_bytes(), None).is_some());
+        let a = decode(Path::new("w.vti"), wrapped.as_bytes(), None).unwrap();
+        let b = decode(Path::new("w.vti"), text.as_bytes(), None).unwrap();
+        assert_eq!(a.buffer.raw().2, b.buffer.raw().2);
+    }
 }

@@ -30,6 +30,9 @@ pub(super) enum BlockError {
     LengthMismatch { declared: usize, needed: usize },
     #[error("needs {declared} bytes but only {available} follow its header (truncated?)")]
     DataTruncated { declared: usize, available: usize },
+    /// Only where the data stream is shorter than its block table says (`blocks::Blocks`).
+    #[error("the data ends before byte {end} (truncated?)")]
+    StreamShort { end: usize },
     #[error("block header sizes overflow")]
     BlockSizesOverflow,
     #[error("its block header says {declared} bytes but the extent needs {needed}")]
@@ -212,7 +215,7 @@ impl std::io::Write for Bounded<'_> {
 }
 
 /// Decompress one block into exactly `dst.len()` bytes.
-fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), InflateError> {
+pub(super) fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(), InflateError> {
     let want = dst.len();
     let got = match c {
         Compressor::None => return Err(InflateError::NotCompressed),

@@ -5,6 +5,7 @@
 
 mod fuzz_replay;
 mod hostile_volumes;
+mod volume_blocks;
 mod volume_errors;
 mod volume_fixtures;
 mod volume_large_cli;
