@@ -40,7 +40,7 @@ use crate::tf::{Lut, LutGrad};
 use crate::volume::{BrickGrid, Level, Volume, BRICK_CELLS};
 
 pub use bricked::BrickValues;
-use bricked::{read_box, BrickedData, Encoding, BRICK_VALUES, PAD};
+use bricked::{read_box, BrickedData, Encoding, BRICK_POINTS, BRICK_VALUES, PAD};
 use cache::BrickCache;
 pub use cache::CacheStats;
 use march::{bricks_touched, march, BoxFrame};
@@ -155,7 +155,12 @@ fn build(level: &Level, budget: u64, cache_budget: u64) -> Result<CpuLevel, Rend
         BrickGrid::build(dims, level.try_data().map_err(RenderError::Source)?)
     };
     let encoding = Encoding::of(level.narrow());
-    let store = if whole_bytes(counts, encoding) <= budget {
+    // The whole copy is built from one f32 slab of a brick layer per thread at a time: that
+    // room is needed beside the copy (under an address-space limit nothing else is spare).
+    let slabs = rayon::current_num_threads() as u64
+        * (BRICK_POINTS * dims[0] * dims[1]) as u64
+        * std::mem::size_of::<f32>() as u64;
+    let store = if whole_bytes(counts, encoding).saturating_add(slabs) <= budget {
         // Each read is a slab of bricks; the mapped file's pages it touched are released
         // behind it (`Level::release_source`), so a level read from a memory-mapped file adds
         // its bricked copy to the process's memory, not the file.
@@ -225,7 +230,7 @@ fn cached(level: &Level) -> Result<Arc<CpuLevel>, RenderError> {
 
 impl CpuBackend {
     /// Prepare level `level` of `volume` within `budget` bytes: its whole bricked copy when
-    /// that fits, else a brick cache of at most `budget` bytes (arena and tables). Not shared
+    /// that fits with the f32 slabs it is built from (one per thread), else a brick cache of at most `budget` bytes (arena and tables). Not shared
     /// with [`Backend::prepare`]'s cache of levels, whose budget is the process's
     /// (`memory::budget`, `--max-memory`).
     pub fn prepare_within(
