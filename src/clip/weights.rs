@@ -16,6 +16,7 @@ use safetensors::tensor::Metadata;
 use safetensors::{Dtype, SafeTensors};
 
 use super::checkpoint::torch::TorchCheckpoint;
+use super::checkpoint::{check_finite, check_shape};
 use super::ClipError;
 
 /// All the files of one checkpoint, with an index from tensor name to the file holding it.
@@ -207,27 +208,6 @@ impl SafetensorsFile {
         })?;
         check_finite(name, &out).map_err(|m| self.err(m))?;
         Ok(out)
-    }
-}
-
-/// `got` must equal `want`, except that a scalar (`want == []`) may be stored as `[1]`.
-pub(crate) fn check_shape(name: &str, got: &[usize], want: &[usize]) -> Result<(), String> {
-    let scalar_ok = want.is_empty() && (got.is_empty() || got == [1]);
-    if got == want || scalar_ok {
-        Ok(())
-    } else {
-        Err(format!(
-            "tensor \"{name}\" has shape {got:?}, but the config implies {want:?} (is config.json \
-             the one that belongs to these weights?)"
-        ))
-    }
-}
-
-/// No NaN or infinity in a weight: they would only show up later as NaN scores.
-pub(crate) fn check_finite(name: &str, values: &[f32]) -> Result<(), String> {
-    match values.iter().position(|v| !v.is_finite()) {
-        Some(i) => Err(format!("tensor \"{name}\" has a non-finite value at {i}")),
-        None => Ok(()),
     }
 }
 

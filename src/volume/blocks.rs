@@ -18,7 +18,6 @@ use std::sync::{Arc, Mutex};
 
 use base64::Engine;
 
-use super::vti::{ArrayError, VtiError};
 use super::vti_blocks::{header_int, inflate, BlockError, Compressor, Layout};
 use super::VolumeError;
 
@@ -49,6 +48,10 @@ pub(crate) enum Text {
 pub(crate) struct Table {
     /// The array's name, for errors.
     array: String,
+    /// How the reader words a block that does not decode, given the array's name and what is
+    /// wrong (the words of its whole decode; the reader says, so this module needs none of
+    /// its types).
+    wording: fn(&str, String) -> String,
     data: Text,
     compressor: Compressor,
     /// Decoded bytes per block (the last may be shorter).
@@ -92,6 +95,7 @@ pub(crate) fn table(
     layout: Layout,
     nbytes: usize,
     array: &str,
+    wording: fn(&str, String) -> String,
 ) -> Option<Table> {
     let h = layout.header_size;
     let header = Text::Base64 { start, skip: 0 };
@@ -165,6 +169,7 @@ pub(crate) fn table(
     }
     Some(Table {
         array: array.to_string(),
+        wording,
         data,
         compressor: layout.compressor,
         block,
@@ -271,11 +276,7 @@ impl Blocks {
             e @ BlockError::Inflate { .. } => e.to_string(),
             e => format!("block {b} of {}: {e}", self.table.blocks()),
         };
-        let error = VtiError::Array {
-            name: self.table.array.clone(),
-            error: ArrayError::Decode(e),
-        };
-        VolumeError::file(&self.path, error.to_string())
+        VolumeError::file(&self.path, (self.table.wording)(&self.table.array, e))
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Cache> {
@@ -374,7 +375,7 @@ impl Blocks {
                 (start + 4 * (skip + s) / 3, start + 4 * (skip + e) / 3)
             }
         };
-        super::source::dont_need(&self.map, s..e);
+        super::pages::dont_need(&self.map, s..e);
     }
 
     /// Bytes of decoded blocks the cache holds.
@@ -511,7 +512,10 @@ mod tests {
             header_size: 4,
             compressor,
         };
-        let t = table(&map, 0, base64, layout, n, "a").unwrap();
+        let t = table(&map, 0, base64, layout, n, "a", |a, m| {
+            format!("array '{a}': {m}")
+        })
+        .unwrap();
         assert_eq!(t.end, file.len());
         Blocks::new(&path, map, t)
     }

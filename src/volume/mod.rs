@@ -15,10 +15,12 @@
 mod blocks;
 mod buffer;
 mod legacy;
+mod pages;
 mod pyramid;
 mod raw;
 mod read;
 mod source;
+mod stats;
 mod stream;
 mod summary;
 mod vti;

@@ -13,7 +13,6 @@
 use std::collections::VecDeque;
 use std::sync::{Arc, OnceLock};
 
-use super::stream::Streamed;
 use super::{Geometry, VolumeError};
 
 /// Cells per brick side.
@@ -119,6 +118,27 @@ pub(crate) fn unround16(q: u16) -> f32 {
     q as f32 * ROUND16_SCALE
 }
 
+/// What makes a level's samples when they are not held (`stream::Streamed`: the file's
+/// values, their normalization and the level shapes). The pyramid names only this trait, so
+/// imports run one way: the stream builds levels, levels do not know the stream.
+pub(crate) trait LevelSource: std::fmt::Debug + Send + Sync {
+    /// The samples of level `level`, made by reading the source (after a memory check).
+    fn materialize(&self, level: usize) -> Result<Samples, VolumeError>;
+    /// Level `level`'s values in the box [`lo`, `hi`) into `out` (x fastest), the held
+    /// level's bits, without holding it.
+    fn read_box(
+        &self,
+        level: usize,
+        lo: [usize; 3],
+        hi: [usize; 3],
+        out: &mut [f32],
+    ) -> Result<(), VolumeError>;
+    /// Stop counting the source's mapped pages as this process's memory.
+    fn release(&self);
+    /// Whether the values are read from a memory map of the file as stored.
+    fn is_mapped(&self) -> bool;
+}
+
 /// A level's samples, made at most once.
 #[derive(Debug)]
 pub(crate) struct LevelCell {
@@ -128,7 +148,7 @@ pub(crate) struct LevelCell {
     /// whole level as f32 ([`Level::try_data`]; the renderer reads boxes instead).
     as_f32: OnceLock<Vec<f32>>,
     /// What makes them when they are not held: the source and this level's index.
-    origin: Option<(Arc<Streamed>, usize)>,
+    origin: Option<(Arc<dyn LevelSource>, usize)>,
     /// Held while the samples are made, so that threads asking at once make one copy.
     making: std::sync::Mutex<()>,
 }
@@ -159,7 +179,7 @@ impl Level {
         bricks: BrickGrid,
         narrow: Narrow,
         samples: Option<Samples>,
-        streamed: &Arc<Streamed>,
+        streamed: &Arc<dyn LevelSource>,
         index: usize,
     ) -> Level {
         let cell = LevelCell {
@@ -222,7 +242,7 @@ impl Level {
         self.cell
             .origin
             .as_ref()
-            .is_some_and(|(s, _)| s.source.is_mapped())
+            .is_some_and(|(s, _)| s.is_mapped())
     }
 
     fn try_samples(&self) -> Result<&Samples, VolumeError> {
@@ -251,12 +271,13 @@ impl Level {
 
     /// Stop counting the pages of a memory-mapped source that [`Level::read_box`] touched as
     /// this process's memory (`MADV_DONTNEED`; the values stay readable, from the page cache
-    /// or the file). Nothing for a level whose samples are held or a decoded source. Random
-    /// box reads of a file larger than memory (a level-0 render through the brick cache) call
-    /// it between batches, so the file's pages do not add up in the process's memory.
+    /// or the file; a block-decoded source keeps its bounded cache of decoded blocks). Nothing
+    /// for a level whose samples are held or a decoded source. Random box reads of a file
+    /// larger than memory (a level-0 render through the brick cache) call it between batches,
+    /// so the file's pages do not add up in the process's memory.
     pub(crate) fn release_source(&self) {
         if let (None, Some((streamed, _))) = (self.cell.samples.get(), &self.cell.origin) {
-            streamed.source.release(0..streamed.source.len());
+            streamed.release();
         }
     }
 
@@ -1142,7 +1163,7 @@ mod tests {
             // their values and normalized after; other types are filtered normalized.
             let decoded = crate::volume::decode(&path, &Default::default()).unwrap();
             let ty = decoded.buffer.scalar_type();
-            let codes = super::super::summary::small_codes(ty).is_some();
+            let codes = super::super::stats::small_codes(ty).is_some();
             let units = if codes {
                 let mut values = Vec::new();
                 decoded.buffer.for_each(|x| values.push(x as f32));

@@ -132,7 +132,7 @@ fn locate(path: &Path, kind: Kind, opts: &ReadOptions) -> Option<(Located, memma
         Kind::Raw => None,
     }?;
     // The header's pages (all of an inline array's text) stop counting as this process's.
-    super::source::dont_need(&map, 0..map.len());
+    super::pages::dont_need(&map, 0..map.len());
     Some((loc, map))
 }
 

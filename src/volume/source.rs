@@ -13,7 +13,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use super::blocks::{Blocks, Table};
-use super::summary::{code_stats, count_codes, small_codes, MinMax, Stats};
+use super::stats::{code_stats, count_codes, small_codes, MinMax, Stats};
 use super::{buffer::for_each_value, ByteOrder, Geometry, ScalarType, TypedBuffer, VolumeError};
 
 /// Values visited at a time by the statistics pass (and released behind it when mapped).
@@ -181,7 +181,7 @@ impl Source {
         let size = self.ty.size();
         match &self.bytes {
             Bytes::Map { map, offset } => {
-                dont_need(map, offset + range.start * size..offset + range.end * size)
+                super::pages::dont_need(map, offset + range.start * size..offset + range.end * size)
             }
             Bytes::Blocks(b) => b.release(range.start * size..range.end * size),
             Bytes::Memory(_) => {}
@@ -252,28 +252,6 @@ fn blocks(len: usize) -> impl Iterator<Item = Range<usize>> {
     (0..len)
         .step_by(BLOCK_VALUES)
         .map(move |s| s..(s + BLOCK_VALUES).min(len))
-}
-
-/// Stop counting the pages of `map` in `range` as this process's memory (`MADV_DONTNEED`).
-pub(super) fn dont_need(map: &memmap2::Mmap, range: Range<usize>) {
-    // Only whole pages inside the range, so neighbouring values' pages stay. The system's
-    // page size (4 KiB on x86-64, 16/64 KiB on some ARM systems, where a 4 KiB-aligned range
-    // would make madvise fail and nothing be released).
-    // SAFETY: sysconf only reads a system constant.
-    let page = match unsafe { libc::sysconf(libc::_SC_PAGESIZE) } {
-        p if p > 0 => p as usize,
-        _ => 4096,
-    };
-    let first = range.start.div_ceil(page) * page;
-    let end = range.end.min(map.len()) / page * page;
-    if end > first {
-        // SAFETY: the map is a read-only shared file mapping: after MADV_DONTNEED the pages
-        // read back from the file unchanged, so no reference sees other bytes. A failure
-        // only means the pages stay counted.
-        let _ = unsafe {
-            map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, first, end - first)
-        };
-    }
 }
 
 /// What [`Source::stats`] finds: the statistics and, for 8/16-bit codes, each code's count.

@@ -24,9 +24,9 @@
 
 use std::sync::Arc;
 
-use super::pyramid::{self, BrickGridBuilder, Level, Narrow, Reducer, Samples};
+use super::pyramid::{self, BrickGridBuilder, Level, LevelSource, Narrow, Reducer, Samples};
 use super::source::Source;
-use super::summary::{code_stats, code_value, small_codes, Stats};
+use super::stats::{code_stats, code_value, small_codes, Stats};
 use super::{
     buffer::for_each_value, half_scale, normalize_value, ByteOrder, Geometry, ScalarType,
     VolumeError,
@@ -225,10 +225,49 @@ impl Streamed {
         }
     }
 
+    /// Level `level`'s filtered values in [`Units`] in the box [`lo`, `hi`).
+    fn reduce_box(
+        &self,
+        level: usize,
+        lo: [usize; 3],
+        hi: [usize; 3],
+        out: &mut [f32],
+    ) -> Result<(), VolumeError> {
+        if level == 0 {
+            return self.read_rows(lo, hi, out, |start, row| {
+                self.units
+                    .read(&self.source, Some(&self.norm), start, row, None)
+            });
+        }
+        let (input, output) = (self.shapes[level - 1].0, self.shapes[level].0);
+        pyramid::reduce_box(input, output, lo, hi, out, |l, h, buf| {
+            self.reduce_box(level - 1, l, h, buf)
+        })
+    }
+
+    /// Level 0's rows of the box [`lo`, `hi`), each read by `read(first value, row)`.
+    fn read_rows(
+        &self,
+        lo: [usize; 3],
+        hi: [usize; 3],
+        out: &mut [f32],
+        read: impl Fn(usize, &mut [f32]) -> Result<(), VolumeError>,
+    ) -> Result<(), VolumeError> {
+        let w = hi[0] - lo[0];
+        let rows = pyramid::box_rows(self.shapes[0].0, lo, hi);
+        for (row, at) in out.chunks_exact_mut(w.max(1)).zip(rows) {
+            // A usize index: the values lie in this process's memory (a map or a buffer).
+            read(at as usize, row)?;
+        }
+        Ok(())
+    }
+}
+
+impl LevelSource for Streamed {
     /// The samples of level `level`, made by streaming over the source again (the levels
     /// between it and level 0 are reduced slice by slice and not kept). The memory budget is
     /// checked first.
-    pub(crate) fn materialize(&self, level: usize) -> Result<Samples, VolumeError> {
+    fn materialize(&self, level: usize) -> Result<Samples, VolumeError> {
         let dims = self.shapes[level].0;
         let bytes = if self.rounded[level] { 2 } else { 4 };
         crate::memory::check(
@@ -272,7 +311,7 @@ impl Streamed {
     /// of the finer one that its filter reads (`pyramid::reduce_box`: the streamed level's
     /// values bit for bit), then normalized and rounded as a held level is. 64-bit index
     /// math: level 0 may hold more than 2³² points.
-    pub(crate) fn read_box(
+    fn read_box(
         &self,
         level: usize,
         lo: [usize; 3],
@@ -289,41 +328,12 @@ impl Streamed {
         Ok(())
     }
 
-    /// Level `level`'s filtered values in [`Units`] in the box [`lo`, `hi`).
-    fn reduce_box(
-        &self,
-        level: usize,
-        lo: [usize; 3],
-        hi: [usize; 3],
-        out: &mut [f32],
-    ) -> Result<(), VolumeError> {
-        if level == 0 {
-            return self.read_rows(lo, hi, out, |start, row| {
-                self.units
-                    .read(&self.source, Some(&self.norm), start, row, None)
-            });
-        }
-        let (input, output) = (self.shapes[level - 1].0, self.shapes[level].0);
-        pyramid::reduce_box(input, output, lo, hi, out, |l, h, buf| {
-            self.reduce_box(level - 1, l, h, buf)
-        })
+    fn release(&self) {
+        self.source.release(0..self.source.len());
     }
 
-    /// Level 0's rows of the box [`lo`, `hi`), each read by `read(first value, row)`.
-    fn read_rows(
-        &self,
-        lo: [usize; 3],
-        hi: [usize; 3],
-        out: &mut [f32],
-        read: impl Fn(usize, &mut [f32]) -> Result<(), VolumeError>,
-    ) -> Result<(), VolumeError> {
-        let w = hi[0] - lo[0];
-        let rows = pyramid::box_rows(self.shapes[0].0, lo, hi);
-        for (row, at) in out.chunks_exact_mut(w.max(1)).zip(rows) {
-            // A usize index: the values lie in this process's memory (a map or a buffer).
-            read(at as usize, row)?;
-        }
-        Ok(())
+    fn is_mapped(&self) -> bool {
+        self.source.is_mapped()
     }
 }
 
@@ -466,7 +476,8 @@ fn stream_keeping(
             }
             let samples = if l == 0 { None } else { data[l - 1].take() };
             let samples = samples.map(|values| streamed.samples(l, values));
-            Level::lazy(*dims, *spacing, grid, narrow, samples, &streamed, l)
+            let source: Arc<dyn LevelSource> = streamed.clone();
+            Level::lazy(*dims, *spacing, grid, narrow, samples, &source, l)
         })
         .collect();
     Ok(Some(Streaming { stats, levels }))

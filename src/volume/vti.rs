@@ -107,6 +107,15 @@ pub(crate) enum VtiError {
     Array { name: String, error: ArrayError },
 }
 
+/// A block that does not decode, worded as [`decode`] words it (the block source's errors).
+fn block_error(array: &str, message: String) -> String {
+    VtiError::Array {
+        name: array.to_string(),
+        error: ArrayError::Decode(message),
+    }
+    .to_string()
+}
+
 /// Why the selected array's values could not be read.
 #[derive(Debug, thiserror::Error)]
 pub(crate) enum ArrayError {
@@ -227,8 +236,10 @@ pub(super) fn locate(bytes: &[u8], want: Option<&str>) -> Option<Located> {
             .get(end..limit)
             .is_some_and(|t| t.iter().all(u8::is_ascii_whitespace))
     };
-    let table =
-        |start, base64| super::blocks::table(bytes, start, base64, h.layout, nbytes, &decl.name);
+    let table = |start, base64| {
+        let name = &decl.name;
+        super::blocks::table(bytes, start, base64, h.layout, nbytes, name, block_error)
+    };
     let at = match decl.format.as_str() {
         "appended" => {
             let app = app?;

@@ -14,3 +14,27 @@
 
 pub(crate) mod pickle;
 pub(crate) mod torch;
+
+// The checks every weights format makes on a tensor it reads (safetensors in `clip::weights`,
+// PyTorch zips in `torch`): here, below both, so that neither imports the other.
+
+/// `got` must equal `want`, except that a scalar (`want == []`) may be stored as `[1]`.
+pub(crate) fn check_shape(name: &str, got: &[usize], want: &[usize]) -> Result<(), String> {
+    let scalar_ok = want.is_empty() && (got.is_empty() || got == [1]);
+    if got == want || scalar_ok {
+        Ok(())
+    } else {
+        Err(format!(
+            "tensor \"{name}\" has shape {got:?}, but the config implies {want:?} (is config.json \
+             the one that belongs to these weights?)"
+        ))
+    }
+}
+
+/// No NaN or infinity in a weight: they would only show up later as NaN scores.
+pub(crate) fn check_finite(name: &str, values: &[f32]) -> Result<(), String> {
+    match values.iter().position(|v| !v.is_finite()) {
+        Some(i) => Err(format!("tensor \"{name}\" has a non-finite value at {i}")),
+        None => Ok(()),
+    }
+}

@@ -24,7 +24,7 @@ use memmap2::Mmap;
 use zip::{CompressionMethod, ZipArchive};
 
 use super::pickle::{self, DType, PickleError, Tensor};
-use crate::clip::weights::{check_finite, check_shape};
+use super::{check_finite, check_shape};
 use crate::clip::ClipError;
 
 /// The pickle of a state dict is tens of kilobytes for CLIP and a few megabytes for the
