@@ -20,6 +20,8 @@ pub mod formats;
 pub mod fs;
 pub mod hub;
 pub mod image;
+#[cfg(test)]
+mod import_loops;
 pub(crate) mod math;
 pub mod memory;
 pub mod optimize;
