@@ -211,7 +211,7 @@ impl Level {
 
     /// Normalized samples, x fastest; NaN = empty. Made on first use (reading the source
     /// again); an error when they do not fit the memory budget. A level held in 16 bits
-    /// ([`Samples::Round16`]) makes an f32 copy of itself for this.
+    /// (`Samples::Round16`) makes an f32 copy of itself for this.
     pub fn try_data(&self) -> Result<&[f32], VolumeError> {
         match self.try_samples()? {
             Samples::F32(d) => Ok(d),
@@ -227,7 +227,7 @@ impl Level {
         self.cell.samples.get().is_some()
     }
 
-    /// Whether the held samples are rounded to 16 bits ([`Samples::Round16`]); `None` when
+    /// Whether the held samples are rounded to 16 bits (`Samples::Round16`); `None` when
     /// they are not held.
     pub fn is_16_bit(&self) -> Option<bool> {
         self.cell
