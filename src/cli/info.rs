@@ -37,8 +37,9 @@ pub struct InfoArgs {
 
 pub fn run(args: InfoArgs) -> Result<()> {
     let start = Instant::now();
-    // Statistics only: no f32 copy and no pyramid, and a .raw file is streamed, so a volume
-    // larger than memory can be inspected (volume::summarize).
+    // Statistics only: no f32 copy and no pyramid, and the file is read as a load reads it
+    // (mapped or block by block), so a volume larger than memory can be inspected
+    // (volume::summarize).
     let volume = volume::summarize(&args.volume, &args.read.read_options())?;
     args.read.warn_thin(&args.volume, volume.geometry.dims);
     let seconds = start.elapsed().as_secs_f64();
