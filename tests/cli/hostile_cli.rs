@@ -4,6 +4,7 @@
 //! set under a lock, stops on SIGTERM with exit 143 after writing, and a SIGKILL leaves the
 //! previous complete set, cleaned up by the next run. Every bad file is made by the test.
 
+use crate::limits_util::limit_address_space;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -106,24 +107,6 @@ fn convert_refuses_devices_and_fifos_and_overflowing_rescale() {
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("too wide"), "{err}");
     assert!(!out.exists());
-}
-
-/// Limit the child's address space (as `ulimit -v` does) so a huge allocation would abort.
-fn limit_address_space(cmd: &mut Command, bytes: u64) -> &mut Command {
-    use std::os::unix::process::CommandExt;
-    // SAFETY: setrlimit is async-signal-safe and touches no memory of the parent.
-    unsafe {
-        cmd.pre_exec(move || {
-            let lim = libc::rlimit {
-                rlim_cur: bytes,
-                rlim_max: bytes,
-            };
-            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        })
-    }
 }
 
 const AS_LIMIT: u64 = 2 << 30;

@@ -6,3 +6,5 @@
 mod cli_info;
 mod cli_messages;
 mod hostile_cli;
+#[path = "../limits_util/mod.rs"]
+mod limits_util;

@@ -2,6 +2,7 @@
 //! float64 data near ±f64::MAX normalizes to finite values, and spacings whose box single
 //! precision cannot hold are refused. Every file is made by the test.
 
+use crate::limits_util::limit_address_space;
 use std::path::Path;
 
 use t2tf::volume::{decode_bytes, ReadOptions, Volume};
@@ -107,26 +108,4 @@ fn info_streams_a_volume_larger_than_its_address_space_allows() {
         .sum();
     assert_eq!(counts, (N * N * N) as u64);
     assert_eq!(report["pyramid"][1], serde_json::json!([256, 256, 256]));
-}
-
-/// `cmd` run under an address-space limit of `bytes` (`RLIMIT_AS`).
-// The same helper as tests/cli/hostile_cli.rs's: another test binary, which cannot share it.
-pub(crate) fn limit_address_space(
-    cmd: &mut std::process::Command,
-    bytes: u64,
-) -> &mut std::process::Command {
-    use std::os::unix::process::CommandExt;
-    // SAFETY: setrlimit is async-signal-safe and touches no memory of the parent.
-    unsafe {
-        cmd.pre_exec(move || {
-            let lim = libc::rlimit {
-                rlim_cur: bytes,
-                rlim_max: bytes,
-            };
-            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        })
-    }
 }

@@ -5,6 +5,8 @@
 
 mod fuzz_replay;
 mod hostile_volumes;
+#[path = "../limits_util/mod.rs"]
+mod limits_util;
 mod volume_blocks;
 mod volume_errors;
 mod volume_fixtures;

@@ -572,7 +572,7 @@ fn info_on_a_compressed_vti_under_an_address_space_limit() {
         let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_t2tf"));
         cmd.env("MALLOC_ARENA_MAX", "1");
         cmd.arg("info").arg(&path).arg("--json");
-        crate::hostile_volumes::limit_address_space(&mut cmd, limit)
+        crate::limits_util::limit_address_space(&mut cmd, limit)
             .output()
             .unwrap()
     };

@@ -37,7 +37,7 @@ fn t2tf() -> Command {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_t2tf"));
     // One malloc arena: each thread's arena reserves address space it may never use.
     cmd.env("MALLOC_ARENA_MAX", "1");
-    crate::hostile_volumes::limit_address_space(&mut cmd, AS_LIMIT);
+    crate::limits_util::limit_address_space(&mut cmd, AS_LIMIT);
     cmd
 }
 
