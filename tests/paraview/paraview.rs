@@ -7,38 +7,17 @@
 use crate::paraview_util;
 
 use paraview_util::{
-    assert_volume_only_inside, floats, paraview_available, projected_box, pvpython, repo, test_tf,
+    assert_volume_only_inside, floats, neghip, paraview_available, projected_box, pvpython, repo,
+    test_tf,
 };
 use std::path::Path;
 
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::{to_paraview_json, to_paraview_xml, write_all, ExportTf};
 use t2tf::image::{psnr, Image};
-use t2tf::volume::{
-    ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,
-};
+use t2tf::volume::{Geometry, SourceFormat, TypedBuffer, Volume, VolumeSource};
 
 /// neghip 64³ uint8 from ../shared, read directly (the volume readers are separate work).
-fn neghip() -> Volume {
-    let path = repo().join("../shared/data/volumes/neghip_64x64x64_uint8.raw");
-    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let g = Geometry {
-        dims: [64, 64, 64],
-        spacing: [1.0; 3],
-        origin: [0.0; 3],
-    };
-    let buf = TypedBuffer::new(ScalarType::U8, ByteOrder::Little, bytes);
-    let mut v = Volume::from_buffer(&path, g, &buf).unwrap();
-    v.source = Some(VolumeSource {
-        path,
-        format: SourceFormat::Raw {
-            scalar_type: ScalarType::U8,
-            byte_order: ByteOrder::Little,
-        },
-    });
-    v
-}
-
 const PRESET_CHECK: &str = r#"
 import json, sys
 import paraview.simple as pvs

@@ -10,20 +10,16 @@ use crate::paraview_util;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use paraview_util::{paraview_available, projected_box, pvpython_output, repo, test_tf};
+use paraview_util::{neghip, paraview_available, projected_box, pvpython_output, repo, test_tf};
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::write_all;
 use t2tf::image::Image;
-use t2tf::volume::{self, ReadOptions, Volume};
+use t2tf::volume::Volume;
 
 const NEGHIP: &str = "../shared/data/volumes/neghip_64x64x64_uint8.raw";
 
 fn helper() -> PathBuf {
     repo().join("paraview/t2tf_apply_preset.py")
-}
-
-fn neghip() -> Volume {
-    volume::load(&repo().join(NEGHIP), &ReadOptions::default()).unwrap()
 }
 
 /// t2tf's preset for neghip, written into `dir`.

@@ -14,7 +14,8 @@
 use crate::paraview_util;
 
 use paraview_util::{
-    assert_volume_only_inside, floats, paraview_available, projected_box, pvpython, repo,
+    assert_volume_only_inside, floats, neghip, neghip_path, paraview_available, projected_box,
+    pvpython, repo,
 };
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -25,14 +26,6 @@ use t2tf::image::{psnr, Image};
 use t2tf::render::{self, RenderOptions};
 use t2tf::tf::ControlPoints;
 use t2tf::volume::{load, ReadOptions, Volume};
-
-fn neghip_path() -> PathBuf {
-    repo().join("../shared/data/volumes/neghip_64x64x64_uint8.raw")
-}
-
-fn neghip() -> Volume {
-    load(&neghip_path(), &ReadOptions::default()).expect("read neghip")
-}
 
 /// A list assigned at the top of a generated script, e.g. `CAMERA_POSITION = [1.0, 2.0]`
 /// (the writer prints Python lists of `{:?}` floats, which are also JSON).

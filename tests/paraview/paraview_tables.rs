@@ -10,18 +10,12 @@ use crate::paraview_util;
 
 use std::path::Path;
 
-use paraview_util::{paraview_available, pvpython, repo};
+use paraview_util::{neghip, paraview_available, pvpython};
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::{paraview_script, write_all, ExportTf};
 use t2tf::tf::ControlPoints;
-use t2tf::volume::{self, ReadOptions, Volume};
 
 const WARNING: &str = "falling back to maximum allowed";
-
-fn neghip() -> Volume {
-    let path = repo().join("../shared/data/volumes/neghip_64x64x64_uint8.raw");
-    volume::load(&path, &ReadOptions::default()).unwrap()
-}
 
 /// Run a generated script with a small screenshot (rendering builds the tables); its output.
 fn render(script: &Path, dir: &Path) -> String {

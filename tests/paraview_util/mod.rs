@@ -109,6 +109,18 @@ pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The shared 64³ neghip volume (../shared/data/volumes).
+pub fn neghip_path() -> PathBuf {
+    repo().join("../shared/data/volumes/neghip_64x64x64_uint8.raw")
+}
+
+/// The neghip volume, loaded as the CLI loads it (`Volume::source` set).
+pub fn neghip() -> t2tf::volume::Volume {
+    let path = neghip_path();
+    t2tf::volume::load(&path, &Default::default())
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
 pub fn floats(v: &serde_json::Value) -> Vec<f64> {
     v.as_array()
         .expect("array")
