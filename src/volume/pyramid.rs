@@ -229,7 +229,8 @@ impl Level {
 
     /// Whether the held samples are rounded to 16 bits (`Samples::Round16`); `None` when
     /// they are not held.
-    pub fn is_16_bit(&self) -> Option<bool> {
+    #[cfg(test)]
+    pub(crate) fn is_16_bit(&self) -> Option<bool> {
         self.cell
             .samples
             .get()
@@ -323,7 +324,7 @@ impl Level {
     }
 
     /// Memory the samples and the brick ranges take once the samples are made, as f32: an
-    /// upper bound, since a level held in 16 bits ([`Level::is_16_bit`]) takes half of its
+    /// upper bound, since a level held in 16 bits (`Samples::Round16`) takes half of its
     /// samples' share (a renderer's copies not included); see [`Level::is_materialized`] for
     /// whether they are made.
     pub fn memory_bytes(&self) -> usize {

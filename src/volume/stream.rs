@@ -196,29 +196,28 @@ pub(crate) struct Streamed {
 }
 
 impl Streamed {
-    /// Filtered values of level `level` ≥ 1 (in [`Units`]) made final: normalized, then
-    /// rounded where the level is.
-    fn finish_values(&self, level: usize, values: &mut [f32]) {
-        if let Units::Codes(_) = self.units {
-            for v in values.iter_mut() {
-                *v = self.norm.apply(*v);
-            }
-        }
+    /// A value of level `level` filtered in [`Units`], made final: normalized, then rounded
+    /// to 16 bits where the level is. Held samples, boxes read from the source and brick
+    /// ranges (it is non-decreasing) all go through it, so they agree bit for bit.
+    #[inline]
+    fn final_value(&self, level: usize, v: f32) -> f32 {
+        let v = match self.units {
+            Units::Codes(_) => self.norm.apply(v),
+            Units::Normalized => v,
+        };
         if self.rounded[level] {
-            for v in values.iter_mut() {
-                *v = pyramid::unround16(pyramid::round16(*v));
-            }
+            pyramid::unround16(pyramid::round16(v))
+        } else {
+            v
         }
     }
 
     /// A held level's samples from its filtered values (in [`Units`]).
     fn samples(&self, level: usize, mut values: Vec<f32>) -> Samples {
-        if let Units::Codes(_) = self.units {
-            for v in values.iter_mut() {
-                *v = self.norm.apply(*v);
-            }
+        for v in values.iter_mut() {
+            *v = self.final_value(level, *v);
         }
-        if level > 0 && self.rounded[level] {
+        if self.rounded[level] {
             Samples::Round16(pyramid::Packed16::round(values))
         } else {
             Samples::F32(values)
@@ -324,7 +323,9 @@ impl LevelSource for Streamed {
             });
         }
         self.reduce_box(level, lo, hi, out)?;
-        self.finish_values(level, out);
+        for v in out.iter_mut() {
+            *v = self.final_value(level, *v);
+        }
         Ok(())
     }
 
@@ -460,20 +461,7 @@ fn stream_keeping(
         .map(|(l, ((dims, spacing), grid))| {
             let narrow = if l == 0 { narrow } else { Narrow::Round16 };
             let mut grid = grid.finish();
-            let (codes, round) = (
-                matches!(streamed.units, Units::Codes(_)),
-                streamed.rounded[l],
-            );
-            if codes || round {
-                grid.map(|v| {
-                    let v = if codes { streamed.norm.apply(v) } else { v };
-                    if round {
-                        pyramid::unround16(pyramid::round16(v))
-                    } else {
-                        v
-                    }
-                });
-            }
+            grid.map(|v| streamed.final_value(l, v));
             let samples = if l == 0 { None } else { data[l - 1].take() };
             let samples = samples.map(|values| streamed.samples(l, values));
             let source: Arc<dyn LevelSource> = streamed.clone();

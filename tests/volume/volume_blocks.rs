@@ -11,14 +11,12 @@ use std::path::{Path, PathBuf};
 use base64::Engine;
 use t2tf::volume::{self, ByteOrder, ReadOptions, ScalarType, Volume};
 
+use crate::volume_stream::{assert_same, bits, encode};
+
 const SHARED: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/volumes");
 
 fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/volumes")
-}
-
-fn bits(d: &[f32]) -> Vec<u32> {
-    d.iter().map(|v| v.to_bits()).collect()
 }
 
 /// How the generated file stores its array.
@@ -166,61 +164,6 @@ fn write_vti(
     out.flush().unwrap();
 }
 
-/// `values` stored as `ty` in `order`.
-fn encode(values: &[f64], ty: ScalarType, order: ByteOrder) -> Vec<u8> {
-    macro_rules! enc {
-        ($t:ty) => {
-            values
-                .iter()
-                .flat_map(|&v| match order {
-                    ByteOrder::Little => (v as $t).to_le_bytes().to_vec(),
-                    ByteOrder::Big => (v as $t).to_be_bytes().to_vec(),
-                })
-                .collect()
-        };
-    }
-    match ty {
-        ScalarType::U8 => enc!(u8),
-        ScalarType::U16 => enc!(u16),
-        ScalarType::F32 => enc!(f32),
-        ScalarType::F64 => enc!(f64),
-        other => panic!("{other:?} not generated"),
-    }
-}
-
-/// Statistics, and per level: shape, brick ranges and samples, bit for bit.
-fn assert_same(a: &Volume, b: &Volume, what: &str) {
-    assert_eq!(a.geometry, b.geometry, "{what}");
-    assert_eq!(a.scalar_type, b.scalar_type, "{what}");
-    assert_eq!(
-        a.range.map(f64::to_bits),
-        b.range.map(f64::to_bits),
-        "{what}"
-    );
-    assert_eq!(a.norm_range, b.norm_range, "{what}");
-    assert_eq!(a.non_finite, b.non_finite, "{what}");
-    assert_eq!(a.histogram, b.histogram, "{what}");
-    assert_eq!(a.levels.len(), b.levels.len(), "{what}");
-    for (l, (x, y)) in a.levels.iter().zip(&b.levels).enumerate() {
-        assert_eq!(x.dims, y.dims, "{what}: level {l}");
-        assert_eq!(
-            bits(&x.bricks.min),
-            bits(&y.bricks.min),
-            "{what}: level {l}"
-        );
-        assert_eq!(
-            bits(&x.bricks.max),
-            bits(&y.bricks.max),
-            "{what}: level {l}"
-        );
-        assert_eq!(x.bricks.uniform, y.bricks.uniform, "{what}: level {l}");
-        assert!(
-            bits(x.data()) == bits(y.data()),
-            "{what}: level {l} samples"
-        );
-    }
-}
-
 /// Odd boxes of level 0 read from the source (before it is made) equal slices of `want`.
 fn assert_boxes(loaded: &Volume, want: &Volume, what: &str) {
     let level = &loaded.levels[0];
@@ -253,6 +196,8 @@ fn assert_boxes(loaded: &Volume, want: &Volume, what: &str) {
 }
 
 /// `t2tf info`'s numbers equal the load's.
+// Alike to summary.rs's unit test `summary_equals_load` (generated .raw of every type), which
+// lives in the library's test binary; this one runs on the .vti fixtures and shared volumes.
 fn assert_summary(path: &Path, opts: &ReadOptions, v: &Volume) {
     let s = volume::summarize(path, opts).unwrap_or_else(|e| panic!("{e}"));
     let what = path.display().to_string();
@@ -348,29 +293,36 @@ fn generated_files_load_like_the_in_memory_build() {
     assert_eq!(checked, 4 * 2 * 3 * 3);
 }
 
+/// A 40 × 30 × 20 uint16 little-endian file `name` in `dir` stored as `encoding` in
+/// `compressor` blocks of `block` bytes; its path and its values' bytes.
+fn u16_file(
+    dir: &Path,
+    name: &str,
+    encoding: Encoding,
+    compressor: Compressor,
+    block: usize,
+) -> (PathBuf, Vec<u8>) {
+    let dims = [40, 30, 20];
+    let (ty, order) = (ScalarType::U16, ByteOrder::Little);
+    let data = encode(&values(dims.iter().product(), ty), ty, order);
+    let path = dir.join(name);
+    write_vti(
+        &path, dims, ty, order, &data, encoding, compressor, block, false,
+    );
+    (path, data)
+}
+
 /// A block that does not decode: the load fails with the whole decode's message, which
 /// names the file, the array and the block; a corrupt base64 character names its block.
 #[test]
 fn a_corrupt_block_is_an_error_naming_the_file_and_block() {
     let dir = tempfile::tempdir().unwrap();
-    let dims = [40, 30, 20];
-    let n: usize = dims.iter().product();
-    let data = encode(
-        &values(n, ScalarType::U16),
-        ScalarType::U16,
-        ByteOrder::Little,
-    );
-    let path = dir.path().join("corrupt.vti");
-    write_vti(
-        &path,
-        dims,
-        ScalarType::U16,
-        ByteOrder::Little,
-        &data,
+    let (path, data) = u16_file(
+        dir.path(),
+        "corrupt.vti",
         Encoding::AppendedRaw,
         Compressor::Zlib,
         1001,
-        false,
     );
     let mut bytes = std::fs::read(&path).unwrap();
     // Near the end of the data: inside the last blocks' zlib streams (past their headers).
@@ -394,17 +346,12 @@ fn a_corrupt_block_is_an_error_naming_the_file_and_block() {
     let s = volume::summarize(&path, &opts).unwrap_err().to_string();
     assert_eq!(s, e);
 
-    let path = dir.path().join("corrupt64.vti");
-    write_vti(
-        &path,
-        dims,
-        ScalarType::U16,
-        ByteOrder::Little,
-        &data,
+    let (path, _) = u16_file(
+        dir.path(),
+        "corrupt64.vti",
         Encoding::Inline,
         Compressor::Lz4,
         4096,
-        false,
     );
     let mut text = std::fs::read(&path).unwrap();
     let end = text.len()
@@ -424,24 +371,12 @@ fn a_corrupt_block_is_an_error_naming_the_file_and_block() {
 fn a_block_corrupt_after_the_load_is_an_error_from_read_box_and_try_data() {
     use std::io::{Seek, SeekFrom};
     let dir = tempfile::tempdir().unwrap();
-    let dims = [40, 30, 20];
-    let n: usize = dims.iter().product();
-    let data = encode(
-        &values(n, ScalarType::U16),
-        ScalarType::U16,
-        ByteOrder::Little,
-    );
-    let path = dir.path().join("late.vti");
-    write_vti(
-        &path,
-        dims,
-        ScalarType::U16,
-        ByteOrder::Little,
-        &data,
+    let (path, _) = u16_file(
+        dir.path(),
+        "late.vti",
         Encoding::AppendedRaw,
         Compressor::Zlib,
         1001,
-        false,
     );
     let loaded = volume::load(&path, &ReadOptions::default()).unwrap();
     let len = std::fs::metadata(&path).unwrap().len();
@@ -451,7 +386,8 @@ fn a_block_corrupt_after_the_load_is_an_error_from_read_box_and_try_data() {
     f.write_all(&[0x5a; 10]).unwrap();
     f.sync_all().unwrap();
     let level = &loaded.levels[0];
-    let mut out = vec![0.0f32; n];
+    let dims = loaded.dims();
+    let mut out = vec![0.0f32; dims.iter().product()];
     let e = level
         .read_box([0; 3], dims, &mut out)
         .unwrap_err()
@@ -568,25 +504,7 @@ fn info_on_a_compressed_vti_under_an_address_space_limit() {
         false,
     );
     drop(data);
-    let run = |limit: u64| {
-        let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_t2tf"));
-        cmd.env("MALLOC_ARENA_MAX", "1");
-        cmd.arg("info").arg(&path).arg("--json");
-        crate::limits_util::limit_address_space(&mut cmd, limit)
-            .output()
-            .unwrap()
-    };
-    let out = run(LIMIT);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "t2tf info failed: {stderr}");
-    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let report = crate::limits_util::info_within(&path, LIMIT, (N * N * N) as u64);
     assert_eq!(report["dims"], serde_json::json!([N, N, N]));
     assert_eq!(report["range"], serde_json::json!([0.0, 999.0]));
-    let counts: u64 = report["histogram"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|r| r["count"].as_u64().unwrap())
-        .sum();
-    assert_eq!(counts, (N * N * N) as u64);
 }

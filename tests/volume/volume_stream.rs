@@ -14,7 +14,7 @@ fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/volumes")
 }
 
-fn bits(d: &[f32]) -> Vec<u32> {
+pub(crate) fn bits(d: &[f32]) -> Vec<u32> {
     d.iter().map(|v| v.to_bits()).collect()
 }
 
@@ -27,7 +27,7 @@ fn both(path: &Path, opts: &ReadOptions) -> (Volume, Volume) {
 }
 
 /// Statistics, and per level: shape, brick ranges and samples, bit for bit.
-fn assert_same(a: &Volume, b: &Volume, what: &str) {
+pub(crate) fn assert_same(a: &Volume, b: &Volume, what: &str) {
     assert_eq!(a.geometry, b.geometry, "{what}");
     assert_eq!(a.scalar_type, b.scalar_type, "{what}");
     assert_eq!(
@@ -87,7 +87,7 @@ fn streaming_equals_in_memory_on_every_shared_volume() {
 }
 
 /// `values` stored as `ty` in `order` (integers as the low bytes of their two's complement).
-fn encode(values: &[f64], ty: ScalarType, order: ByteOrder) -> Vec<u8> {
+pub(crate) fn encode(values: &[f64], ty: ScalarType, order: ByteOrder) -> Vec<u8> {
     let mut out = Vec::with_capacity(values.len() * ty.size());
     for &v in values {
         let mut b = match ty {
