@@ -24,7 +24,7 @@ use std::time::Instant;
 
 use t2tf::bench::{best_kernel, matmul, Mat, Op};
 use t2tf::clip::packed::{self, Engine, Kernel, Precision};
-use t2tf::clip::{cosine_grad, Clip, ClipConfig, ClipError, ClipTokenizer, RandomSource};
+use t2tf::clip::{cosine_grad, Clip, ClipConfig, ClipError, ClipTokenizer, Compute, RandomSource};
 use t2tf::image::Image;
 
 /// CPU seconds this process's threads have run so far: the sum of the nanosecond run times in
@@ -181,11 +181,13 @@ impl Setup {
         }
     }
     fn build(self, cfg: &ClipConfig) -> Result<Clip, ClipError> {
-        let make = || Clip::from_source(cfg.clone(), &RandomSource::new(7));
-        match self {
-            Setup::Crate => packed::with_engine(Engine::Crate, make),
-            Setup::Packed(k) => packed::with_kernel(k, make),
-        }
+        let compute = match self {
+            Setup::Crate => Compute::default().with_engine(Engine::Crate),
+            Setup::Packed(k) => Compute::default().with_kernel(k).ok_or_else(|| {
+                ClipError::Missing(format!("kernel {}: not on this CPU", k.name()))
+            })?,
+        };
+        Clip::from_source_with(cfg.clone(), &RandomSource::new(7), compute)
     }
 }
 
@@ -259,7 +261,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     println!("threads: {threads}, reps: {reps} (best / median of reps after one warm-up)");
     println!("CPU: {}", packed::cpu_features());
-    println!("default (what t2tf builds): {}", packed::describe());
+    println!(
+        "default (what t2tf builds): {}",
+        Compute::default().describe()
+    );
     println!(
         "setups timed: {}",
         run.iter().map(|s| s.name()).collect::<Vec<_>>().join("; ")

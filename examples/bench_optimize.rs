@@ -45,8 +45,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use t2tf::camera::UpAxis;
-use t2tf::clip::packed::{self, Precision};
-use t2tf::clip::{Clip, ClipConfig, ClipTokenizer, RandomSource};
+use t2tf::clip::packed::Precision;
+use t2tf::clip::{Clip, ClipConfig, ClipTokenizer, Compute, RandomSource};
 use t2tf::image::Image;
 use t2tf::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer};
 use t2tf::optimize::captions::{self, CaptionPool};
@@ -380,8 +380,7 @@ fn main() -> anyhow::Result<()> {
     if let Some((a, b)) = &compare {
         return compare_tfs(&volume, a, b);
     }
-    let mut clip =
-        packed::with_precision(precision, || Clip::from_source(cfg, &RandomSource::new(7)))?;
+    let mut clip = Clip::from_source_with(cfg, &RandomSource::new(7), Compute::new(precision))?;
     clip.set_tokenizer(ClipTokenizer::from_file(
         &root.join("data/clip/tokenizer.json"),
         context,
@@ -392,10 +391,7 @@ fn main() -> anyhow::Result<()> {
         load_avg()
     );
     // `describe` names the kernel, the precision and the CPU's features.
-    println!(
-        "CLIP: {}",
-        packed::with_precision(precision, packed::describe)
-    );
+    println!("CLIP: {}", clip.compute().describe());
 
     let pool = CaptionPool::builtin();
     let user = captions::user_negatives(&[])?;
@@ -445,6 +441,7 @@ fn main() -> anyhow::Result<()> {
     let run = |row: &Row| -> anyhow::Result<Result1> {
         let settings = row.settings().validate()?;
         let renderer = VolumeRenderer {
+            backend: t2tf::render::shared_backend(),
             volume: &volume,
             options: row.options(),
             up: UpAxis::Z,
@@ -620,6 +617,7 @@ fn held_out_renders(
     cp: &ControlPoints,
 ) -> anyhow::Result<Vec<Image>> {
     let eval = VolumeRenderer {
+        backend: t2tf::render::shared_backend(),
         volume,
         options: RenderOptions::default(),
         up: UpAxis::Z,

@@ -96,6 +96,7 @@ fn main() -> Result<()> {
     let volume = load(Path::new(VOLUME), &ReadOptions::default())
         .with_context(|| format!("{VOLUME} (the shared volumes beside the repository)"))?;
     let r = VolumeRenderer {
+        backend: t2tf::render::shared_backend(),
         volume: &volume,
         options: RenderOptions::default(),
         up: UpAxis::Z,

@@ -1,33 +1,29 @@
 //! t2tf: text to transfer function.
 //!
-//! The pipeline (see ARCHITECTURE.md) flows one way through these modules:
-//! `volume` → `tf` → `camera`/`background` → `render` → `clip` → `optimize` → `formats`.
-//! The command-line interface is the binary's (src/main.rs, src/cli), not part of this API.
+//! The pipeline (see ARCHITECTURE.md) flows one way through one crate per stage:
+//! `t2tf-volume` → `t2tf-tf` → `t2tf-render` → `t2tf-clip` → [`optimize`] → `t2tf-formats`,
+//! all standing on `t2tf-core`. This crate is the pipeline: [`pipeline`] runs the main job
+//! (load a volume and a model, optimize, write the output set) and re-exports each stage under
+//! the name it has in the docs (`t2tf::volume`, `t2tf::render`, …), so one dependency reaches
+//! everything. The command-line interface is the binary's (src/main.rs, src/cli), not part of
+//! this API.
 //!
-//! The public API is what the binary, the tests and `examples/demo_recover` and
-//! `examples/fuzz` use. The benchmarks (`examples/bench_*`) need a few internals more; those
-//! are `pub(crate)` and exported only through the `bench` module, which exists with the
-//! `bench` feature (`cargo run --release --features bench --example bench_clip`).
+//! The benchmarks (`examples/bench_*`) need a few internals more; those are exported only
+//! through the `bench` module, which exists with the `bench` feature
+//! (`cargo run --release --features bench --example bench_clip`).
 
 #![warn(missing_docs)]
 
-pub mod background;
 #[cfg(feature = "bench")]
 pub mod bench;
-pub mod camera;
-pub mod clip;
-pub mod formats;
-pub mod fs;
-pub mod hub;
-pub mod image;
-#[cfg(test)]
-mod import_loops;
-pub(crate) mod math;
-pub mod memory;
 pub mod optimize;
-pub mod progress;
-pub mod render;
-pub mod signals;
-pub mod tf;
-pub mod units;
-pub mod volume;
+pub mod pipeline;
+
+pub use t2tf_clip as clip;
+pub use t2tf_clip::hub;
+pub use t2tf_core::{fs, image, memory, units};
+pub use t2tf_formats as formats;
+pub use t2tf_render as render;
+pub use t2tf_render::{background, camera};
+pub use t2tf_tf as tf;
+pub use t2tf_volume as volume;

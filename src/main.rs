@@ -8,8 +8,8 @@ mod cli;
 
 use clap::Parser;
 use t2tf::{
-    background, camera, clip, formats, fs, hub, image, memory, optimize, progress, render, signals,
-    tf, units, volume,
+    background, camera, clip, formats, fs, hub, image, memory, optimize, pipeline, render, units,
+    volume,
 };
 
 fn main() -> std::process::ExitCode {

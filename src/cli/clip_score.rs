@@ -30,11 +30,9 @@ pub struct ClipScoreArgs {
 
 pub fn run(args: ClipScoreArgs) -> Result<()> {
     let image = Image::load_png(&args.image)?;
-    let precision = args.model.precision()?;
     let clip = args
         .model
-        .resolve(precision)
-        .and_then(|m| m.load())
+        .load_clip()
         .context("cannot load the CLIP model")?;
     let input = clip.preprocess(&image);
     let (img, _) = clip.encode_images(&[input])?;

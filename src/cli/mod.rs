@@ -2,11 +2,14 @@
 
 mod clip_score;
 mod convert;
+mod flags;
 mod info;
 mod model;
 mod model_args;
 pub mod optimize;
+mod progress;
 mod render;
+mod signals;
 mod volume_args;
 
 pub use model_args::ModelArgs;
@@ -38,6 +41,28 @@ pub enum Command {
     Optimize(optimize::OptimizeArgs),
     /// Download CLIP models into the Hugging Face cache, or list the cached ones.
     Model(model::ModelArgs),
+}
+
+/// The thread pool a command runs in: `--threads` (at most the logical CPUs, with a warning
+/// when capped), else rayon's default of one per CPU.
+pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {
+    let n = match threads {
+        Some(t) => {
+            let (n, capped) = crate::memory::thread_count(t);
+            if capped {
+                eprintln!(
+                    "t2tf: warning: --threads {t} is more than the {n} logical CPUs; using {n}"
+                );
+            }
+            n
+        }
+        None => 0,
+    };
+    use anyhow::Context;
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build()
+        .context("--threads: cannot start the thread pool")
 }
 
 /// Run the parsed command.

@@ -1,9 +1,10 @@
 //! The CLIP model flags every command that loads a model shares.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use crate::clip::packed::{with_precision, Precision};
-use crate::clip::{Clip, ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
+use crate::clip::{Clip, Compute, ModelRequest, Precision, DEFAULT_MODEL, DEFAULT_REVISION};
+use crate::memory::Budget;
+use crate::pipeline::{Model, ModelOptions};
 
 /// `--model`, `--revision`, `--tokenizer`.
 #[derive(clap::Args, Debug, Clone)]
@@ -35,16 +36,31 @@ impl ModelArgs {
         Precision::resolve(&self.precision).map_err(|e| anyhow::anyhow!("--precision: {e}"))
     }
 
-    /// Resolve `--model` once to its files (a local folder, or the Hub cache, downloading on
-    /// first use), to be loaded at `precision` (from [`ModelArgs::precision`]).
-    pub fn resolve(&self, precision: Precision) -> anyhow::Result<ChosenModel> {
-        let files = crate::clip::load::resolve(&self.request())?;
-        Ok(ChosenModel {
-            files,
-            precision,
-            // A local folder has no revision.
-            revision: (!Path::new(&self.model).is_dir()).then(|| self.revision.clone()),
+    /// How the model's products run: `--precision` on the faster engine of this CPU.
+    pub fn compute(&self) -> anyhow::Result<Compute> {
+        Ok(Compute::new(self.precision()?))
+    }
+
+    /// What the library loads.
+    pub fn options(&self, budget: Budget) -> anyhow::Result<ModelOptions> {
+        Ok(ModelOptions {
+            model: self.model.clone(),
+            revision: self.revision.clone(),
+            tokenizer: self.tokenizer.clone(),
+            compute: self.compute()?,
+            budget,
         })
+    }
+
+    /// Resolve and load the model for an optimization (its weights checked against `budget`).
+    pub fn load(&self, budget: Budget) -> anyhow::Result<Model> {
+        Model::load(&self.options(budget)?).map_err(super::flags::pipeline)
+    }
+
+    /// Resolve and load the model alone.
+    pub fn load_clip(&self) -> anyhow::Result<Clip> {
+        let files = crate::clip::load::resolve(&self.request())?;
+        Ok(Clip::load_files_with(&files, self.compute()?)?)
     }
 
     /// What to load.
@@ -54,24 +70,5 @@ impl ModelArgs {
             revision: self.revision.clone(),
             tokenizer: self.tokenizer.clone(),
         }
-    }
-}
-
-/// The model the flags chose, resolved once by [`ModelArgs::resolve`].
-pub struct ChosenModel {
-    /// Its config, tokenizer and weight files.
-    pub files: ModelFiles,
-    /// The number format of its weight products on this CPU.
-    pub precision: Precision,
-    /// The Hub revision asked for; `None` for a local folder.
-    pub revision: Option<String>,
-}
-
-impl ChosenModel {
-    /// Load the model at its precision.
-    pub fn load(&self) -> anyhow::Result<Clip> {
-        Ok(with_precision(self.precision, || {
-            Clip::load_files(&self.files)
-        })?)
     }
 }

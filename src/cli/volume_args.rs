@@ -3,6 +3,7 @@
 use std::path::Path;
 use std::str::FromStr;
 
+use crate::memory::Budget;
 use crate::volume::{self, ByteOrder, ReadOptions, ScalarType, Volume};
 
 /// How to read a volume file. `.vti` and `.vtk` files describe themselves; a `.raw` file
@@ -29,20 +30,30 @@ pub struct VolumeArgs {
 }
 
 impl VolumeArgs {
-    /// The reader settings these flags give.
+    /// The reader settings these flags give, within what the system has.
     pub fn read_options(&self) -> ReadOptions {
+        self.read_options_within(Budget::system())
+    }
+
+    /// The reader settings these flags give, within `budget`.
+    pub fn read_options_within(&self, budget: Budget) -> ReadOptions {
         ReadOptions {
             dims: self.dims,
             dtype: self.dtype,
             spacing: self.spacing,
             byte_order: self.byte_order,
             array: self.array.clone(),
+            budget,
         }
     }
 
-    /// Read and normalize the volume at `path` with these flags.
-    pub fn load(&self, path: &Path) -> anyhow::Result<Volume> {
-        let v = volume::load(path, &self.read_options())?;
+    /// Read and normalize the volume at `path` with these flags, within `budget`.
+    pub fn load_within(
+        &self,
+        path: &Path,
+        budget: Budget,
+    ) -> Result<Volume, crate::volume::VolumeError> {
+        let v = volume::load(path, &self.read_options_within(budget))?;
         self.warn_thin(path, v.geometry.dims);
         Ok(v)
     }

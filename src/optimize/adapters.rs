@@ -5,7 +5,9 @@
 use crate::camera::{Camera, Orbit, UpAxis};
 use crate::clip::{Clip, ImageCache};
 use crate::image::Image;
-use crate::render::{self, Backend, RenderOptions, Shot};
+// The renderer the optimizer uses: the one backend there is today (ARCHITECTURE.md,
+// "Backends"). Everything below goes through the `render::Backend` trait.
+use crate::render::{self, Backend, CpuBackend, RenderOptions, Shot};
 use crate::tf::{ControlPoints, Lut, LutGrad, TfParams};
 use crate::volume::Volume;
 
@@ -17,6 +19,8 @@ pub const PREVIEW_SIZE: usize = 256;
 
 /// The differentiable renderer on one volume, at CLIP's image size.
 pub struct VolumeRenderer<'a> {
+    /// The backend that renders (with its memory budget and its copies of levels).
+    pub backend: &'a CpuBackend,
     /// The volume rendered.
     pub volume: &'a Volume,
     /// Render options of the loop (step, level, skipping).
@@ -33,10 +37,6 @@ pub struct VolumeRenderer<'a> {
     /// Jitter sample positions per view (seeded by `View::seed`).
     pub jitter: bool,
 }
-
-/// The renderer the optimizer uses: the one backend there is today (ARCHITECTURE.md,
-/// "Backends"). Everything below goes through the `render::Backend` trait.
-const BACKEND: render::CpuBackend = render::CpuBackend;
 
 /// The forward's tape: the camera, the background, the prepared level, and the backend's own
 /// tape.
@@ -89,18 +89,18 @@ impl VolumeRenderer<'_> {
 
 impl Renderer for VolumeRenderer<'_> {
     /// The camera, the background, the prepared level and what the backend's backward needs.
-    type Tape = Tape<render::CpuBackend>;
+    type Tape = Tape<CpuBackend>;
 
     fn render(&self, lut: &Lut, view: &View) -> Result<(Image, Vec<f32>, Self::Tape), BoxError> {
         let opts = self.options(view);
-        let (camera, bg, prepared) = self.setup(&BACKEND, lut, view, &opts)?;
+        let (camera, bg, prepared) = self.setup(self.backend, lut, view, &opts)?;
         let shot = Shot {
             camera: &camera,
             background: &bg,
             options: &opts,
             cast: self.cast(),
         };
-        let (r, tape) = BACKEND.forward(&prepared, lut, &shot)?;
+        let (r, tape) = self.backend.forward(&prepared, lut, &shot)?;
         Ok((r.image, r.transmittance, (camera, bg, prepared, tape)))
     }
 
@@ -113,14 +113,14 @@ impl Renderer for VolumeRenderer<'_> {
         // cheaper settings.
         let opts = RenderOptions::final_quality();
         let level = render::level_for(self.volume, lut, &camera, (size, size), &opts)?;
-        let prepared = BACKEND.prepare(self.volume, level)?;
+        let prepared = self.backend.prepare(self.volume, level)?;
         let shot = Shot {
             camera: &camera,
             background: &bg,
             options: &opts,
             cast: (size, size),
         };
-        Ok(BACKEND.forward(&prepared, lut, &shot)?.0.image)
+        Ok(self.backend.forward(&prepared, lut, &shot)?.0.image)
     }
 
     // The signature of `Renderer::backward` in optimize/mod.rs, which this implements.
@@ -140,7 +140,9 @@ impl Renderer for VolumeRenderer<'_> {
             options: &opts,
             cast: self.cast(),
         };
-        Ok(BACKEND.backward(prepared, lut, &shot, tape, d_image, d_transmittance)?)
+        Ok(self
+            .backend
+            .backward(prepared, lut, &shot, tape, d_image, d_transmittance)?)
     }
 }
 

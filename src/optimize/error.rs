@@ -8,17 +8,17 @@ pub type BoxError = Box<dyn std::error::Error + Send + Sync + 'static>;
 /// Why an optimization (or one of its parts) could not go on.
 #[derive(Debug, thiserror::Error)]
 pub enum OptimizeError {
-    /// A setting is out of its valid range (name of the flag, what is wrong).
-    #[error("invalid setting --{name}: {message}")]
+    /// A setting is out of its valid range (its name, what is wrong).
+    #[error("invalid setting {name}: {message}")]
     Setting {
-        /// The flag, without `--`.
+        /// The setting, as the command line spells it without `--` (`views`, `prior-ab`).
         name: &'static str,
         /// What is wrong with its value.
         message: String,
     },
     /// The prompt says nothing (empty or blank): checked by [`super::driver::check_prompt`],
     /// which the CLI calls before loading anything and the driver before encoding.
-    #[error("--prompt is empty: say what the renderings should show")]
+    #[error("the prompt is empty: say what the renderings should show")]
     EmptyPrompt,
     /// The contrastive loss needs at least one negative class.
     #[error("the contrastive loss needs at least one negative prompt, got none")]

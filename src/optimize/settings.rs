@@ -136,7 +136,7 @@ impl Default for Settings {
 }
 
 impl Settings {
-    /// Check every setting; the error names the flag. `steps = 0` is valid (the result is
+    /// Check every setting; the error names the setting. `steps = 0` is valid (the result is
     /// the initialization).
     pub fn validate(&self) -> Result<ValidSettings, OptimizeError> {
         let bad =
@@ -220,19 +220,19 @@ mod tests {
     }
 
     #[test]
-    fn invalid_settings_name_the_flag() {
+    fn invalid_settings_name_the_setting() {
         let check = |f: fn(&mut Settings), flag: &str| {
             let mut s = Settings::default();
             f(&mut s);
             let m = s.validate().unwrap_err().to_string();
             assert!(m.contains(flag), "{m} should name {flag}");
         };
-        check(|s| s.views = 0, "--views");
-        check(|s| s.lr = f64::NAN, "--lr");
-        check(|s| s.momentum = 1.0, "--momentum");
-        check(|s| s.prior_a = 0.0, "--prior-ab");
-        check(|s| s.l1 = -1.0, "--l1");
-        check(|s| s.control_points = 1, "--control-points");
+        check(|s| s.views = 0, "views");
+        check(|s| s.lr = f64::NAN, "lr");
+        check(|s| s.momentum = 1.0, "momentum");
+        check(|s| s.prior_a = 0.0, "prior-ab");
+        check(|s| s.l1 = -1.0, "l1");
+        check(|s| s.control_points = 1, "control-points");
         let s = Settings {
             steps: 0,
             ..Settings::default()

@@ -10,8 +10,8 @@ use std::path::Path;
 
 use serde::Deserialize;
 use t2tf::clip::config::ClipConfig;
-use t2tf::clip::packed::{with_engine, Engine};
 use t2tf::clip::{cosine_grad, Activation, Clip, ClipError, TensorSource};
+use t2tf::clip::{Compute, Engine, ModelRequest};
 use t2tf::image::Image;
 
 // The golden-file format, the parity criterion (max |rust − reference| ≤ TOL · max |reference|)
@@ -81,7 +81,9 @@ fn old_layout_config_reads_as_transformers_reads_it() {
 fn check_engine(engine: Engine) {
     let name = format!("odd_shapes ({engine:?})");
     let golden = golden();
-    let clip = Clip::load_with_tokenizer(DIR, Some(Path::new(TOKENIZER))).unwrap();
+    let mut req = ModelRequest::new(DIR);
+    req.tokenizer = Some(Path::new(TOKENIZER).to_path_buf());
+    let clip = Clip::load_request_with(&req, Compute::default().with_engine(engine)).unwrap();
     assert_eq!(clip.image_size(), 23);
     let out = check_against_golden(&clip, &golden, &name);
     assert!(out.text_embeddings.iter().all(|e| e.len() == 10));
@@ -104,7 +106,7 @@ fn check_engine(engine: Engine) {
 #[test]
 fn odd_shapes_match_transformers_with_both_engines() {
     for engine in [Engine::Packed, Engine::Crate] {
-        with_engine(engine, || check_engine(engine));
+        check_engine(engine);
     }
 }
 
@@ -197,8 +199,9 @@ fn real_family_shapes_match_transformers_with_both_engines() {
         .collect();
     let ids: Vec<Vec<u32>> = g.texts.iter().map(|t| t.ids.clone()).collect();
     for engine in [Engine::Packed, Engine::Crate] {
-        with_engine(engine, || {
-            let clip = Clip::from_source(config.clone(), &FormulaSource).unwrap();
+        {
+            let compute = Compute::default().with_engine(engine);
+            let clip = Clip::from_source_with(config.clone(), &FormulaSource, compute).unwrap();
             let text = clip.encode_tokens(&ids).unwrap();
             let worst = g
                 .texts
@@ -232,6 +235,6 @@ fn real_family_shapes_match_transformers_with_both_engines() {
                 .fold(0.0, f64::max);
             eprintln!("real shapes ({engine:?}): worst input-gradient rel err {worst:.2e}");
             assert!(worst <= TOL, "{engine:?}: gradient rel err {worst:.2e}");
-        });
+        }
     }
 }

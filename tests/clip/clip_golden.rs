@@ -6,8 +6,8 @@
 use std::path::Path;
 
 use serde::Deserialize;
-use t2tf::clip::packed::{with_engine, Engine};
 use t2tf::clip::{cosine, cosine_grad, Clip};
+use t2tf::clip::{Compute, Engine, ModelRequest};
 use t2tf::image::Image;
 
 /// A golden file written by transformers (`tests/fixtures/clip/*/golden.json`); also read by
@@ -119,7 +119,7 @@ pub(crate) fn check_against_golden(clip: &Clip, golden: &Golden, name: &str) -> 
 /// Both GEMM engines (packed weights + own kernel, and the `gemm` crate) must reach parity.
 fn check_variant(variant: &str) {
     for engine in [Engine::Packed, Engine::Crate] {
-        with_engine(engine, || check_engine(variant, engine));
+        check_engine(variant, engine);
     }
 }
 
@@ -129,7 +129,9 @@ fn check_engine(variant: &str, engine: Engine) {
     let golden: Golden =
         serde_json::from_str(&std::fs::read_to_string(format!("{dir}/golden.json")).unwrap())
             .unwrap();
-    let clip = Clip::load_with_tokenizer(&dir, Some(Path::new(TOKENIZER))).unwrap();
+    let mut req = ModelRequest::new(&dir);
+    req.tokenizer = Some(Path::new(TOKENIZER).to_path_buf());
+    let clip = Clip::load_request_with(&req, Compute::default().with_engine(engine)).unwrap();
     let out = check_against_golden(&clip, &golden, &name);
     // The scores themselves, through the public helper.
     for (e, &p) in out.image_embeddings.iter().zip(&golden.grad_pairs) {

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use t2tf::clip::packed::{self, Kernel, PackedB, Precision};
-use t2tf::clip::{cosine_grad, Clip, ClipConfig, RandomSource};
+use t2tf::clip::{cosine_grad, Clip, ClipConfig, Compute, ModelRequest, RandomSource};
 use t2tf::image::Image;
 
 // The golden-file format and parity measure are clip_golden's.
@@ -283,9 +283,8 @@ fn image_pass_is_deterministic_across_thread_counts() {
         })
         .collect();
     for kernel in available("determinism") {
-        let clip = packed::with_kernel(kernel, || {
-            Clip::from_source(cfg.clone(), &RandomSource::new(3)).unwrap()
-        });
+        let compute = Compute::default().with_kernel(kernel).unwrap();
+        let clip = Clip::from_source_with(cfg.clone(), &RandomSource::new(3), compute).unwrap();
         let pass = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
@@ -335,9 +334,10 @@ fn golden_fixtures_with_every_kernel() {
                 Precision::Bf16 => 5e-2,
             };
             let name = format!("{variant} ({})", kernel.name());
-            let clip = packed::with_kernel(kernel, || {
-                Clip::load_with_tokenizer(&dir, Some(Path::new(TOKENIZER))).unwrap()
-            });
+            let mut req = ModelRequest::new(&dir);
+            req.tokenizer = Some(Path::new(TOKENIZER).to_path_buf());
+            let compute = Compute::default().with_kernel(kernel).unwrap();
+            let clip = Clip::load_request_with(&req, compute).unwrap();
             let ids: Vec<Vec<u32>> = golden.texts.iter().map(|t| t.ids.clone()).collect();
             let text = clip.encode_tokens(&ids).unwrap();
             let worst_text = text
@@ -377,10 +377,7 @@ fn golden_fixtures_with_every_kernel() {
 #[test]
 fn missing_kernels_are_refused() {
     for kernel in Kernel::ALL {
-        let refused = std::panic::catch_unwind(|| {
-            packed::with_kernel(kernel, || ());
-        })
-        .is_err();
+        let refused = Compute::default().with_kernel(kernel).is_none();
         assert_eq!(refused, !kernel.available(), "{}", kernel.name());
         let refused =
             std::panic::catch_unwind(|| PackedB::from_rows_for(kernel, &[1.0], 1, 1)).is_err();

@@ -12,6 +12,7 @@ mod optimize_cli;
 mod optimize_driver;
 mod optimize_e2e;
 mod optimize_loop;
+mod optimize_pipeline;
 mod optimize_progress;
 mod optimize_recovery;
 mod optimize_render_size;

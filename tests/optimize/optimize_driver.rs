@@ -258,7 +258,7 @@ fn hard_cases() {
     let s = settings();
     // Empty prompt.
     let e = setup.run(&s, Positive::Prompt("  "), None).unwrap_err();
-    assert!(e.to_string().contains("--prompt"), "{e}");
+    assert!(e.to_string().contains("prompt is empty"), "{e}");
     // Zero negatives: no pool draws and no user negatives.
     let s0 = Settings {
         negatives_per_step: 0,

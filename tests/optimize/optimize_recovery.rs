@@ -38,6 +38,7 @@ fn volume() -> Volume {
 
 fn renderer(v: &Volume) -> VolumeRenderer<'_> {
     VolumeRenderer {
+        backend: t2tf::render::shared_backend(),
         volume: v,
         options: RenderOptions::default(),
         up: t2tf::camera::UpAxis::Z,

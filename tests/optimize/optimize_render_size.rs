@@ -36,6 +36,7 @@ fn below_clip_size_gradient_matches_finite_differences() {
     let v = blob([9, 8, 7]);
     let (size, render_size) = (20, 12);
     let r = VolumeRenderer {
+        backend: t2tf::render::shared_backend(),
         volume: &v,
         options: smooth_opts(),
         up: UpAxis::Z,

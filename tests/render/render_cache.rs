@@ -94,8 +94,8 @@ fn render_all(
                 options: opts,
                 cast: (bg.width, bg.height),
             };
-            let (r, tape) = CpuBackend.forward(prepared, lut, &shot)?;
-            let g = CpuBackend.backward(prepared, lut, &shot, &tape, &wi, &wt)?;
+            let (r, tape) = CpuBackend::default().forward(prepared, lut, &shot)?;
+            let g = CpuBackend::default().backward(prepared, lut, &shot, &tape, &wi, &wt)?;
             out.push((
                 r.image.data.iter().map(|x| x.to_bits()).collect(),
                 r.transmittance.iter().map(|x| x.to_bits()).collect(),
@@ -118,7 +118,7 @@ fn smallest_cache(
 ) -> (u64, CpuPrepared, Vec<Bits>) {
     let mut budget = start;
     for _ in 0..60 {
-        let prepared = match CpuBackend.prepare_within(v, 0, budget) {
+        let prepared = match CpuBackend::default().prepare_within(v, 0, budget) {
             Ok(p) => p,
             Err(RenderError::BrickBudget { .. }) => {
                 budget += budget / 4;
@@ -157,7 +157,7 @@ fn cache_renders_equal_whole_renders_bit_for_bit() {
     let bg = background::from_name("fourier", 56, 40, 1).unwrap();
     for (name, v) in &volumes {
         let cams = cameras(v);
-        let whole = CpuBackend.prepare(v, 0).unwrap();
+        let whole = CpuBackend::default().prepare(v, 0).unwrap();
         assert!(whole.cache_stats().is_none());
         let expected = render_all(&whole, &lut, &cams, &bg).unwrap();
         let (budget, cached, got) = smallest_cache(v, &lut, &cams, &bg, 4096);
@@ -197,13 +197,13 @@ fn cache_budget_errors_and_whole_copies() {
     let lut = random_lut(16, 1.0, 30.0, 2);
     let bg = Image::new(64, 64);
     let cams = cameras(&v);
-    match CpuBackend.prepare_within(&v, 0, 100) {
+    match CpuBackend::default().prepare_within(&v, 0, 100) {
         Err(e @ RenderError::BrickBudget { .. }) => {
             assert!(e.to_string().contains("--max-memory"), "{e}")
         }
         other => panic!("expected a budget error, got {other:?}"),
     }
-    let tiny = CpuBackend.prepare_within(&v, 0, 20_000).unwrap();
+    let tiny = CpuBackend::default().prepare_within(&v, 0, 20_000).unwrap();
     match render_all(&tiny, &lut, &cams, &bg) {
         Err(e @ RenderError::BrickBudget { .. }) => {
             let msg = e.to_string();
@@ -211,9 +211,9 @@ fn cache_budget_errors_and_whole_copies() {
         }
         other => panic!("expected a budget error, got {:?}", other.map(|r| r.len())),
     }
-    let whole = CpuBackend.prepare(&v, 0).unwrap();
+    let whole = CpuBackend::default().prepare(&v, 0).unwrap();
     // Room for the copy and the f32 slabs it is built from (one per thread).
-    let roomy = CpuBackend
+    let roomy = CpuBackend::default()
         .prepare_within(&v, 0, 2 * whole.memory_bytes() as u64)
         .unwrap();
     assert!(roomy.cache_stats().is_none());
@@ -236,8 +236,14 @@ fn lazy_level_0_is_bricked_and_cached_from_its_file() {
     let lut = random_lut(32, 0.0, 25.0, 5);
     let bg = Image::new(48, 48);
     let cams = cameras(&built);
-    let expected = render_all(&CpuBackend.prepare(&built, 0).unwrap(), &lut, &cams, &bg).unwrap();
-    let whole = CpuBackend.prepare(&loaded, 0).unwrap();
+    let expected = render_all(
+        &CpuBackend::default().prepare(&built, 0).unwrap(),
+        &lut,
+        &cams,
+        &bg,
+    )
+    .unwrap();
+    let whole = CpuBackend::default().prepare(&loaded, 0).unwrap();
     assert!(whole.cache_stats().is_none());
     assert!(render_all(&whole, &lut, &cams, &bg).unwrap() == expected);
     let (_, cached, got) = smallest_cache(&loaded, &lut, &cams, &bg, 200_000);

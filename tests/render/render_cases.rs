@@ -52,11 +52,11 @@ fn narrow_storage_renders_like_f32() {
     let narrow = crop_u8_typed("neghip_64x64x64_uint8.raw", [64; 3], [0; 3], [64; 3]);
     let wide = crop_u8("neghip_64x64x64_uint8.raw", [64; 3], [0; 3], [64; 3]);
     assert!(matches!(
-        CpuBackend.prepare(&narrow, 0).unwrap().values(),
+        CpuBackend::default().prepare(&narrow, 0).unwrap().values(),
         BrickValues::U8(_)
     ));
     assert!(matches!(
-        CpuBackend.prepare(&wide, 0).unwrap().values(),
+        CpuBackend::default().prepare(&wide, 0).unwrap().values(),
         BrickValues::F32(_)
     ));
     let lut = random_lut(64, 0.0, 80.0, 3);

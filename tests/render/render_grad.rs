@@ -208,7 +208,7 @@ fn real_volume_crop_stored_in_8_bits() {
     // (render::cpu::bricked) — through AVX2 gathers where the CPU has them.
     let v = crop_u8_typed("neghip_64x64x64_uint8.raw", [64; 3], [20, 22, 24], [16; 3]);
     assert!(matches!(
-        CpuBackend.prepare(&v, 0).unwrap().values(),
+        CpuBackend::default().prepare(&v, 0).unwrap().values(),
         BrickValues::U8(_)
     ));
     let c = case(&v, orbit(&v, 2.0, -0.2, 2.4), 12, 10, smooth_opts(), 6);

@@ -27,6 +27,7 @@ fn options(entry: &Value) -> ReadOptions {
             .get("byte_order")
             .map(|b| b.as_str().unwrap().parse::<ByteOrder>().unwrap()),
         array: entry["read_array"].as_str().map(str::to_string),
+        ..Default::default()
     }
 }
 

@@ -1,0 +1,323 @@
+//! CLIP in Rust: tokenizer, weights, text and image encoders, and the gradient of the image
+//! embedding with respect to the input pixels (what the optimizer back-propagates through).
+//!
+//! The model is written by hand on the `gemm` crate; candle's CLIP was measured first and gave no
+//! input gradient (its fused layer norm has no backward) and, rebuilt from differentiable candle
+//! ops, ran ViT-B/32 forward+backward ~5–8× slower than the target (BENCHMARKS.md, CLIP).
+//!
+//! Parts, each reproducing a `transformers` modeling_clip.py class:
+//! `config` (CLIPConfig), `weights` (safetensors or PyTorch checkpoints, one file or shards;
+//! `checkpoint` reads the PyTorch ones), `tokenizer` (CLIPTokenizerFast),
+//! `layers` (Linear, LayerNorm, activations), `attention` (CLIPAttention), `encoder`
+//! (CLIPEncoderLayer), `tower` (CLIPEncoder), `text` (CLIPTextTransformer), `vision`
+//! (CLIPVisionTransformer), `load` (files and the Hugging Face cache), `preprocess`
+//! (CLIPImageProcessor's resize + crop), `similarity` (cosine and softmax); products by
+//! `packed` (weights packed at load, own AVX2 + FMA kernel, where that is the faster engine) or
+//! `matmul` (the `gemm` crate: AVX-512 machines, attention's per-head products).
+//!
+//! ```no_run
+//! # fn main() -> Result<(), t2tf_clip::ClipError> {
+//! use t2tf_clip::{cosine, cosine_grad, Clip};
+//! let clip = Clip::load("openai/clip-vit-base-patch32")?;
+//! let text = clip.encode_text(&["a skull in white bone"])?;
+//! let s = clip.image_size();
+//! let views = vec![t2tf_core::image::Image::new(s, s); 3];
+//! let (emb, cache) = clip.encode_images(&views)?;
+//! let d: Vec<Vec<f32>> = emb.iter().map(|e| cosine_grad(e, &text[0])).collect();
+//! let d_pixels = clip.image_backward(&cache, &d)?; // ∂Σcos/∂pixel, one Image per view
+//! # let _ = (cosine(&emb[0], &text[0]), d_pixels); Ok(()) }
+//! ```
+
+#![warn(missing_docs)]
+
+/// A Hugging Face Hub client that shares Python `huggingface_hub`'s cache.
+pub mod hub;
+
+mod attention;
+mod checkpoint;
+/// `config.json`: the shapes of both towers.
+pub mod config;
+mod encoder;
+mod layers;
+/// Finding a model's files (a directory or the Hugging Face Hub).
+pub mod load;
+/// Products by the `gemm` crate (public only with the `bench` feature, for `bench_clip`).
+#[cfg(feature = "bench")]
+pub mod matmul;
+#[cfg(not(feature = "bench"))]
+pub(crate) mod matmul;
+/// Weights packed at load for the hand-written micro-kernels, and the engine and precision
+/// settings.
+pub mod packed;
+mod prefix;
+mod preprocess;
+mod similarity;
+mod source;
+mod text;
+mod tokenizer;
+mod tower;
+mod vision;
+mod weights;
+
+use std::path::{Path, PathBuf};
+
+pub use config::{Activation, ClipConfig};
+pub use load::{ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
+pub use packed::{Compute, Engine, Kernel, Precision};
+pub use preprocess::{preprocess, Preprocessing, MEAN, STD};
+pub use similarity::{
+    cosine, cosine_checked, cosine_grad, softmax_scaled, unit, Head, Incomparable, Logits,
+    LogitsError,
+};
+pub use source::{RandomSource, TensorSource};
+pub use tokenizer::ClipTokenizer;
+pub use vision::ImageCache;
+pub use weights::Checkpoint;
+
+use t2tf_core::image::Image;
+use text::TextModel;
+use vision::VisionModel;
+
+/// What can go wrong loading or running CLIP; every variant about a file names it.
+#[derive(Debug, thiserror::Error)]
+pub enum ClipError {
+    /// A file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// `config.json` (or `preprocessor_config.json`) is not a configuration this code runs.
+    #[error("{path}: bad CLIP config: {msg}")]
+    Config {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong in it.
+        msg: String,
+    },
+    /// A weight file is malformed or lacks a tensor of the right shape.
+    #[error("{path}: {msg}")]
+    Weights {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong in it.
+        msg: String,
+    },
+    /// `tokenizer.json` cannot be loaded or cannot encode a text.
+    #[error("{path}: tokenizer: {msg}")]
+    Tokenizer {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        msg: String,
+    },
+    /// A model, file or tensor is not where it was looked for (the message says where).
+    #[error("{0}")]
+    Missing(String),
+    /// An input the model cannot take (image size, token ids, gradient shapes).
+    #[error("CLIP input: {0}")]
+    Input(String),
+}
+
+/// A loaded CLIP model (`CLIPModel`).
+pub struct Clip {
+    config: ClipConfig,
+    text: TextModel,
+    vision: VisionModel,
+    tokenizer: Option<ClipTokenizer>,
+    logit_scale: f32,
+    preprocessing: Preprocessing,
+    compute: Compute,
+}
+
+impl Clip {
+    /// `model`: a directory with `config.json`, `tokenizer.json` and the weights, or a Hugging
+    /// Face repo id (at its `main` branch, fetched into the standard cache; `HF_HUB_OFFLINE=1`
+    /// forbids the network).
+    pub fn load(model: &str) -> Result<Clip, ClipError> {
+        Clip::load_request(&ModelRequest::new(model))
+    }
+
+    /// As `load`, with `tokenizer.json` taken from `tokenizer` when given.
+    pub fn load_with_tokenizer(model: &str, tokenizer: Option<&Path>) -> Result<Clip, ClipError> {
+        let mut req = ModelRequest::new(model);
+        req.tokenizer = tokenizer.map(Path::to_path_buf);
+        Clip::load_request(&req)
+    }
+
+    /// Load what `req` names (model, revision, tokenizer).
+    pub fn load_request(req: &ModelRequest) -> Result<Clip, ClipError> {
+        Clip::load_files(&load::resolve(req)?)
+    }
+
+    /// Load what `req` names, the weight products running as `compute` says.
+    pub fn load_request_with(req: &ModelRequest, compute: Compute) -> Result<Clip, ClipError> {
+        Clip::load_files_with(&load::resolve(req)?, compute)
+    }
+
+    /// Load from files already resolved (see `load::resolve`), f32 on the faster engine.
+    pub fn load_files(files: &ModelFiles) -> Result<Clip, ClipError> {
+        Clip::load_files_with(files, Compute::default())
+    }
+
+    /// Load from files already resolved, the weight products running as `compute` says.
+    pub fn load_files_with(files: &ModelFiles, compute: Compute) -> Result<Clip, ClipError> {
+        let config = ClipConfig::from_file(&files.config)?;
+        let tok = ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
+        let prep = files
+            .preprocessor
+            .as_deref()
+            .map(|p| Preprocessing::from_file(p, config.vision.image_size))
+            .transpose()?;
+        let weights = Checkpoint::open(&files.weights)?;
+        let mut clip = Clip::from_source_with(config, &weights, compute)?;
+        clip.tokenizer = Some(tok);
+        if let Some(p) = prep {
+            clip.set_preprocessing(p);
+        }
+        Ok(clip)
+    }
+
+    /// Check resolved files without building the model (which can take many GiB): the
+    /// config parses, the tokenizer loads, every weight file's header or pickle parses.
+    /// Returns a one-line summary.
+    pub fn check(files: &ModelFiles) -> Result<String, ClipError> {
+        let config = ClipConfig::from_file(&files.config)?;
+        ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
+        if let Some(p) = &files.preprocessor {
+            Preprocessing::from_file(p, config.vision.image_size)?;
+        }
+        let weights = Checkpoint::open(&files.weights)?;
+        Ok(format!(
+            "{:?} weights in {} file(s), {} tensors; vision {}x{} px, patch {}, {} layers",
+            files.format,
+            files.weights.len(),
+            weights.names().len(),
+            config.vision.image_size,
+            config.vision.image_size,
+            config.vision.patch_size,
+            config.vision.tower.num_layers,
+        ))
+    }
+
+    /// Build the model from any tensor source (checkpoint or `RandomSource`); no tokenizer, so
+    /// `encode_text` needs `set_tokenizer` first, `encode_tokens` works.
+    pub fn from_source(config: ClipConfig, src: &dyn TensorSource) -> Result<Clip, ClipError> {
+        Clip::from_source_with(config, src, Compute::default())
+    }
+
+    /// [`Clip::from_source`], the weight products running as `compute` says.
+    pub fn from_source_with(
+        config: ClipConfig,
+        src: &dyn TensorSource,
+        compute: Compute,
+    ) -> Result<Clip, ClipError> {
+        let root = source::Names::root(src, compute);
+        let text = TextModel::load(&root, &config.text, config.projection_dim)?;
+        let vision = VisionModel::load(&root, &config.vision, config.projection_dim)?;
+        let logit_scale = root.tensor("logit_scale", &[])?[0].exp();
+        let preprocessing = Preprocessing::clip(config.vision.image_size);
+        Ok(Clip {
+            config,
+            text,
+            vision,
+            tokenizer: None,
+            logit_scale,
+            preprocessing,
+            compute,
+        })
+    }
+
+    /// How its weight products run (what it was built with).
+    pub fn compute(&self) -> &Compute {
+        &self.compute
+    }
+
+    /// Use `tokenizer` for `encode_text` (a model built `from_source` has none).
+    pub fn set_tokenizer(&mut self, tokenizer: ClipTokenizer) {
+        self.tokenizer = Some(tokenizer);
+    }
+
+    /// Use another image processor's statistics and sizes (`load_files` reads the model's
+    /// `preprocessor_config.json` when it has one; CLIP's constants otherwise).
+    pub fn set_preprocessing(&mut self, p: Preprocessing) {
+        self.vision.set_normalization(p.mean, p.std);
+        self.preprocessing = p;
+    }
+
+    /// The image processor in force: pixel mean/std, resize and crop.
+    pub fn preprocessing(&self) -> &Preprocessing {
+        &self.preprocessing
+    }
+
+    /// The model's configuration (`config.json`).
+    pub fn config(&self) -> &ClipConfig {
+        &self.config
+    }
+
+    /// Token ids of each text (with start/end tokens, truncated to the context length).
+    pub fn tokenize(&self, texts: &[&str]) -> Result<Vec<Vec<u32>>, ClipError> {
+        let tok = self
+            .tokenizer
+            .as_ref()
+            .ok_or_else(|| ClipError::Input("this model was built without a tokenizer".into()))?;
+        texts.iter().map(|t| tok.encode(t)).collect()
+    }
+
+    /// Projected, not normalized, text embeddings `[texts][projection_dim]`.
+    pub fn encode_text(&self, texts: &[&str]) -> Result<Vec<Vec<f32>>, ClipError> {
+        let ids = self.tokenize(texts)?;
+        self.encode_tokens(&ids)
+    }
+
+    /// Text embeddings from token ids (each sequence as the tokenizer returns it).
+    pub fn encode_tokens(&self, ids: &[Vec<u32>]) -> Result<Vec<Vec<f32>>, ClipError> {
+        self.text.forward(ids)
+    }
+
+    /// Side of the square images the vision tower takes (224 for ViT-B/32).
+    pub fn image_size(&self) -> usize {
+        self.config.vision.image_size
+    }
+
+    /// Projected, not normalized, image embeddings of `image_size()`² RGB images in [0, 1]
+    /// (CLIP's mean/std normalisation is applied inside), and what `image_backward` needs.
+    pub fn encode_images(
+        &self,
+        images: &[Image],
+    ) -> Result<(Vec<Vec<f32>>, ImageCache), ClipError> {
+        self.vision.forward(images)
+    }
+
+    /// Gradient with respect to the input pixels of a scalar loss whose gradient with respect
+    /// to the embeddings `encode_images` returned is `d_embeddings`.
+    pub fn image_backward(
+        &self,
+        cache: &ImageCache,
+        d_embeddings: &[Vec<f32>],
+    ) -> Result<Vec<Image>, ClipError> {
+        self.vision.backward(cache, d_embeddings)
+    }
+
+    /// exp(logit_scale): the temperature CLIP multiplies cosine similarities by (100 for
+    /// OpenAI's models).
+    pub fn logit_scale(&self) -> f32 {
+        self.logit_scale
+    }
+
+    /// How this model scores an image embedding against class embeddings (CLIP: the scaled
+    /// cosine) and the gradient of those logits: what a loss asks the model for instead of
+    /// knowing its formula. An error where the checkpoint's logit scale is not positive and
+    /// finite.
+    pub fn head(&self) -> Result<Head, ClipError> {
+        Head::new(self.logit_scale as f64).map_err(ClipError::Input)
+    }
+
+    /// `CLIPImageProcessor`'s resize (shortest side, bicubic) and centre crop to
+    /// `image_size()`², for arbitrary pictures, with the sizes of `preprocessing()`.
+    pub fn preprocess(&self, image: &Image) -> Image {
+        self.preprocessing.apply(image)
+    }
+}

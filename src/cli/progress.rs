@@ -1,0 +1,193 @@
+//! Progress of long work on stderr, in the form the reader can use: a bar on a terminal, a plain
+//! line every few seconds in a log or a pipe (batch jobs), or one JSON object per line for
+//! programs (the ParaView plugin) with `--progress json`.
+
+use std::io::{IsTerminal, Write};
+use std::time::{Duration, Instant};
+
+/// How progress is shown (`--progress`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ProgressMode {
+    /// A bar on a terminal, plain lines otherwise.
+    Auto,
+    /// A bar that redraws in place.
+    Bar,
+    /// One plain line every few seconds.
+    Lines,
+    /// One JSON object per line, every step.
+    Json,
+    /// Nothing.
+    None,
+}
+
+impl ProgressMode {
+    /// `Auto` made concrete for this process's stderr.
+    pub fn resolve(self) -> ProgressMode {
+        match self {
+            ProgressMode::Auto if std::io::stderr().is_terminal() => ProgressMode::Bar,
+            ProgressMode::Auto => ProgressMode::Lines,
+            m => m,
+        }
+    }
+}
+
+/// One step's numbers.
+#[derive(Clone, Debug, Default)]
+pub struct StepReport {
+    /// Total loss of the step.
+    pub loss: f64,
+    /// Its contrastive (CLIP) term.
+    pub clip: f64,
+    /// Softmax probability of the prompt among prompt and negatives.
+    pub prompt_probability: f64,
+}
+
+/// Progress of a counted task (optimization steps).
+pub struct Progress {
+    mode: ProgressMode,
+    total: usize,
+    done: usize,
+    start: Instant,
+    /// When the first step ended: the ETA uses the rate after it, so one-off work before the
+    /// first step (caption embeddings) does not inflate it.
+    first_step: Option<Instant>,
+    last_line: Option<Instant>,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+/// Seconds between plain lines.
+const LINE_EVERY: Duration = Duration::from_secs(5);
+
+impl Progress {
+    /// Start counting `total` steps.
+    pub fn new(mode: ProgressMode, total: usize) -> Progress {
+        let mode = mode.resolve();
+        let bar = (mode == ProgressMode::Bar).then(|| {
+            let bar = indicatif::ProgressBar::new(total as u64);
+            if let Ok(style) = indicatif::ProgressStyle::with_template(
+                "{elapsed_precise} [{bar:30}] step {pos}/{len}  {msg}  ETA {eta}",
+            ) {
+                bar.set_style(style.progress_chars("=> "));
+            }
+            bar
+        });
+        Progress {
+            mode,
+            total,
+            done: 0,
+            start: Instant::now(),
+            first_step: None,
+            last_line: None,
+            bar,
+        }
+    }
+
+    /// A phase of the work begins (loading, embedding captions, writing): said once, not as
+    /// a bar.
+    pub fn phase(&self, what: &str) {
+        match self.mode {
+            ProgressMode::Json => emit(&serde_json::json!({ "event": "phase", "phase": what })),
+            ProgressMode::Lines => eprintln!("t2tf: {what}"),
+            _ => {}
+        }
+    }
+
+    /// One more step is done.
+    pub fn step(&mut self, r: &StepReport) {
+        self.done += 1;
+        let elapsed = self.start.elapsed().as_secs_f64();
+        let remaining = self.total.saturating_sub(self.done) as f64;
+        let first = *self.first_step.get_or_insert_with(Instant::now);
+        let eta = if self.done > 1 {
+            first.elapsed().as_secs_f64() / (self.done - 1) as f64 * remaining
+        } else {
+            elapsed * remaining
+        };
+        match self.mode {
+            ProgressMode::Bar => {
+                if let Some(bar) = &self.bar {
+                    bar.set_message(format!(
+                        "loss {:.4} (clip {:.4}, p(prompt) {:.3})",
+                        r.loss, r.clip, r.prompt_probability
+                    ));
+                    bar.inc(1);
+                }
+            }
+            ProgressMode::Lines => {
+                let due = self.last_line.is_none_or(|t| t.elapsed() >= LINE_EVERY);
+                if due || self.done == self.total {
+                    self.last_line = Some(Instant::now());
+                    eprintln!(
+                        "t2tf: step {}/{}  loss {:.4}  p(prompt) {:.3}  elapsed {:.0} s  ETA {:.0} s",
+                        self.done, self.total, r.loss, r.prompt_probability, elapsed, eta
+                    );
+                }
+            }
+            ProgressMode::Json => emit(&serde_json::json!({
+                "event": "step",
+                "step": self.done,
+                "steps": self.total,
+                "loss": finite(r.loss),
+                "clip": finite(r.clip),
+                "p_prompt": finite(r.prompt_probability),
+                "elapsed_s": elapsed,
+                "eta_s": eta,
+            })),
+            ProgressMode::Auto | ProgressMode::None => {}
+        }
+    }
+
+    /// Print with the bar (if any) cleared first and redrawn after.
+    pub fn suspend(&self, print: impl FnOnce()) {
+        match &self.bar {
+            Some(bar) => bar.suspend(print),
+            None => print(),
+        }
+    }
+
+    /// The task ended (finished or stopped): clear the bar.
+    pub fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
+
+    /// The work's result, for `--progress json` readers: where the files went.
+    pub fn done(&self, out: &std::path::Path, files: &[String], interrupted: bool) {
+        if self.mode == ProgressMode::Json {
+            emit(&serde_json::json!({
+                "event": "done",
+                "out": out.display().to_string(),
+                "files": files,
+                "interrupted": interrupted,
+            }));
+        }
+    }
+}
+
+/// JSON has no NaN: a non-finite number is written as null.
+fn finite(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
+}
+
+/// One line, written whole, so lines from threads never interleave.
+fn emit(v: &serde_json::Value) {
+    let mut line = v.to_string();
+    line.push('\n');
+    let _ = std::io::stderr().lock().write_all(line.as_bytes());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auto_is_lines_without_a_terminal() {
+        // Test harnesses capture stderr, so it is not a terminal here.
+        if !std::io::stderr().is_terminal() {
+            assert_eq!(ProgressMode::Auto.resolve(), ProgressMode::Lines);
+        }
+        assert_eq!(ProgressMode::Json.resolve(), ProgressMode::Json);
+        assert_eq!(finite(f64::NAN), None);
+    }
+}

@@ -1,0 +1,128 @@
+//! A CLIP model as a run uses it: resolved (a folder or the Hub cache), checked against the
+//! memory budget, loaded with explicit compute settings, and hashed for the caption cache.
+
+use std::path::{Path, PathBuf};
+
+use sha2::Digest;
+
+use super::PipelineError;
+use crate::clip::{Clip, Compute, ModelFiles, ModelRequest, Precision};
+use crate::memory::Budget;
+use crate::optimize::captions;
+use crate::optimize::report::ModelInfo;
+
+/// What model to load and how it runs.
+#[derive(Clone, Debug)]
+pub struct ModelOptions {
+    /// A Hugging Face repo id or a local folder with config.json, tokenizer.json and weights.
+    pub model: String,
+    /// Branch, tag, pull-request ref (refs/pr/N) or commit of a Hub model.
+    pub revision: String,
+    /// A tokenizer.json to use instead of the model's own.
+    pub tokenizer: Option<PathBuf>,
+    /// Engine, precision and kernel of the weight products.
+    pub compute: Compute,
+    /// What the weights may take.
+    pub budget: Budget,
+}
+
+impl ModelOptions {
+    /// `model` at its main revision with its own tokenizer, f32 on the faster engine, within
+    /// what the system has.
+    pub fn new(model: impl Into<String>) -> ModelOptions {
+        ModelOptions {
+            model: model.into(),
+            revision: crate::clip::DEFAULT_REVISION.to_string(),
+            tokenizer: None,
+            compute: Compute::default(),
+            budget: Budget::system(),
+        }
+    }
+
+    /// The files to load: a local folder, or the Hub cache (downloading on first use).
+    fn request(&self) -> ModelRequest {
+        ModelRequest {
+            model: self.model.clone(),
+            revision: self.revision.clone(),
+            tokenizer: self.tokenizer.clone(),
+        }
+    }
+}
+
+/// CLIP loaded for a run, with what report.json and the caption cache say about it.
+pub struct Model {
+    clip: Clip,
+    info: ModelInfo,
+    /// Key of the caption-embedding cache: weights, tokenizer and config (and a precision
+    /// other than f32) hashed together.
+    cache_key: [u8; 32],
+}
+
+impl Model {
+    /// Resolve, check and load the model `opts` names.
+    pub fn load(opts: &ModelOptions) -> Result<Model, PipelineError> {
+        let files = crate::clip::load::resolve(&opts.request())?;
+        // A local folder has no revision.
+        let revision = (!Path::new(&opts.model).is_dir()).then(|| opts.revision.clone());
+        Model::load_files(&files, &opts.model, revision, opts.compute, opts.budget)
+    }
+
+    /// Load resolved files; `id` and `revision` are what the report names.
+    pub fn load_files(
+        files: &ModelFiles,
+        id: &str,
+        revision: Option<String>,
+        compute: Compute,
+        budget: Budget,
+    ) -> Result<Model, PipelineError> {
+        // The f32 weights must fit before they are read.
+        let config = crate::clip::ClipConfig::from_file(&files.config)?;
+        budget.check(
+            "the CLIP model's weights",
+            Some(config.f32_bytes()),
+            1,
+            "choose a smaller model",
+        )?;
+        let clip = Clip::load_files_with(files, compute)?;
+        let weights_hash = captions::hash_files(&files.weights)?;
+        let hex: String = weights_hash.iter().map(|b| format!("{b:02x}")).collect();
+        let mut cache_key = captions::model_key(
+            &weights_hash,
+            &[files.tokenizer.clone(), files.config.clone()],
+        )?;
+        if compute.precision != Precision::F32 {
+            // Embeddings computed in bf16 differ from f32 ones: their own cache entry, so a
+            // later f32 run never reuses them (f32 keeps the key it always had).
+            let mut h = sha2::Sha256::new();
+            h.update(cache_key);
+            h.update(format!(" precision={}", compute.precision.name()));
+            cache_key = h.finalize().into();
+        }
+        let info = ModelInfo {
+            id: id.to_string(),
+            revision,
+            weights_sha256: Some(hex),
+            logit_scale: clip.logit_scale() as f64,
+        };
+        Ok(Model {
+            clip,
+            info,
+            cache_key,
+        })
+    }
+
+    /// The model.
+    pub fn clip(&self) -> &Clip {
+        &self.clip
+    }
+
+    /// What report.json says of it.
+    pub fn info(&self) -> &ModelInfo {
+        &self.info
+    }
+
+    /// Key of its caption-embedding cache.
+    pub fn cache_key(&self) -> &[u8; 32] {
+        &self.cache_key
+    }
+}
