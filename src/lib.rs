@@ -1,29 +1,112 @@
-//! t2tf: text to transfer function.
+//! The `t2tf` command line: flag parsing (clap), progress on stderr, signals, and errors said
+//! with the flags that fix them, around the library (`t2tf`). One file per subcommand in
+//! `commands/`, each with its clap `Args` and a `run`. A library so that the binary
+//! (`src/main.rs`) and the Python wheel's `t2tf` command run the same code ([`main`]).
 //!
-//! The pipeline (see ARCHITECTURE.md) flows one way through one crate per stage:
-//! `t2tf-volume` → `t2tf-tf` → `t2tf-render` → `t2tf-clip` → [`optimize`] → `t2tf-formats`,
-//! all standing on `t2tf-core`. This crate is the pipeline: [`pipeline`] runs the main job
-//! (load a volume and a model, optimize, write the output set) and re-exports each stage under
-//! the name it has in the docs (`t2tf::volume`, `t2tf::render`, …), so one dependency reaches
-//! everything. The command-line interface is the binary's (src/main.rs, src/cli), not part of
-//! this API.
-//!
-//! The benchmarks (`examples/bench_*`) need a few internals more; those are exported only
-//! through the `bench` module, which exists with the `bench` feature
-//! (`cargo run --release --features bench --example bench_clip`).
+//! The files name library items as `crate::optimize::…`; the imports below make those paths
+//! read the library's modules.
 
-#![warn(missing_docs)]
+mod commands;
+mod flags;
+mod model_args;
+mod progress;
+mod signals;
+mod volume_args;
 
-#[cfg(feature = "bench")]
-pub mod bench;
-pub mod optimize;
-pub mod pipeline;
+pub use commands::optimize::OptimizeArgs;
+pub use model_args::ModelArgs;
+pub use volume_args::VolumeArgs;
 
-pub use t2tf_clip as clip;
-pub use t2tf_clip::hub;
-pub use t2tf_core::{fs, image, memory, units};
-pub use t2tf_formats as formats;
-pub use t2tf_render as render;
-pub use t2tf_render::{background, camera};
-pub use t2tf_tf as tf;
-pub use t2tf_volume as volume;
+use commands::{clip_score, convert, info, model};
+#[allow(unused_imports)]
+use t2tf::{
+    background, camera, clip, formats, fs, hub, image, memory, optimize, pipeline, render, units,
+    volume,
+};
+
+use clap::{Parser, Subcommand};
+
+/// Turn a sentence into a volume-rendering transfer function for ParaView and VisIt.
+#[derive(Parser, Debug)]
+#[command(name = "t2tf", version, about, propagate_version = true)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+// Parsed once per process: the size gap between subcommands' flag structs costs nothing.
+#[allow(clippy::large_enum_variant)]
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Print a volume's dimensions, spacing, origin, type, value range and histogram.
+    Info(info::InfoArgs),
+    /// Convert a transfer function between ParaView JSON, ParaView XML and VisIt .ct.
+    Convert(convert::ConvertArgs),
+    /// Render a volume with a transfer function to a PNG.
+    Render(commands::render::RenderArgs),
+    /// Print the CLIP similarity of an image to captions.
+    ClipScore(clip_score::ClipScoreArgs),
+    /// Optimize a transfer function so renderings match a text prompt.
+    Optimize(commands::optimize::OptimizeArgs),
+    /// Download CLIP models into the Hugging Face cache, or list the cached ones.
+    Model(model::ModelArgs),
+}
+
+/// The thread pool a command runs in: `--threads` (at most the logical CPUs, with a warning
+/// when capped), else rayon's default of one per CPU.
+pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {
+    let n = match threads {
+        Some(t) => {
+            let (n, capped) = crate::memory::thread_count(t);
+            if capped {
+                eprintln!(
+                    "t2tf: warning: --threads {t} is more than the {n} logical CPUs; using {n}"
+                );
+            }
+            n
+        }
+        None => 0,
+    };
+    use anyhow::Context;
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build()
+        .context("--threads: cannot start the thread pool")
+}
+
+/// The whole program for `args` (the program name first): parse, run, print an error on one
+/// line. Returns the exit code.
+pub fn main<I, T>(args: I) -> std::process::ExitCode
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let cli = match Cli::try_parse_from(args) {
+        Ok(cli) => cli,
+        Err(e) => {
+            // --help and --version print and succeed; usage errors print and fail.
+            let _ = e.print();
+            return std::process::ExitCode::from(e.exit_code().clamp(0, 255) as u8);
+        }
+    };
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(err) => {
+            // One line: the chain of causes joined, most general first.
+            eprintln!("t2tf: error: {err:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// Run the parsed command.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Info(a) => info::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Render(a) => commands::render::run(a),
+        Command::ClipScore(a) => clip_score::run(a),
+        Command::Optimize(a) => commands::optimize::run(a),
+        Command::Model(a) => model::run(a),
+    }
+}

@@ -53,7 +53,14 @@ fn library_and_cli_write_the_same_files() {
     let cli_out = dir.path().join("cli");
     let status = Command::new(env!("CARGO_BIN_EXE_t2tf"))
         .args(["optimize", VOLUME, "--prompt", PROMPT, "--model", MODEL])
-        .args(["--tokenizer", TOKENIZER, "--steps", "6", "--negatives-per-step", "16"])
+        .args([
+            "--tokenizer",
+            TOKENIZER,
+            "--steps",
+            "6",
+            "--negatives-per-step",
+            "16",
+        ])
         .args(["--name", "tf", "--out"])
         .arg(&cli_out)
         .env("XDG_CACHE_HOME", &cache)
@@ -70,7 +77,14 @@ fn library_and_cli_write_the_same_files() {
     lib_files.sort();
     assert_eq!(cli_files, lib_files);
     // The TF files, pictures and script are the same bytes (both name the volume alike).
-    for f in ["tf.json", "tf.xml", "tf.ct", "tf.png", "preview.png", "tf_paraview.py"] {
+    for f in [
+        "tf.json",
+        "tf.xml",
+        "tf.ct",
+        "tf.png",
+        "preview.png",
+        "tf_paraview.py",
+    ] {
         let a = std::fs::read(lib_out.join(f)).unwrap();
         let b = std::fs::read(cli_out.join(f)).unwrap();
         assert!(a == b, "{f} differs between the library and the CLI");

@@ -15,7 +15,7 @@ use sha2::{Digest, Sha256};
 use super::{CaptionError, OptimizeError};
 
 /// The project's caption pool, one caption per line.
-pub(crate) const BUILTIN_CAPTIONS: &str = include_str!("../../data/captions.txt");
+pub(crate) const BUILTIN_CAPTIONS: &str = include_str!("../../../../data/captions.txt");
 
 /// The user negative used when none is given (the paper's "a blank image").
 pub(crate) const DEFAULT_USER_NEGATIVE: &str = "a blank image";

@@ -10,11 +10,11 @@ use std::ops::ControlFlow;
 
 use anyhow::{bail, Context, Result};
 
-use super::progress::{Progress, ProgressMode, StepReport};
-use super::{flags, signals, ModelArgs, VolumeArgs};
 use crate::memory::Budget;
 use crate::optimize::settings::{defaults, Settings};
 use crate::pipeline::{self, Event, Job, Target, ValidJob};
+use crate::progress::{Progress, ProgressMode, StepReport};
+use crate::{flags, signals, ModelArgs, VolumeArgs};
 
 /// Output folder when `--out` is not given.
 const DEFAULT_OUT: &str = "t2tf-output";
@@ -289,7 +289,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     // Installed now, so a SIGTERM while loading still ends with a written result.
     let stop = signals::stop_flag();
     let budget = Budget::new(args.max_memory);
-    let pool = super::thread_pool(args.threads)?;
+    let pool = crate::thread_pool(args.threads)?;
     pool.install(|| -> Result<()> {
         let volume = args
             .volume_args

@@ -6,10 +6,10 @@ use anyhow::{bail, Context, Result};
 
 use crate::background;
 use crate::camera::{Camera, Orbit, UpAxis};
-use crate::cli::VolumeArgs;
 use crate::formats::{preset_lut, read_preset, Sampling};
 use crate::memory::Budget;
 use crate::render::{CpuBackend, RenderOptions, FINAL_LEVEL, FINAL_STEP};
+use crate::VolumeArgs;
 
 #[derive(clap::Args, Debug)]
 #[command(after_help = "Examples:\n  \
@@ -92,7 +92,7 @@ fn check_image_memory(budget: Budget, size: usize, orbit: Option<usize>) -> Resu
             16 + 12 + 3,
             "lower --size or --orbit",
         )
-        .map_err(|e| super::flags::memory_hint(e.into()))?;
+        .map_err(|e| crate::flags::memory_hint(e.into()))?;
     Ok(())
 }
 
@@ -125,7 +125,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let volume = args
         .read
         .load_within(&args.volume, budget)
-        .map_err(super::flags::volume)?;
+        .map_err(crate::flags::volume)?;
     // Colours interpolated in the preset's own space (HSV, Lab, Diverging, …) become RGB
     // segments within the export tolerance, as the renderer's LUT needs.
     let preset = read_preset(&args.tf, args.preset.as_deref())?;
@@ -160,7 +160,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
             let cams = Camera::ring(&volume.geometry, n, pitch, distance, args.up)?;
             backend
                 .orbit_sheet(&volume, &lut, &cams, &bg, &opts)
-                .map_err(|e| super::flags::memory_hint(e.into()))?
+                .map_err(|e| crate::flags::memory_hint(e.into()))?
         }
         None => {
             let orbit = Orbit {
@@ -172,7 +172,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
             let cam = Camera::orbit(&volume.geometry, orbit)?;
             backend
                 .render(&volume, &lut, &cam, &bg, &opts)
-                .map_err(|e| super::flags::memory_hint(e.into()))?
+                .map_err(|e| crate::flags::memory_hint(e.into()))?
                 .image
         }
     };

@@ -54,7 +54,7 @@ impl ModelArgs {
 
     /// Resolve and load the model for an optimization (its weights checked against `budget`).
     pub fn load(&self, budget: Budget) -> anyhow::Result<Model> {
-        Model::load(&self.options(budget)?).map_err(super::flags::pipeline)
+        Model::load(&self.options(budget)?).map_err(crate::flags::pipeline)
     }
 
     /// Resolve and load the model alone.

@@ -7,9 +7,9 @@ use std::time::Instant;
 use anyhow::Result;
 use serde_json::json;
 
-use super::VolumeArgs;
 use crate::units::human_bytes;
 use crate::volume::{self, ByteOrder, SourceFormat, Summary, HISTOGRAM_BINS};
+use crate::VolumeArgs;
 
 /// Width of the longest histogram bar, in characters.
 const BAR_WIDTH: usize = 40;

@@ -4,9 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 
-use super::ModelArgs;
 use crate::clip::{cosine, softmax_scaled};
 use crate::image::Image;
+use crate::ModelArgs;
 
 /// Print each caption's cosine similarity to the image and CLIP's softmax probability over the
 /// captions (cosines × the model's logit scale).
