@@ -1,5 +1,7 @@
 //! The library's errors name what was wrong, never a command-line flag; here the binary adds
-//! the flag that fixes it where it knows one.
+//! the flag that fixes it where it knows one. Library messages name an option in backticks by
+//! its field's name (`dims`, the `ReadOptions` field; Python takes the same keyword), which
+//! [`say`] turns into the flag.
 
 use crate::optimize::OptimizeError;
 use crate::pipeline::PipelineError;
@@ -24,6 +26,55 @@ const SETTING_FLAGS: [&str; 14] = [
     "seed",
     "render-size",
 ];
+
+/// Options the library names in backticks, and the flags that set them.
+const OPTION_FLAGS: [(&str, &str); 9] = [
+    ("`dims`", "--dims"),
+    ("`dtype`", "--dtype"),
+    ("`byte_order`", "--byte-order"),
+    ("`array`", "--array"),
+    ("`level`", "--level"),
+    ("`budget`", "--max-memory"),
+    ("`tokenizer`", "--tokenizer"),
+    ("`preset`", "--preset NAME"),
+    ("`model`", "--model"),
+];
+
+/// The library's advice for a model the cache lacks, and what the command line says instead.
+const FETCH: (&str, &str) = (" with network access", "` on a machine with network");
+/// Said where a local model folder would do; `model fetch` takes none.
+const LOCAL_MODEL: &str = ", or use a local `model` folder";
+
+/// `message` (a whole error chain) as the command line says it: options as flags, and for a
+/// model the cache lacks the command that fetches it. `fetching` is true for `t2tf model`,
+/// which takes no `--model` folder.
+pub fn say(message: &str, fetching: bool) -> String {
+    let mut m = message.to_string();
+    if m.contains(LOCAL_MODEL) {
+        let local = if fetching {
+            ""
+        } else {
+            ", or pass --model DIR (offline, the test model of the repository runs every stage: \
+             --model tests/fixtures/clip/quick_gelu --tokenizer ../shared/data/clip/tokenizer.json)"
+        };
+        m = m.replace(LOCAL_MODEL, local);
+    }
+    // "fetch REPO with network access" → "run `t2tf model fetch REPO` on a machine with network"
+    while let Some(end) = m.find(FETCH.0) {
+        let Some(start) = m[..end].rfind("fetch ") else {
+            break;
+        };
+        let repo = m[start + "fetch ".len()..end].to_string();
+        m.replace_range(
+            start..end + FETCH.0.len(),
+            &format!("run `t2tf model fetch {repo}{}", FETCH.1),
+        );
+    }
+    for (option, flag) in OPTION_FLAGS {
+        m = m.replace(option, flag);
+    }
+    m
+}
 
 /// A pipeline error as the command line says it.
 pub fn pipeline(e: PipelineError) -> anyhow::Error {
@@ -90,6 +141,32 @@ mod tests {
         assert!(optimize(OptimizeError::EmptyPrompt)
             .to_string()
             .starts_with("--prompt is empty"));
+    }
+
+    #[test]
+    fn options_become_flags() {
+        assert_eq!(
+            say("give `dims` and `dtype` to read raw data", false),
+            "give --dims and --dtype to read raw data"
+        );
+        let offline =
+            "x not cached; fetch o/n with network access (copy), or use a local `model` folder";
+        let m = say(offline, false);
+        assert!(
+            m.contains("run `t2tf model fetch o/n` on a machine with network (copy)"),
+            "{m}"
+        );
+        assert!(m.contains("--model DIR") && m.contains("quick_gelu"), "{m}");
+        let m = say(offline, true);
+        assert!(
+            m.contains("t2tf model fetch o/n") && !m.contains("--model"),
+            "{m}"
+        );
+        // Commands in backticks that are not options stay as they are.
+        assert_eq!(
+            say("run `t2tf convert --list`", false),
+            "run `t2tf convert --list`"
+        );
     }
 
     #[test]

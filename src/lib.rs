@@ -89,11 +89,12 @@ where
             return std::process::ExitCode::from(e.exit_code().clamp(0, 255) as u8);
         }
     };
+    let fetching = matches!(cli.command, Command::Model(_));
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(err) => {
-            // One line: the chain of causes joined, most general first.
-            eprintln!("t2tf: error: {err:#}");
+            // One line: the chain of causes joined, most general first, with the flags.
+            eprintln!("t2tf: error: {}", flags::say(&format!("{err:#}"), fetching));
             std::process::ExitCode::FAILURE
         }
     }

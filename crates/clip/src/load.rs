@@ -105,7 +105,7 @@ pub fn resolve_with(req: &ModelRequest, hub: &Hub) -> Result<ModelFiles, ClipErr
     }
     if path.exists() {
         return Err(ClipError::Missing(format!(
-            "{}: is a file; --model takes a directory holding {CONFIG}, {TOKENIZER} and the \
+            "{}: is a file; a `model` is a directory holding {CONFIG}, {TOKENIZER} and the \
              weights, or a Hugging Face repo id such as {DEFAULT_MODEL}",
             req.model
         )));
@@ -133,7 +133,7 @@ fn check_dir(dir: &Path, own_tokenizer: bool) -> Result<(), ClipError> {
         missing.push(CONFIG.to_string());
     }
     if !own_tokenizer && !dir.join(TOKENIZER).is_file() {
-        missing.push(format!("{TOKENIZER} (or pass --tokenizer PATH)"));
+        missing.push(format!("{TOKENIZER} (or give a `tokenizer`)"));
     }
     if !WEIGHT_FILES.iter().any(|w| dir.join(w.0).is_file()) {
         let names: Vec<&str> = WEIGHT_FILES.iter().map(|w| w.0).collect();
@@ -204,9 +204,10 @@ impl FileSource for RepoFiles<'_> {
     fn no_weights(&self, tried: &str) -> ClipError {
         let hint = if self.offline {
             format!(
-                " in the Hugging Face cache {}, and offline mode is on (HF_HUB_OFFLINE): run \
-                 `t2tf model fetch` for it on a machine with network, or pass --model DIR",
-                self.repo.cache_folder().display()
+                " in the Hugging Face cache {}, and offline mode is on (HF_HUB_OFFLINE): fetch {} \
+                 with network access, or use a local `model` folder",
+                self.repo.cache_folder().display(),
+                self.repo.id()
             )
         } else {
             String::new()
@@ -240,9 +241,7 @@ fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<Model
     let tokenizer = match tokenizer {
         Some(t) => t.to_path_buf(),
         None => required(TOKENIZER).map_err(|e| {
-            ClipError::Missing(format!(
-                "{e}; --tokenizer PATH can point to a tokenizer.json"
-            ))
+            ClipError::Missing(format!("{e}; a `tokenizer` can point to a tokenizer.json"))
         })?,
     };
     Ok(ModelFiles {
@@ -416,7 +415,7 @@ mod tests {
         for w in WEIGHT_FILES {
             assert!(e.contains(w.0), "{e}");
         }
-        assert!(e.contains(TOKENIZER) && e.contains("--tokenizer"), "{e}");
+        assert!(e.contains(TOKENIZER) && e.contains("`tokenizer`"), "{e}");
         touch(d, &[CONFIG, "model.safetensors"]);
         let e = resolve(&req).unwrap_err().to_string();
         assert!(!e.contains(CONFIG) && e.contains(TOKENIZER), "{e}");

@@ -47,13 +47,13 @@ pub enum FsError {
         why: String,
     },
     /// `--out` names something that is not a folder.
-    #[error("{}: --out exists and is not a folder", dir.display())]
+    #[error("{}: the output folder exists and is not a folder", dir.display())]
     NotAFolder {
         /// The name given as `--out`.
         dir: PathBuf,
     },
     /// Another run holds the lock of the output folder.
-    #[error("{}: another t2tf run ({who}) is writing into this folder; wait for it to finish or choose another --out", dir.display())]
+    #[error("{}: another t2tf run ({who}) is writing into this folder; wait for it to finish or choose another output folder", dir.display())]
     Busy {
         /// The output folder.
         dir: PathBuf,

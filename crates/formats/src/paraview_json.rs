@@ -181,7 +181,7 @@ fn choose<'a>(
         let shown: Vec<String> = names.iter().take(20).map(|n| format!("\"{n}\"")).collect();
         let more = names.len().saturating_sub(20);
         let tail = if more > 0 {
-            format!(" and {more} more (t2tf convert --list)")
+            format!(" and {more} more")
         } else {
             String::new()
         };
@@ -192,7 +192,7 @@ fn choose<'a>(
         None => Err(FormatError::file(
             path,
             format!(
-                "holds {} presets; pick one with --preset NAME: {}",
+                "holds {} presets; pick one as `preset`: {}",
                 presets.len(),
                 listing()
             ),

@@ -68,7 +68,7 @@ pub enum RenderError {
     },
     /// The brick cache of a level too large for memory cannot hold what one tile needs.
     #[error(
-        "the brick cache holds {slots} bricks of the level in {} but one 16x16-pixel tile's rays need {needed}; raise --max-memory or render a coarser --level",
+        "the brick cache holds {slots} bricks of the level in {} but one 16x16-pixel tile's rays need {needed}; raise the memory `budget` or render a coarser `level`",
         t2tf_core::units::human_bytes(*.budget as u128)
     )]
     BrickBudget {

@@ -18,17 +18,15 @@ pub(crate) enum RawError {
     #[error("file name: {0}")]
     NameType(UnknownScalarType),
     /// `--dims` given (or named) but no scalar type.
-    #[error(
-        "--dtype TYPE is missing: the name does not give the scalar type (e.g. --dtype uint8)"
-    )]
+    #[error("the scalar type `dtype` is missing: the name does not give it (e.g. uint8)")]
     MissingDtype,
     /// `--dtype` given (or named) but no dimensions.
-    #[error("--dims X,Y,Z is missing: the name does not give the dimensions")]
+    #[error("the dimensions `dims` are missing: the name does not give them (X,Y,Z)")]
     MissingDims,
     /// Neither flags nor a parsable name.
     #[error(
         "name does not follow NAME_XxYxZ_DTYPE.raw (e.g. head_256x256x99_uint8.raw): give \
-         --dims X,Y,Z and --dtype TYPE"
+         `dims` (X,Y,Z) and `dtype`"
     )]
     NoLayout,
     /// A zero dimension.

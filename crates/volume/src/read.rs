@@ -149,18 +149,18 @@ enum PathError {
     #[error("is a directory, not a volume file (.raw, .vti or .vtk)")]
     Directory,
     #[error(
-        "no file extension: expected .raw, .vti or .vtk (or give --dims and --dtype to read \
+        "no file extension: expected .raw, .vti or .vtk (or give `dims` and `dtype` to read \
          headerless raw data)"
     )]
     NoExtension,
     #[error(
-        "unknown extension '.{0}': expected .raw, .vti or .vtk (or give --dims and --dtype to \
+        "unknown extension '.{0}': expected .raw, .vti or .vtk (or give `dims` and `dtype` to \
          read headerless raw data)"
     )]
     UnknownExtension(String),
     #[error("{0} applies to .raw files only; this file describes itself")]
     RawOnlyFlag(&'static str),
-    #[error("--array applies to .vti and .vtk files; a .raw file holds one array")]
+    #[error("`array` applies to .vti and .vtk files; a .raw file holds one array")]
     ArrayOnRaw,
 }
 
@@ -222,9 +222,9 @@ fn reader_for(path: &Path, opts: &ReadOptions) -> Result<Kind, VolumeError> {
     };
     if kind != Kind::Raw {
         let raw_only = [
-            (opts.dims.is_some(), "--dims"),
-            (opts.dtype.is_some(), "--dtype"),
-            (opts.byte_order.is_some(), "--byte-order"),
+            (opts.dims.is_some(), "`dims`"),
+            (opts.dtype.is_some(), "`dtype`"),
+            (opts.byte_order.is_some(), "`byte_order`"),
         ];
         if let Some((_, flag)) = raw_only.iter().find(|(given, _)| *given) {
             return Err(PathError::RawOnlyFlag(flag).at(path));

@@ -283,7 +283,7 @@ impl LevelSource for Streamed {
                 ),
                 t2tf_core::memory::product(&dims),
                 bytes,
-                "render at a coarser level (--level) or use a smaller volume",
+                "render at a coarser `level` or use a smaller volume",
             )
             .map_err(|e| VolumeError::file(self.source.path(), e.to_string()))?;
         let [nx, ny, nz] = self.shapes[0].0;

@@ -10,8 +10,8 @@ pub enum HubError {
     /// in the cache.
     #[error(
         "cannot download {file} of {repo} from {url} ({reason}); check the network and HF_ENDPOINT, \
-         or run `t2tf model fetch {repo}` on a machine with network and copy the cache here \
-         (HF_HUB_OFFLINE=1 then needs no network), or pass --model DIR"
+         or fetch {repo} with network access and copy the cache here \
+         (HF_HUB_OFFLINE=1 then needs no network), or use a local `model` folder"
     )]
     Network {
         /// The repository id (`owner/name`).
@@ -116,8 +116,8 @@ pub enum HubError {
     /// Offline and the file is not in the cache.
     #[error(
         "{file} of {repo} at revision {revision} is not in the Hugging Face cache {} and offline \
-         mode is on (HF_HUB_OFFLINE); run `t2tf model fetch {repo}` on a machine with network \
-         (and copy that cache here), or pass --model DIR",
+         mode is on (HF_HUB_OFFLINE); fetch {repo} with network access \
+         (and copy that cache here), or use a local `model` folder",
         cache.display()
     )]
     NotCached {

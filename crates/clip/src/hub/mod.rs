@@ -146,6 +146,11 @@ impl HubRepo<'_> {
         }
     }
 
+    /// The repository id (`owner/name`).
+    pub fn id(&self) -> &str {
+        &self.repo_id
+    }
+
     /// "REPO at revision REV", for messages.
     pub fn describe(&self) -> String {
         format!("{} at revision {}", self.repo_id, self.revision)
@@ -303,8 +308,8 @@ mod tests {
             "model.safetensors",
             "o/n",
             "HF_HUB_OFFLINE",
-            "t2tf model fetch o/n",
-            "--model DIR",
+            "fetch o/n with network access",
+            "a local `model` folder",
             &folder,
         ] {
             assert!(e.contains(needle), "{needle} not in: {e}");
