@@ -41,7 +41,9 @@ fn png(path: &Path) -> Result<(), String> {
 
 fn clip_config(path: &Path) -> Result<(), String> {
     let text = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
-    t2tf::clip::ClipConfig::from_json(&text).map(|_| ())
+    t2tf::clip::ClipConfig::from_json(&text)
+        .map(|_| ())
+        .map_err(|e| e.0)
 }
 
 fn checkpoint(path: &Path) -> Result<(), String> {

@@ -157,6 +157,12 @@ struct Term {
     each: u128,
 }
 
+/// What is wrong in a configuration file's text (`config.json`,
+/// `preprocessor_config.json`): the offending field and why.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct ConfigError(pub String);
+
 impl ClipConfig {
     /// Read `config.json`; errors name the file and the offending field.
     pub fn from_file(path: &Path) -> Result<ClipConfig, ClipError> {
@@ -164,14 +170,19 @@ impl ClipConfig {
             path: path.to_path_buf(),
             source: e,
         })?;
-        ClipConfig::from_json(&text).map_err(|msg| ClipError::Config {
+        ClipConfig::from_json(&text).map_err(|e| ClipError::Config {
             path: path.to_path_buf(),
-            msg,
+            msg: e.0,
         })
     }
 
     /// Parse the JSON text of a `CLIPModel` config (see the module comment for the rules).
-    pub fn from_json(json: &str) -> Result<ClipConfig, String> {
+    pub fn from_json(json: &str) -> Result<ClipConfig, ConfigError> {
+        ClipConfig::parse(json).map_err(ConfigError)
+    }
+
+    /// [`ClipConfig::from_json`], the error as text.
+    fn parse(json: &str) -> Result<ClipConfig, String> {
         let root: Value = serde_json::from_str(json).map_err(|e| json_error(json, &e))?;
         let obj = root
             .as_object()
@@ -756,7 +767,7 @@ mod tests {
     }
 
     fn err(json: &str) -> String {
-        ClipConfig::from_json(json).unwrap_err()
+        ClipConfig::from_json(json).unwrap_err().0
     }
 
     #[test]

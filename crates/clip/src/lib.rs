@@ -61,13 +61,13 @@ mod weights;
 
 use std::path::{Path, PathBuf};
 
-pub use config::{Activation, ClipConfig};
+pub use config::{Activation, ClipConfig, ConfigError};
 pub use load::{ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
 pub use packed::{Compute, Engine, Kernel, Precision};
 pub use preprocess::{preprocess, Preprocessing, MEAN, STD};
 pub use similarity::{
-    cosine, cosine_checked, cosine_grad, softmax_scaled, unit, Head, Incomparable, Logits,
-    LogitsError,
+    cosine, cosine_checked, cosine_grad, softmax_scaled, unit, BadLogitScale, Head, Incomparable,
+    Logits, LogitsError,
 };
 pub use source::{RandomSource, TensorSource};
 pub use tokenizer::ClipTokenizer;
@@ -312,7 +312,7 @@ impl Clip {
     /// knowing its formula. An error where the checkpoint's logit scale is not positive and
     /// finite.
     pub fn head(&self) -> Result<Head, ClipError> {
-        Head::new(self.logit_scale as f64).map_err(ClipError::Input)
+        Head::new(self.logit_scale as f64).map_err(|e| ClipError::Input(e.to_string()))
     }
 
     /// `CLIPImageProcessor`'s resize (shortest side, bicubic) and centre crop to

@@ -5,6 +5,7 @@
 //! no rounding to 8 bits happens between or after the passes (values stay f32, clamped to
 //! [0, 1]).
 
+use crate::config::ConfigError;
 use std::path::Path;
 
 use serde_json::Value;
@@ -56,14 +57,19 @@ impl Preprocessing {
             path: path.to_path_buf(),
             source: e,
         })?;
-        Preprocessing::from_json(&text, image_size).map_err(|msg| ClipError::Config {
+        Preprocessing::from_json(&text, image_size).map_err(|e| ClipError::Config {
             path: path.to_path_buf(),
-            msg: format!("preprocessor config: {msg}"),
+            msg: format!("preprocessor config: {e}"),
         })
     }
 
     /// As [`Preprocessing::from_file`], from the file's text.
-    pub fn from_json(text: &str, image_size: usize) -> Result<Preprocessing, String> {
+    pub fn from_json(text: &str, image_size: usize) -> Result<Preprocessing, ConfigError> {
+        Preprocessing::parse(text, image_size).map_err(ConfigError)
+    }
+
+    /// [`Preprocessing::from_json`], the error as text.
+    fn parse(text: &str, image_size: usize) -> Result<Preprocessing, String> {
         let v: Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
         if !v.is_object() {
             return Err("not a JSON object".into());
@@ -351,7 +357,7 @@ mod tests {
             ("[1, 2]", "not a JSON object"),
         ] {
             let e = Preprocessing::from_json(bad, 224).unwrap_err();
-            assert!(e.contains(says), "{bad}: {e}");
+            assert!(e.0.contains(says), "{bad}: {e}");
         }
     }
 }

@@ -114,16 +114,19 @@ pub struct Logits {
     class_units: Vec<Vec<f64>>,
 }
 
+/// A logit scale that is not positive and finite (from a broken checkpoint).
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error("CLIP logit scale must be positive and finite, got {0}")]
+pub struct BadLogitScale(pub f64);
+
 impl Head {
     /// CLIP's head with temperature `logit_scale` (exp of the stored parameter), which must be
     /// positive and finite.
-    pub fn new(logit_scale: f64) -> Result<Head, String> {
+    pub fn new(logit_scale: f64) -> Result<Head, BadLogitScale> {
         if logit_scale.is_finite() && logit_scale > 0.0 {
             Ok(Head { logit_scale })
         } else {
-            Err(format!(
-                "CLIP logit scale must be positive and finite, got {logit_scale}"
-            ))
+            Err(BadLogitScale(logit_scale))
         }
     }
 

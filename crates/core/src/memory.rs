@@ -84,6 +84,11 @@ impl Budget {
     }
 }
 
+/// A size that does not parse ([`parse_size`]).
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct SizeError(pub String);
+
 /// The product of `dims`, `None` on overflow.
 pub fn product(dims: &[usize]) -> Option<u64> {
     dims.iter()
@@ -92,7 +97,7 @@ pub fn product(dims: &[usize]) -> Option<u64> {
 
 /// Parse `--max-memory`: bytes, or a number with K, M, G or T (powers of 1024; a trailing B
 /// or iB is accepted).
-pub fn parse_size(s: &str) -> Result<u64, String> {
+pub fn parse_size(s: &str) -> Result<u64, SizeError> {
     let t = s.trim();
     let t = t
         .strip_suffix("iB")
@@ -108,10 +113,12 @@ pub fn parse_size(s: &str) -> Result<u64, String> {
     let v: f64 = num
         .trim()
         .parse()
-        .map_err(|_| format!("\"{s}\" is not a size like 512M or 16G"))?;
+        .map_err(|_| SizeError(format!("\"{s}\" is not a size like 512M or 16G")))?;
     let bytes = v * (1u64 << shift) as f64;
     if !(bytes.is_finite() && bytes >= 1.0 && bytes < u64::MAX as f64) {
-        return Err(format!("\"{s}\" is not a positive size like 512M or 16G"));
+        return Err(SizeError(format!(
+            "\"{s}\" is not a positive size like 512M or 16G"
+        )));
     }
     Ok(bytes as u64)
 }

@@ -116,16 +116,15 @@ impl Precision {
 
     /// `f32`, `bf16` (an error where the CPU lacks AVX512_BF16: emulating it would be slower
     /// than f32) or `auto`.
-    pub fn resolve(name: &str) -> Result<Precision, String> {
+    pub fn resolve(name: &str) -> Result<Precision, PrecisionError> {
         match name {
             "f32" => Ok(Precision::F32),
             "auto" => Ok(Precision::auto()),
             "bf16" if Precision::Bf16.native() => Ok(Precision::Bf16),
-            "bf16" => Err(format!(
-                "bf16 needs AVX512_BF16, which this CPU lacks ({}); use f32 or auto",
-                cpu_features()
-            )),
-            other => Err(format!("precision {other:?}: expected f32, bf16 or auto")),
+            "bf16" => Err(PrecisionError::NotNative {
+                features: cpu_features(),
+            }),
+            other => Err(PrecisionError::Unknown(other.to_string())),
         }
     }
 
@@ -136,6 +135,20 @@ impl Precision {
             Precision::Bf16 => "bf16",
         }
     }
+}
+
+/// Why a precision name cannot be had.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum PrecisionError {
+    /// bf16 on a CPU without AVX512_BF16 (emulating it would be slower than f32).
+    #[error("bf16 needs AVX512_BF16, which this CPU lacks ({features}); use f32 or auto")]
+    NotNative {
+        /// What the CPU has and lacks.
+        features: String,
+    },
+    /// Not f32, bf16 or auto.
+    #[error("precision {0:?}: expected f32, bf16 or auto")]
+    Unknown(String),
 }
 
 /// A micro-kernel and the packed layout it reads.
