@@ -1,19 +1,18 @@
-//! `t2tf info` on a volume larger than memory (issue #15): a synthetic `uint16` raw file of
+//! `t2tf info` on a volume larger than memory: a synthetic `uint16` raw file of
 //! N³ points is written block by block (never held in memory), then summarized as `t2tf info`
 //! does (`volume::summarize`), against the time of one plain sequential read of the same file.
 //! Prints a Markdown row for BENCHMARKS.md.
 //!
 //! With `--optimize`, it then runs the built `t2tf optimize` on the same file (the tiny test
 //! CLIP of tests/fixtures/clip, 20 steps; build the binary first) and reports its wall time
-//! and peak resident memory (the child's `ru_maxrss`): issue #15's target is ≤ 3 GiB for
-//! 2048³.
+//! and peak resident memory (the child's `ru_maxrss`): the target is ≤ 3 GiB for 2048³.
 //!
 //! ```text
 //! cargo build --release --bin t2tf
 //! cargo run --release --features bench --example bench_large [-- --n 2048] [--dir DIR] [--keep] [--optimize]
 //! ```
 //!
-//! The default N = 512 (256 MiB) runs in seconds; `--n 2048` is the issue's 16 GiB target.
+//! The default N = 512 (256 MiB) runs in seconds; `--n 2048` is the 16 GiB target case.
 //! Both timings read the file after it was just written, so a file that fits the page cache
 //! is read from memory both times; a larger one from disk both times. Peak memory is the
 //! process's high-water mark (`VmHWM`, Linux), which includes the writer's block.

@@ -399,9 +399,10 @@ fn main() -> anyhow::Result<()> {
     let positive = clip.encode_text(&[PROMPT])?.remove(0);
     let user_emb = clip.encode_text(&user.iter().map(String::as_str).collect::<Vec<_>>())?;
     // Cached on disk like the CLI's, keyed by what makes the random weights (not a file hash)
-    // and the precision (bf16 embeddings differ from f32 ones). f32 keeps the key of earlier
-    // versions. The whole pool is one call: the text tower shares common beginnings across
-    // the captions of a call (clip/prefix.rs) and bounds its memory itself.
+    // and the precision (bf16 embeddings differ from f32 ones); f32's key names no precision,
+    // so caches already on disk stay valid. The whole pool is one call: the text tower shares
+    // common beginnings across the captions of a call (clip/prefix.rs) and bounds its memory
+    // itself.
     let key = match precision {
         Precision::F32 => "bench_optimize: ClipConfig::vit_b32, RandomSource::new(7)".to_string(),
         p => format!(

@@ -1,4 +1,4 @@
-//! Renderer speed against error (issue 4). Not a timed test: prints a Markdown table.
+//! Renderer speed against error. Not a timed test: prints a Markdown table.
 //!
 //! ```text
 //! cargo run --release --features bench --example bench_render [-- --out DIR] [--quick] [--speed]

@@ -1,4 +1,4 @@
-//! Which level and step a picture for people needs (issue #11): `t2tf render`'s defaults and
+//! Which level and step a picture for people needs: `t2tf render`'s defaults and
 //! the optimizer's preview.png. Not a timed test: prints a Markdown table.
 //!
 //! ```text

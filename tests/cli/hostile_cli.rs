@@ -1,7 +1,7 @@
-//! Issue #13, through the binary: outputs that are not ours are refused (devices, FIFOs,
-//! folders) and symlinks are followed; sizes from headers and flags end in a clean error under
-//! an address-space limit, never in an abort (exit 134); `optimize` writes its files as one
-//! set under a lock, stops on SIGTERM with exit 143 after writing, and a SIGKILL leaves the
+//! Hostile outputs, inputs and signals, through the binary: outputs that are not ours are refused
+//! (devices, FIFOs, folders) and symlinks are followed; sizes from headers and flags end in a clean
+//! error under an address-space limit, never in an abort (exit 134); `optimize` writes its files as
+//! one set under a lock, stops on SIGTERM with exit 143 after writing, and a SIGKILL leaves the
 //! previous complete set, cleaned up by the next run. Every bad file is made by the test.
 
 use crate::limits_util::limit_address_space;

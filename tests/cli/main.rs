@@ -1,7 +1,7 @@
 //! Integration tests: the CLI's messages, info, and hostile runs (signals, locks, memory limits).
 //!
 //! One test binary per area (`cargo test --release --test cli`); each
-//! module is one former test file, so a test's name is `MODULE::TEST`.
+//! module covers one subject, so a test's name is `MODULE::TEST`.
 
 mod cli_info;
 mod cli_messages;

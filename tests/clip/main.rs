@@ -1,7 +1,7 @@
 //! Integration tests: CLIP: transformers parity, backward, kernels, families, preprocessing, tokenizer.
 //!
 //! One test binary per area (`cargo test --release --test clip`); each
-//! module is one former test file, so a test's name is `MODULE::TEST`.
+//! module covers one subject, so a test's name is `MODULE::TEST`.
 
 mod clip_backward;
 mod clip_cli;

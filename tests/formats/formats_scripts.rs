@@ -310,8 +310,8 @@ fn visit_opens(script: &Path, dir: &Path) -> Option<PathBuf> {
 
 #[test]
 fn visit_reads_raw_values_exactly() {
-    // uint16 values above 32767 (a SHORT BOV header, as written before, read them as negative
-    // numbers), and int16 / uint8 files, which keep their lossless BOV header, in both byte
+    // uint16 values above 32767 (a SHORT BOV header would read them as negative numbers),
+    // and int16 / uint8 files, which keep their lossless BOV header, in both byte
     // orders.
     for (t, order) in [
         (ScalarType::U16, ByteOrder::Little),

@@ -1,7 +1,7 @@
 //! Integration tests: TF formats and presets: conversion, round trips, colour spaces, errors.
 //!
 //! One test binary per area (`cargo test --release --test formats`); each
-//! module is one former test file, so a test's name is `MODULE::TEST`.
+//! module covers one subject, so a test's name is `MODULE::TEST`.
 
 mod formats_convert;
 mod formats_errors;

@@ -209,7 +209,7 @@ fn trusted_blobs(cache: &Path, repo: &str) -> Vec<String> {
         .unwrap_or_default()
 }
 
-/// Transfers the client retries after the first (src/hub/download.rs).
+/// Transfers the client retries after the first (crates/clip/src/hub/download.rs).
 const RETRIES: usize = 2;
 
 #[test]

@@ -1,7 +1,7 @@
 //! Integration tests: the optimizer: loop, driver, CLI, progress, recovery, render size.
 //!
 //! One test binary per area (`cargo test --release --test optimize`); each
-//! module is one former test file, so a test's name is `MODULE::TEST`.
+//! module covers one subject, so a test's name is `MODULE::TEST`.
 
 #[path = "../optimize_toy/mod.rs"]
 mod optimize_toy;

@@ -1,6 +1,6 @@
 //! `t2tf optimize`: the flags and their defaults as `--help` prints them, and argument errors
-//! from the binary. `execute` (everything after loading) on the analytic stand-ins is tested
-//! in the binary, next to it (src/cli/optimize.rs): the CLI is not part of the library.
+//! from the binary. The run itself is the library's `t2tf::pipeline` (optimize_pipeline.rs);
+//! parsing and validating the flags is unit-tested next to them (src/commands/optimize.rs).
 
 use std::process::Command;
 

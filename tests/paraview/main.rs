@@ -1,7 +1,7 @@
 //! Integration tests: real ParaView (pvpython under xvfb): presets, scripts, plugin, render parity.
 //!
 //! One test binary per area (`cargo test --release --test paraview`); each
-//! module is one former test file, so a test's name is `MODULE::TEST`.
+//! module covers one subject, so a test's name is `MODULE::TEST`.
 
 #[path = "../paraview_util/mod.rs"]
 mod paraview_util;

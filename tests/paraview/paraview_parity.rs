@@ -1,8 +1,8 @@
-//! `t2tf render` against ParaView 5.11's own screenshots (issue #11, "Render parity"): three
-//! shared volumes × three views × four presets from ParaView's library in different colour
-//! spaces (Cool to Warm: Diverging; Blue to Red Rainbow: HSV; CIELab Blue to Red: Lab;
-//! Black-Body Radiation: RGB), each spanning the data range; and a wide-range 16-bit CT where the presets span a
-//! window 5 % of the range, with and without `--paraview-lut`.
+//! `t2tf render` against ParaView 5.11's own screenshots (BENCHMARKS.md, "Render parity with
+//! ParaView"): three shared volumes × three views × four presets from ParaView's library in
+//! different colour spaces (Cool to Warm: Diverging; Blue to Red Rainbow: HSV; CIELab Blue to Red:
+//! Lab; Black-Body Radiation: RGB), each spanning the data range; and a wide-range 16-bit CT where
+//! the presets span a window 5 % of the range, with and without `--paraview-lut`.
 //!
 //! ParaView's side is one pvpython process (`tests/fixtures/paraview_parity/parity_shots.py`):
 //! it applies each library preset, rescales it, sets the opacity and unit distance, writes the
@@ -28,14 +28,14 @@ use t2tf::volume::{load, ReadOptions};
 /// Side of the screenshots and renders.
 const SIZE: usize = 192;
 
-/// The issue's bar for every case. Measured (ParaView 5.11, Mesa llvmpipe): 48.5–60.7 dB where
+/// The bar for every case. Measured (ParaView 5.11, Mesa llvmpipe): 48.5–60.7 dB where
 /// the preset spans the data range (the uint8 neghip lowest: ParaView filters 8-bit textures
 /// coarsely, tests/paraview/paraview_match.rs), 46.1–48.4 dB with --paraview-lut in the 5 % window.
 const BAR: f64 = 40.0;
 
 /// ParaView library presets, one per colour space: (name, the colour space ParaView keeps it
-/// in, short id). "Blue to Red Rainbow" once failed in `t2tf render`: VTK's HSV→RGB formula
-/// gives 1 + 2⁻⁵² at a sector edge, now clamped (tf::color_convert::hsv_to_rgb).
+/// in, short id). "Blue to Red Rainbow" checks an HSV sector edge, where VTK's HSV→RGB formula
+/// gives 1 + 2⁻⁵² (clamped in tf::color_convert::hsv_to_rgb).
 const PRESETS: [(&str, &str, &str); 4] = [
     ("Cool to Warm", "Diverging", "cool"),
     ("Blue to Red Rainbow", "HSV", "rainbow"),

@@ -1,4 +1,4 @@
-"""pvpython driver for tests/paraview_plugin.rs: loads the plugin, runs the filter on one
+"""pvpython driver for tests/paraview/paraview_plugin.rs: loads the plugin, runs the filter on one
 kind of input and writes what ParaView holds afterwards as JSON (argv: plugin, mode, volume,
 model, tokenizer, result.json, screenshot.png, size)."""
 import json

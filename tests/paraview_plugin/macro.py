@@ -1,9 +1,9 @@
-"""pvpython driver for tests/paraview_plugin.rs's macro test: runs paraview/t2tf_macro.py the
-way ParaView runs a macro (as __main__) on the active source, five times: the prompt from
-T2TF_PROMPT (a Wavelet source), from a NAME.prompt.txt next to a raw file, from nowhere, on
-a source that is not image data, and without a t2tf binary (the last three: one message, no
-traceback). Writes what ParaView holds as JSON
-(argv: macro, volume, model, tokenizer, result.json)."""
+"""pvpython driver for tests/paraview/paraview_plugin.rs's macro test: runs paraview/t2tf_macro.py
+the way ParaView runs a macro (as __main__) on the active source, five times: the prompt from
+T2TF_PROMPT (a Wavelet source), from a NAME.prompt.txt next to a raw file, from nowhere, on a
+source that is not image data, and without a t2tf binary (the last three: one message, no
+traceback). Writes what ParaView holds as JSON (argv: macro, volume, model, tokenizer,
+result.json)."""
 import json
 import os
 import runpy

@@ -1,4 +1,4 @@
-"""pvpython driver for tests/paraview_plugin.rs's pvserver test: connects to a running
+"""pvpython driver for tests/paraview/paraview_plugin.rs's pvserver test: connects to a running
 `mpiexec -n 2 pvserver`, opens a volume on the server, runs the plugin's remote path
 (t2tf_plugin.text_to_transfer_function: ResampleToImage proxy fetched, t2tf here, TF applied
 to the full data's display on the server) and writes what happened as JSON, a screenshot of

@@ -1,7 +1,7 @@
 //! Integration tests: the renderer: cases, gradients, defaults, presets.
 //!
 //! One test binary per area (`cargo test --release --test render`); each
-//! module is one former test file, so a test's name is `MODULE::TEST`.
+//! module covers one subject, so a test's name is `MODULE::TEST`.
 
 #[path = "../render_util/mod.rs"]
 mod render_util;

@@ -1,4 +1,4 @@
-//! The final-picture defaults (`t2tf render`, issue #11): level 0 and a 1/4-voxel step
+//! The final-picture defaults (`t2tf render`): level 0 and a 1/4-voxel step
 //! (`RenderOptions::final_quality`) against the converged render (level 0, 1/8 voxel, no early
 //! termination), on two shared volumes with a TF of narrow, nearly opaque peaks, the case
 //! where the step matters most (BENCHMARKS.md "Render defaults"); and the CLI's defaults are

@@ -1,7 +1,7 @@
 //! Integration tests: volume readers: fixtures, shared volumes, errors, hostile files, the fuzz corpus.
 //!
 //! One test binary per area (`cargo test --release --test volume`); each
-//! module is one former test file, so a test's name is `MODULE::TEST`.
+//! module covers one subject, so a test's name is `MODULE::TEST`.
 
 mod fuzz_replay;
 mod hostile_volumes;

@@ -1,8 +1,8 @@
-//! Issue #15: `.vti` arrays stored in compressed blocks (zlib, LZ4, LZMA; appended raw,
-//! appended base64, inline base64) or as uncompressed base64 are read block by block from a
-//! map of the file, not decoded whole. A load through the block source equals the in-memory
-//! build of the decoded values bit for bit; `read_box` equals slicing level 0; a corrupt block
-//! is an error naming the file and the block; `t2tf info` equals the load's statistics and
+//! Volumes larger than memory, block-decoded: `.vti` arrays stored in compressed blocks (zlib, LZ4,
+//! LZMA; appended raw, appended base64, inline base64) or as uncompressed base64 are read block by
+//! block from a map of the file, not decoded whole. A load through the block source equals the
+//! in-memory build of the decoded values bit for bit; `read_box` equals slicing level 0; a corrupt
+//! block is an error naming the file and the block; `t2tf info` equals the load's statistics and
 //! summarizes a compressed file whose decoded values do not fit its address space.
 
 use std::io::Write;
@@ -477,7 +477,7 @@ fn named_arrays_read_like_the_whole_decode() {
 
 /// `t2tf info` on a 384³ uint16 zlib `.vti` (108 MiB of values, a few MiB of file) under an
 /// address-space limit of 100 MiB, which the decoded values alone exceed: the block source
-/// reads it in bounded memory (the whole decode, before #15, failed here).
+/// reads it in bounded memory (decoding the whole array would fail here).
 #[test]
 fn info_on_a_compressed_vti_under_an_address_space_limit() {
     const N: usize = 384;

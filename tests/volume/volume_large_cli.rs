@@ -1,6 +1,7 @@
-//! Issue #15 through the binary: a generated 512³ uint8 `.raw` file (128 MiB; 512 MiB as f32)
-//! is summarized by `t2tf info` and optimized by a short `t2tf optimize` under an address-space
-//! limit of 400 MiB, below its f32 size: level 0 is read from the file's map, never made.
+//! A volume larger than memory, through the binary: a generated 512³ uint8 `.raw` file (128 MiB;
+//! 512 MiB as f32) is summarized by `t2tf info` and optimized by a short `t2tf optimize` under an
+//! address-space limit of 400 MiB, below its f32 size: level 0 is read from the file's map, never
+//! made.
 
 use std::io::Write;
 use std::path::Path;

@@ -1,8 +1,8 @@
-//! Issue #15: `volume::load` streams its levels from a source (a memory map of the file where
+//! Streaming loads: `volume::load` streams its levels from a source (a memory map of the file where
 //! the format allows it) and equals the in-memory build (`Volume::from_buffer` of the decoded
-//! values) bit for bit: statistics, every level's samples and brick ranges. Level 0 of a
-//! loaded volume is read from the source, not held, until asked for; `Level::read_box` equals
-//! slicing `Level::data`.
+//! values) bit for bit: statistics, every level's samples and brick ranges. Level 0 of a loaded
+//! volume is read from the source, not held, until asked for; `Level::read_box` equals slicing
+//! `Level::data`.
 
 use std::path::{Path, PathBuf};
 

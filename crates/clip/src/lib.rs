@@ -1,9 +1,9 @@
 //! CLIP in Rust: tokenizer, weights, text and image encoders, and the gradient of the image
 //! embedding with respect to the input pixels (what the optimizer back-propagates through).
 //!
-//! The model is written by hand on the `gemm` crate; candle's CLIP was measured first and gave no
-//! input gradient (its fused layer norm has no backward) and, rebuilt from differentiable candle
-//! ops, ran ViT-B/32 forward+backward ~5–8× slower than the target (BENCHMARKS.md, CLIP).
+//! The model is written by hand: candle's CLIP gives no input gradient (its fused layer norm has
+//! no backward) and, rebuilt from differentiable candle ops, runs ViT-B/32 forward+backward
+//! several times slower (BENCHMARKS.md, "CLIP").
 //!
 //! Parts, each reproducing a `transformers` modeling_clip.py class:
 //! `config` (CLIPConfig), `weights` (safetensors or PyTorch checkpoints, one file or shards;
@@ -11,9 +11,11 @@
 //! `layers` (Linear, LayerNorm, activations), `attention` (CLIPAttention), `encoder`
 //! (CLIPEncoderLayer), `tower` (CLIPEncoder), `text` (CLIPTextTransformer), `vision`
 //! (CLIPVisionTransformer), `load` (files and the Hugging Face cache), `preprocess`
-//! (CLIPImageProcessor's resize + crop), `similarity` (cosine and softmax); products by
-//! `packed` (weights packed at load, own AVX2 + FMA kernel, where that is the faster engine) or
-//! `matmul` (the `gemm` crate: AVX-512 machines, attention's per-head products).
+//! (CLIPImageProcessor's resize + crop), `similarity` (cosine and softmax). Weight products run
+//! on `packed` (weights packed at load for hand-written AVX-512F, AVX512_BF16 and AVX2 + FMA
+//! kernels: the engine wherever a SIMD f32 kernel exists) or `matmul` (the `gemm` crate, where
+//! no kernel applies); attention's per-head products are its own (`attention::mm`). How they
+//! run is a [`Compute`] value given at load (`Clip::load_files_with`), never a global setting.
 //!
 //! ```no_run
 //! # fn main() -> Result<(), t2tf_clip::ClipError> {

@@ -1,9 +1,9 @@
-//! Matrix products on the `gemm` crate (f32, AVX-512 kernels with the `x86-v4` feature).
-//!
-//! `gemm` was chosen by measurement (BENCHMARKS.md "CLIP", "Engine choice"): it reaches
-//! ~315 GFLOPS on both cores for the m = 150 shapes of three batched ViT-B/32 views, where
-//! matrixmultiply stays single-threaded. Operands are row-major slices; a transposed operand is
-//! expressed through strides, so no copy is ever made.
+//! Matrix products on the `gemm` crate (f32, AVX-512 kernels with the `x86-v4` feature): the
+//! engine of `Linear` layers where no packed SIMD kernel applies (`Engine::Crate`, see
+//! `super::packed`). `gemm` rather than matrixmultiply because it runs the m = 150 shapes of
+//! three batched ViT-B/32 views on every core, where matrixmultiply stays single-threaded.
+//! Operands are row-major slices; a transposed operand is expressed through strides, so no
+//! copy is ever made.
 
 use gemm::Parallelism;
 

@@ -8,9 +8,9 @@
 //! exactly the tokens before it in each caption through it. Counted in words, the 6,000
 //! built-in negatives (`data/captions.txt`) have ~50,000 tokens with their start and end
 //! tokens and ~23,000 distinct prefixes, so this does less than half the work of running each
-//! caption on its own tokens (measured: 26 → 12 CPU s per thread for the pool, f32, busy
-//! machine; `examples/bench_clip.rs --pool`), and the products are tall (thousands of rows),
-//! which the packed engine wants.
+//! caption on its own tokens (timings: BENCHMARKS.md, "Caption pool first use";
+//! `examples/bench_clip.rs --pool`), and the products are tall (thousands of rows), which the
+//! packed engine wants.
 //!
 //! Per node and head, the scores are summed over the head's channels in order, one multiply
 //! then one add each, and the output over the path in order: the operations

@@ -117,7 +117,7 @@ impl VisionModel {
         let s = self.cfg.image_size;
         let k = 3 * p * p;
         // Patch matrix [B g², 3p²], columns ordered (channel, ky, kx) like the conv weight;
-        // one patch per parallel task (these loops were serial, ~1 % of the 2-thread pass).
+        // one patch per parallel task (serial, these loops cost ~1 % of the 2-thread pass).
         let mut patches = vec![0.0f32; b * g * g * k];
         patches
             .par_chunks_mut(k)

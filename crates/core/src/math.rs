@@ -3,7 +3,7 @@
 /// e^x to within ~2e-7 relative for x in [−87, 88] (clamped outside, so never inf or NaN
 /// for finite x; NaN stays NaN). Straight-line code that inlines and vectorises: libm's `expf`
 /// is a call, and in the renderer's sample loop that call spilled every live float register
-/// (all of them are caller-saved); in CLIP it was 5 % of the profile.
+/// (all of them are caller-saved); in CLIP's activations the call shows in the profile.
 /// e^x = 2^n · e^g with n = round(x log2 e) and g = x − n ln 2 ∈ [−0.347, 0.347], e^g by its
 /// Taylor series to g⁶ (remainder g⁷/7! < 1.3e-7).
 #[inline(always)]

@@ -247,7 +247,7 @@ impl Shot<'_> {
     }
 }
 
-/// Where a renderer plugs in (ARCHITECTURE.md, "Backends"). A backend first *prepares* one mip
+/// Where a renderer plugs in (ARCHITECTURE.md, "Seams"). A backend first *prepares* one mip
 /// level of a volume — copies it into the layout and memory it samples from (the CPU backend:
 /// bricks with aprons in 8/16/32 bits; a GPU backend would upload a 3D texture and the brick
 /// ranges) — and then renders views of the prepared level and differentiates them. The

@@ -5,8 +5,8 @@
 //! all standing on `t2tf-core`. This crate is the pipeline: [`pipeline`] runs the main job
 //! (load a volume and a model, optimize, write the output set) and re-exports each stage under
 //! the name it has in the docs (`t2tf::volume`, `t2tf::render`, …), so one dependency reaches
-//! everything. The command-line interface is the binary's (src/main.rs, src/cli), not part of
-//! this API.
+//! everything. The command-line interface is the repository root's package `t2tf-cli`
+//! (src/lib.rs, src/commands), not part of this API.
 //!
 //! The benchmarks (`examples/bench_*`) need a few internals more; those are exported only
 //! through the `bench` module, which exists with the `bench` feature

@@ -864,8 +864,8 @@ impl Reducer {
 mod tests {
     use super::*;
 
-    /// The pyramid as it was built before the streaming [`Reducer`]: whole axes one after the
-    /// other. The reference the reducer must match bit for bit.
+    /// The pyramid built whole axes one after the other: the reference the streaming
+    /// [`Reducer`] must match bit for bit.
     /// Build all levels, level 0 taking ownership of `data` (stored by the renderer as `narrow`
     /// says; filtered levels are [`Narrow::Round16`]).
     fn build_by_axes(geometry: Geometry, data: Vec<f32>, narrow: Narrow) -> Vec<Level> {
@@ -1025,8 +1025,8 @@ mod tests {
         }
     }
 
-    /// The brick ranges as they were built before the row-wise [`BrickGridBuilder`]: point by
-    /// point, each into every brick it touches.
+    /// The brick ranges point by point, each into every brick it touches: the reference for
+    /// the row-wise [`BrickGridBuilder`].
     fn bricks_by_points(dims: [usize; 3], data: &[f32]) -> (Vec<f32>, Vec<f32>, Vec<bool>) {
         let counts = dims.map(|d| d.saturating_sub(1).max(1).div_ceil(BRICK_CELLS));
         let total = counts.iter().product();

@@ -1,5 +1,5 @@
 //! The AVX2 + FMA 6 × 16 micro-kernel (`Kernel::Avx2Fma`): the kernel of AVX2-only CPUs (Zen 3
-//! and older), unchanged from the single-kernel version of this engine.
+//! and older).
 
 use std::arch::x86_64::*;
 

@@ -20,9 +20,8 @@
 //! contiguous vector loads.
 //!
 //! Toolchain: AVX-512 intrinsics and `target_feature(enable = "avx512…")` are stable since Rust
-//! 1.89, above Cargo.toml's `rust-version` (1.85, which the dependency tree already exceeds:
-//! zip 7.4 needs 1.88); the crate's `rust-version` should say 1.89 (`clippy::msrv` on the
-//! module declaration says so for this file).
+//! 1.89, the workspace's `rust-version` (`clippy::msrv` on the module declaration says so for
+//! this file too).
 
 use std::arch::x86_64::*;
 

@@ -3,20 +3,15 @@
 //! AVX2 + FMA 6 × 16 (`avx2.rs`), AVX-512F 6 × 64 f32 and AVX512_BF16 6 × 64 bf16
 //! (`avx512.rs`), and scalar references (`portable.rs`).
 //!
-//! Why hand-written (workplace rule: only where the crate was measured to be the bottleneck).
-//! On the 2-core AMD EPYC (Zen 3, AVX2 + FMA, no AVX-512) a `perf record` of
-//! `bench_clip --image-only` (ViT-B/32, 3 views, forward + input backward) put 68 % of the
-//! cycles in `gemm`'s micro-kernel and 12.5 % in its packing (`gemm_common::…::imp_fastcall`):
-//! `gemm` repacks the weight operand on every call, and with m = 150 tokens each weight element
-//! packed is used for only 150 multiply-adds. The weights never change, so here each one is
-//! packed twice at load — `Wᵀ` for the forward `Y = X · Wᵀ` and `W` for the backward
-//! `dX = dY · W` — and a call only packs its activation operand (m × k, m = 150 rows, small).
-//! Measured with `bench_clip --reps 5`, both engines interleaved in one run on that machine
-//! (shared, GEMM peak 165–172 GFLOPS in the run): image forward + backward 0.379 s with the
-//! `gemm` crate (76 % of peak, 0.740 CPU s) against 0.327 s here (89 %, 0.652 CPU s); with
-//! one thread this micro-kernel runs at 85–94 GFLOPS, level with or above `gemm`'s 2048³.
-//! On AVX-512 CPUs the same argument holds with the 6 × 64 zmm kernel (see `avx512.rs` for its
-//! shape, measured on Zen 4, and BENCHMARKS.md for the whole pass).
+//! Why hand-written: the `gemm` crate was the bottleneck of the image pass. A profile of
+//! `bench_clip --image-only` (ViT-B/32, 3 views, forward + input backward) on an AVX2 machine put
+//! 68 % of the cycles in `gemm`'s micro-kernel and 12.5 % in its packing: `gemm` repacks the weight
+//! operand on every call, and with m = 150 tokens each weight element packed is used for only 150
+//! multiply-adds. The weights never change, so here each one is packed twice at load — `Wᵀ` for the
+//! forward `Y = X · Wᵀ` and `W` for the backward `dX = dY · W` — and a call only packs its
+//! activation operand (m × k, m = 150 rows, small). The same holds on AVX-512 CPUs with the 6 × 64
+//! zmm kernel (`avx512.rs` for its shape); the timings of every engine are in BENCHMARKS.md
+//! ("CLIP", "Image pass").
 //!
 //! Blocking (BLIS-style, one level since m is small): the micro-kernel computes a 6 × NR tile
 //! of C (NR = 16 or 64 columns) from 6 rows of A and an NR-column panel of packed B, kc rows at
@@ -37,11 +32,11 @@
 //! AVX-512F, else `Avx2Fma` with AVX2 + FMA, else `Portable`; for bf16 `Avx512Bf16` with
 //! AVX512_BF16 and nothing otherwise (bf16 is never emulated in a model: `Precision::Bf16`
 //! falls back to f32 where the CPU lacks it). `Engine::detect()` picks this engine wherever a
-//! SIMD f32 kernel exists and the `gemm` crate (`super::matmul`) elsewhere: on the Zen 4
-//! AVX-512 machine the 3-view image pass took 0.55 CPU s per run with `Avx512F`, 0.62 with
-//! `Avx2Fma` and 0.69 with the crate, interleaved in one run (BENCHMARKS.md). A packed matrix
-//! records its kernel, and packing refuses a kernel the CPU lacks, so a kernel never runs on a
-//! CPU without its instructions. Tests force any available kernel with `with_kernel`.
+//! SIMD f32 kernel exists and the `gemm` crate (`super::matmul`) elsewhere; it is faster on
+//! every machine measured (BENCHMARKS.md, "Image pass"). A packed matrix records its kernel,
+//! and packing refuses a kernel the CPU lacks, so a kernel never runs on a CPU without its
+//! instructions. The choice is a value, [`Compute`], given when a model is loaded; tests and
+//! benchmarks force any kernel the CPU has with [`Compute::with_kernel`].
 
 use std::mem::MaybeUninit;
 use std::ops::Range;
@@ -611,8 +606,8 @@ pub(crate) fn gemm_new(
 /// An elementwise step fused into the product: `post(row, col, values)` gets C's row `row`,
 /// columns `col .. col + values.len()`, once the product of that part is final, and may
 /// rewrite it; every element of C is passed exactly once, by the thread that computed it,
-/// while the tile is still in L1 (a separate pass re-reads C from L2/L3: the MLP activation
-/// was ≈ 5 % of the single-thread bf16 image pass that way).
+/// while the tile is still in L1 (a separate pass re-reads C from L2/L3: for the MLP
+/// activation that costs ≈ 5 % of the single-thread bf16 image pass).
 pub(crate) type Post<'a> = &'a (dyn Fn(usize, usize, &mut [f32]) + Sync);
 
 /// `gemm_new` with `post` applied to every finished block of C.
@@ -718,7 +713,8 @@ fn pack_a<'a>(
             let pack = |(i, dst): (usize, &mut [MaybeUninit<f32>])| {
                 let valid = MR.min(m - i * MR);
                 // Destination order (one contiguous MR-group per k step, six row streams
-                // in): this was 3 % of the image pass written row by row with strided stores.
+                // in): written row by row with strided stores, this packing is a visible
+                // share of the image pass.
                 let rows: [&[f32]; MR] = std::array::from_fn(|r| {
                     if r < valid {
                         &a[(i * MR + r) * lda..][..k]

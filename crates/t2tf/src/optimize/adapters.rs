@@ -5,8 +5,8 @@
 use crate::camera::{Camera, Orbit, UpAxis};
 use crate::clip::{Clip, ImageCache};
 use crate::image::Image;
-// The renderer the optimizer uses: the one backend there is today (ARCHITECTURE.md,
-// "Backends"). Everything below goes through the `render::Backend` trait.
+// The renderer the optimizer uses: the only backend (ARCHITECTURE.md, "Seams", render
+// backends). Everything below goes through the `render::Backend` trait.
 use crate::render::{self, Backend, CpuBackend, RenderOptions, Shot};
 use crate::tf::{ControlPoints, Lut, LutGrad, TfParams};
 use crate::volume::Volume;

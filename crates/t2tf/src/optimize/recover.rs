@@ -116,9 +116,8 @@ pub fn pixel_loss(
 }
 
 /// Mean over views of [`crate::image::psnr`] of the images `a` against `b` (dB, peak 1; 200 dB
-/// for equal views). Its own floor was 1e-12 (120 dB) before the one `psnr`: only a view
-/// reproduced exactly scores differently, and the recovery test's thresholds (tests/optimize)
-/// were set on views that are not.
+/// for equal views). Only a view reproduced exactly reaches that cap; the recovery test's
+/// thresholds (tests/optimize) are set on views that are not.
 pub fn psnr(a: &[Image], b: &[Image]) -> f64 {
     let total: f64 = a.iter().zip(b).map(|(x, y)| crate::image::psnr(x, y)).sum();
     total / a.len().max(1) as f64

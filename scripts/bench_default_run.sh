@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# Issue #14's whole-run measurement in one run: the default optimization (300 steps x 3 views,
-# seed 0, the 256^3 aneurism from ../shared, ViT-B/32-shaped random CLIP weights) with
-# examples/bench_optimize, built
-#   - before: at the commit before the clip-simd merge (the last commit without issue #14's
-#     work), in its own git worktree and target directory;
+# The default run from an empty cache, this tree against a reference commit: the default
+# optimization (300 steps x 3 views, seed 0, the 256^3 aneurism from ../shared, ViT-B/32-shaped
+# random CLIP weights) with examples/bench_optimize, built
+#   - before: at a reference commit (default: the commit before the clip-simd merge, the last
+#     one without the AVX-512 and bf16 CLIP kernels), in its own git worktree and target
+#     directory;
 #   - after: from this working tree;
 # and run as: before f32, after f32, after --precision bf16 (skipped where the CPU lacks
 # AVX512_BF16), one after the other, each with an empty caption-embedding cache (so the first
@@ -11,7 +12,7 @@
 # from four held-out views, `bench_optimize --compare-tfs`), and a table.
 #
 # Usage, from anywhere in the repository (needs ../shared next to the repository root):
-#     scripts/bench_issue14.sh [WORKDIR]
+#     scripts/bench_default_run.sh [WORKDIR]
 # WORKDIR (default: a new temporary directory) receives the worktree, builds, logs and TFs.
 # Environment: BEFORE_REV overrides the "before" commit; THREADS sets rayon's thread count
 # (default: rayon's choice, all cores); STEPS_ARGS adds flags to every bench_optimize run
@@ -21,7 +22,7 @@ set -euo pipefail
 
 repo=$(git rev-parse --show-toplevel)
 cd "$repo"
-work=${1:-$(mktemp -d -t t2tf-issue14.XXXXXX)}
+work=${1:-$(mktemp -d -t t2tf-default-run.XXXXXX)}
 mkdir -p "$work"
 work=$(cd "$work" && pwd)
 
@@ -30,7 +31,7 @@ work=$(cd "$work" && pwd)
 if [[ -z "${BEFORE_REV:-}" ]]; then
     merge=$(git log --first-parent --merges --format=%H --grep="^Merge branch 'clip-simd'" | tail -n 1)
     if [[ -z "$merge" ]]; then
-        echo "bench_issue14: no merge of 'clip-simd' in this history; set BEFORE_REV" >&2
+        echo "bench_default_run: no merge of 'clip-simd' in this history; set BEFORE_REV" >&2
         exit 1
     fi
     BEFORE_REV=$(git rev-parse "$merge^1")
@@ -52,7 +53,7 @@ if [[ -n "${THREADS:-}" ]]; then
     threads_args=(--threads "$THREADS")
 fi
 
-# The benchmarks need the `bench` feature since issue #16; a tree from before it has none.
+# The benchmarks need the `bench` feature; a tree older than that feature has none.
 bench_features() {
     if grep -q '^bench = ' "$1/Cargo.toml"; then
         echo "--features=bench"
