@@ -127,12 +127,12 @@ fn a_missing_raw_flag_is_named() {
         std::fs::write(&p, [0u8; 64]).unwrap();
         fails(
             &["info", s(&p), "--dims", "4,4,4"],
-            &[name, "--dtype TYPE is missing"],
+            &[name, "the scalar type --dtype is missing"],
             &[rule, "--dims"],
         );
         fails(
             &["info", s(&p), "--dtype", "uint8"],
-            &[name, "--dims X,Y,Z is missing"],
+            &[name, "the dimensions --dims are missing"],
             &[rule, "--dtype"],
         );
     }

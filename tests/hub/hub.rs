@@ -393,8 +393,8 @@ fn offline_answers_from_the_cache_or_says_what_to_do() {
             REPO,
             &folder,
             "HF_HUB_OFFLINE",
-            "t2tf model fetch acme/tiny",
-            "--model DIR",
+            "fetch acme/tiny with network access",
+            "a local `model` folder",
         ],
     );
     let e = get(&off, "acme/never", "main", CONFIG).unwrap_err();
@@ -438,7 +438,7 @@ fn a_cut_download_leaves_nothing_trusted_and_resumes_with_range() {
     hub_server.inject(WEIGHTS, Fault::CutAfter(1000), 3);
     let e = get(&hub, REPO, "main", WEIGHTS).unwrap_err();
     assert!(matches!(e, HubError::Network { .. }), "{e:?}");
-    assert_mentions(&e.to_string(), &[WEIGHTS, "/cdn/", "t2tf model fetch"]);
+    assert_mentions(&e.to_string(), &[WEIGHTS, "/cdn/", "with network access"]);
 
     let folder = hub.repo(REPO, "main").cache_folder();
     let sha = sha256(&weights());
@@ -572,7 +572,7 @@ fn network_down_falls_back_to_the_cache_or_names_the_url() {
             REPO,
             &format!("{endpoint}/{REPO}/resolve/main/{CONFIG}"),
             "HF_HUB_OFFLINE",
-            "--model DIR",
+            "a local `model` folder",
         ],
     );
 

@@ -199,7 +199,7 @@ fn cache_budget_errors_and_whole_copies() {
     let cams = cameras(&v);
     match CpuBackend::default().prepare_within(&v, 0, 100) {
         Err(e @ RenderError::BrickBudget { .. }) => {
-            assert!(e.to_string().contains("--max-memory"), "{e}")
+            assert!(e.to_string().contains("memory `budget`"), "{e}")
         }
         other => panic!("expected a budget error, got {other:?}"),
     }
@@ -207,7 +207,10 @@ fn cache_budget_errors_and_whole_copies() {
     match render_all(&tiny, &lut, &cams, &bg) {
         Err(e @ RenderError::BrickBudget { .. }) => {
             let msg = e.to_string();
-            assert!(msg.contains("tile") && msg.contains("--level"), "{msg}")
+            assert!(
+                msg.contains("tile") && msg.contains("coarser `level`"),
+                "{msg}"
+            )
         }
         other => panic!("expected a budget error, got {:?}", other.map(|r| r.len())),
     }

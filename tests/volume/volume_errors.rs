@@ -61,7 +61,7 @@ fn raw_errors() {
     let p = write(d.path(), "cube_4x4x4_uint9.raw", &[0u8; 64]);
     expect_err(&p, &none(), "unknown scalar type 'uint9'");
     let p = write(d.path(), "cube.raw", &[0u8; 64]);
-    expect_err(&p, &none(), "--dims X,Y,Z and --dtype");
+    expect_err(&p, &none(), "give `dims` (X,Y,Z) and `dtype`");
     let zero = ReadOptions {
         dims: Some([4, 0, 4]),
         dtype: Some(ScalarType::U8),
@@ -81,7 +81,7 @@ fn raw_errors() {
     expect_err(
         &fixture("ramp_7x6x5_uint16.raw"),
         &arr,
-        "--array applies to .vti",
+        "`array` applies to .vti",
     );
 }
 
@@ -105,7 +105,7 @@ fn path_errors() {
     expect_err(
         &fixture("ascii_float32.vti"),
         &dims,
-        "--dims applies to .raw",
+        "`dims` applies to .raw",
     );
 }
 

@@ -32,7 +32,9 @@
 
 #![warn(missing_docs)]
 
-/// A Hugging Face Hub client that shares Python `huggingface_hub`'s cache.
+// The Hugging Face Hub client (feature `hub`, on by default; without it models load from
+// local folders only). Its own docs are inside the module.
+#[cfg(feature = "hub")]
 pub mod hub;
 
 mod attention;

@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use super::ClipError;
+#[cfg(feature = "hub")]
 use crate::hub::{Hub, HubError, HubRepo, HubSettings};
 
 /// The default model (`--model` left out): OpenAI's CLIP ViT-B/32, the paper's model.
@@ -92,16 +93,47 @@ pub struct ModelFiles {
 }
 
 /// Resolve a request with the Hub settings of the environment (`HF_*` variables).
+#[cfg(feature = "hub")]
 pub fn resolve(req: &ModelRequest) -> Result<ModelFiles, ClipError> {
     resolve_with(req, &Hub::new(HubSettings::from_env()))
 }
 
+/// Resolve a request: a local folder only (this build has no Hub client, feature `hub`).
+#[cfg(not(feature = "hub"))]
+pub fn resolve(req: &ModelRequest) -> Result<ModelFiles, ClipError> {
+    if let Some(files) = resolve_local(req)? {
+        return Ok(files);
+    }
+    Err(ClipError::Missing(format!(
+        "{}: not a local model folder, and this build has no Hugging Face Hub client (feature \
+         `hub` of t2tf-clip)",
+        req.model
+    )))
+}
+
 /// Resolve a request; repo ids go through `hub`.
+#[cfg(feature = "hub")]
 pub fn resolve_with(req: &ModelRequest, hub: &Hub) -> Result<ModelFiles, ClipError> {
+    if let Some(files) = resolve_local(req)? {
+        return Ok(files);
+    }
+    let repo = hub.repo(&req.model, &req.revision);
+    resolve_files(
+        &RepoFiles {
+            repo,
+            offline: hub.settings().offline,
+        },
+        req.tokenizer.as_deref(),
+    )
+}
+
+/// A request for a local folder resolved; `None` for a Hub repo id; an error for anything
+/// else.
+fn resolve_local(req: &ModelRequest) -> Result<Option<ModelFiles>, ClipError> {
     let path = Path::new(&req.model);
     if path.is_dir() {
         check_dir(path, req.tokenizer.is_some())?;
-        return resolve_files(&LocalDir(path), req.tokenizer.as_deref());
+        return resolve_files(&LocalDir(path), req.tokenizer.as_deref()).map(Some);
     }
     if path.exists() {
         return Err(ClipError::Missing(format!(
@@ -116,14 +148,7 @@ pub fn resolve_with(req: &ModelRequest, hub: &Hub) -> Result<ModelFiles, ClipErr
             req.model
         )));
     }
-    let repo = hub.repo(&req.model, &req.revision);
-    resolve_files(
-        &RepoFiles {
-            repo,
-            offline: hub.settings().offline,
-        },
-        req.tokenizer.as_deref(),
-    )
+    Ok(None)
 }
 
 /// Everything a model directory lacks, said at once.
@@ -183,11 +208,13 @@ impl FileSource for LocalDir<'_> {
     }
 }
 
+#[cfg(feature = "hub")]
 struct RepoFiles<'a> {
     repo: HubRepo<'a>,
     offline: bool,
 }
 
+#[cfg(feature = "hub")]
 impl FileSource for RepoFiles<'_> {
     fn get(&self, name: &str) -> Result<Option<PathBuf>, ClipError> {
         self.repo.get(name).map_err(hub_error)
@@ -219,6 +246,7 @@ impl FileSource for RepoFiles<'_> {
     }
 }
 
+#[cfg(feature = "hub")]
 fn hub_error(e: HubError) -> ClipError {
     ClipError::Missing(e.to_string())
 }

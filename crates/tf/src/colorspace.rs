@@ -142,8 +142,8 @@ impl ColorMap {
     }
 
     /// The map as an RGB-linear polyline within `tol` (max abs per channel, at the samples)
-    /// of this map: each segment sampled [`SAMPLES_PER_SEGMENT`] times, jumps as ramps of
-    /// [`JUMP`] of the range, then simplified. RGB maps without a repeated x come back
+    /// of this map: each segment sampled `SAMPLES_PER_SEGMENT` times, jumps as ramps of
+    /// `JUMP` of the range, then simplified. RGB maps without a repeated x come back
     /// unchanged.
     pub fn rgb_linear(&self, tol: f64) -> Vec<(f64, [f64; 3])> {
         let jumps = self.points.windows(2).any(|w| w[0].0 == w[1].0);

@@ -85,7 +85,7 @@ impl TfParams {
 
     /// The parameters whose [`TfParams::control_points`] reproduce `cp` (used to initialize).
     ///
-    /// Spacings are scaled so the mean softplus spacing is 1, which keeps [`SPACING_FLOOR`] a
+    /// Spacings are scaled so the mean softplus spacing is 1, which keeps `SPACING_FLOOR` a
     /// fixed fraction of a typical spacing. Spacings below the floor come back at the floor;
     /// σ and colours at the ends of their ranges come back within the `ATANH_CLAMP` margin.
     /// `cp` is expected to pass [`ControlPoints::validate`].

@@ -179,7 +179,7 @@ pub struct SimplifiedCurves {
     pub rgb: Vec<(f64, [f64; 3])>,
 }
 
-/// Dense sampling then simplification, each with its share of `tol` (see [`dense_curves`]):
+/// Dense sampling then simplification, each with its share of `tol` (see `dense_curves`):
 /// the result is within `tol` of the true opacity 1 − exp(−σ(x)·ratio) and colour everywhere
 /// except near detail narrower than `min_gap` (there it follows the true curve to within a
 /// few gaps). The kept points are dense samples, so no two of either curve, nor of both
