@@ -66,7 +66,7 @@ pub(super) enum InflateError {
     #[error("lzma: decompresses to more than {want} bytes")]
     LzmaTooLong { want: usize },
     #[error("lzma: {0}")]
-    Lzma(lzma_rs::error::Error),
+    Lzma(std::io::Error),
     #[error("decompressed to {got} bytes, expected {want}")]
     WrongSize { got: usize, want: usize },
 }
@@ -197,26 +197,32 @@ pub(super) fn unpack(
     Ok(out)
 }
 
-/// A writer into a fixed slice that fails (and notes it) once more than fits is written.
-struct Bounded<'a> {
-    dst: &'a mut [u8],
-    len: usize,
-    over: bool,
-}
+/// The largest LZMA dictionary a block may declare: VTK's presets use at most 64 MiB, and a
+/// hostile header could otherwise make the decoder allocate gigabytes before any output.
+const LZMA_DICT_LIMIT_KIB: u32 = 64 * 1024;
 
-impl std::io::Write for Bounded<'_> {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let Some(room) = self.dst.get_mut(self.len..self.len + buf.len()) else {
-            self.over = true;
-            return Err(std::io::Error::other("more data than declared"));
-        };
-        room.copy_from_slice(buf);
-        self.len += buf.len();
-        Ok(buf.len())
+/// Read `reader` into `dst` and one byte past it: the bytes it gave, or `None` when it has
+/// more than `dst` holds. The decoder streams, so a small input that expands without limit
+/// costs `dst` and nothing more.
+fn read_bounded(mut reader: impl std::io::Read, dst: &mut [u8]) -> std::io::Result<Option<usize>> {
+    let mut len = 0;
+    while len < dst.len() {
+        match reader.read(&mut dst[len..]) {
+            Ok(0) => return Ok(Some(len)),
+            Ok(n) => len += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
     }
-
-    fn flush(&mut self) -> std::io::Result<()> {
-        Ok(())
+    // Full: the stream must end here (this read also checks its integrity).
+    let mut more = [0u8; 1];
+    loop {
+        match reader.read(&mut more) {
+            Ok(0) => return Ok(Some(len)),
+            Ok(_) => return Ok(None),
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
     }
 }
 
@@ -239,19 +245,12 @@ pub(super) fn inflate(c: Compressor, input: &[u8], dst: &mut [u8]) -> Result<(),
             lz4_flex::block::decompress_into(input, dst).map_err(InflateError::Lz4)?
         }
         Compressor::Lzma => {
-            // VTK's LZMA compressor writes .xz streams (lzma_easy_buffer_encode).
-            // Bounded by the declared size: a small stream can expand without limit.
-            let mut out = Bounded {
-                dst,
-                len: 0,
-                over: false,
-            };
-            let r = lzma_rs::xz_decompress(&mut std::io::Cursor::new(input), &mut out);
-            if out.over {
-                return Err(InflateError::LzmaTooLong { want });
-            }
-            r.map_err(InflateError::Lzma)?;
-            out.len
+            // VTK's LZMA compressor writes .xz streams (lzma_easy_buffer_encode), decoded as
+            // a stream into the declared size: a small stream can expand without limit.
+            let xz = lzma_rust2::XzReader::new_mem_limit(input, false, LZMA_DICT_LIMIT_KIB);
+            read_bounded(xz, dst)
+                .map_err(InflateError::Lzma)?
+                .ok_or(InflateError::LzmaTooLong { want })?
         }
     };
     if got != want {
@@ -294,11 +293,68 @@ mod tests {
         assert!(header_int(&s, 4, l(ByteOrder::Little, 8)).is_err());
     }
 
+    /// `data` as an .xz stream (VTK's default is preset 6; the lower ones encode faster).
+    fn xz_preset(data: &[u8], preset: u32) -> Vec<u8> {
+        use std::io::Write;
+        let opts = lzma_rust2::XzOptions::with_preset(preset);
+        let mut w = lzma_rust2::XzWriter::new(Vec::new(), opts).unwrap();
+        w.write_all(data).unwrap();
+        w.finish().unwrap()
+    }
+
+    fn xz(data: &[u8]) -> Vec<u8> {
+        xz_preset(data, 6)
+    }
+
+    #[test]
+    fn lzma_round_trips_and_refuses_corruption() {
+        let data: Vec<u8> = (0..100_000u32).map(|i| (i * 7 % 251) as u8).collect();
+        let packed = xz(&data);
+        let mut dst = vec![0u8; data.len()];
+        inflate(Compressor::Lzma, &packed, &mut dst).unwrap();
+        assert_eq!(dst, data);
+        // Shorter than declared.
+        let mut long = vec![0u8; data.len() + 1];
+        assert!(inflate(Compressor::Lzma, &packed, &mut long).is_err());
+        // A flipped byte in the middle: an error, never a panic.
+        let mut bad = packed.clone();
+        let mid = bad.len() / 2;
+        bad[mid] ^= 0x55;
+        assert!(inflate(Compressor::Lzma, &bad, &mut dst).is_err());
+    }
+
+    /// An expansion far past the declared size is read only as far as the declared size:
+    /// the decoder consumes a sliver of the stream and never makes the rest.
+    #[test]
+    fn lzma_bomb_is_read_only_to_the_declared_size() {
+        struct Counting<'a>(&'a [u8], std::rc::Rc<std::cell::Cell<usize>>);
+        impl std::io::Read for Counting<'_> {
+            fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+                let n = self.0.read(buf)?;
+                self.1.set(self.1.get() + n);
+                Ok(n)
+            }
+        }
+        // 64 MiB of pseudo-random bytes from a short repeating pattern compress to little.
+        let pattern: Vec<u8> = (0..4096u32).map(|i| ((i * 2654435761) >> 13) as u8).collect();
+        let bomb = xz_preset(&pattern.repeat(1 << 14), 0);
+        let mut dst = vec![0u8; 512];
+        let read = std::rc::Rc::new(std::cell::Cell::new(0));
+        let reader = lzma_rust2::XzReader::new(Counting(&bomb, read.clone()), false);
+        assert_eq!(read_bounded(reader, &mut dst).unwrap(), None);
+        assert_eq!(&dst[..], &pattern[..512]);
+        assert!(
+            read.get() * 10 < bomb.len(),
+            "read {} of {} bytes",
+            read.get(),
+            bomb.len()
+        );
+    }
+
     #[test]
     fn lzma_stops_at_the_declared_size() {
         // A small stream that expands to 1 MiB, declared as 512 bytes.
-        let mut xz = Vec::new();
-        lzma_rs::xz_compress(&mut &vec![0u8; 1 << 20][..], &mut xz).unwrap();
+        let xz = xz_preset(&vec![0u8; 1 << 20], 0);
         let mut dst = vec![0u8; 512];
         let e = inflate(Compressor::Lzma, &xz, &mut dst)
             .unwrap_err()
