@@ -161,7 +161,9 @@ pub fn preprocess(im: &Image, size: usize) -> Image {
 }
 
 /// Resize so the shortest side is `size` (bicubic), then centre-crop to `crop`×`crop`
-/// (`crop` ≤ `size`).
+/// (`crop` ≤ `size`). Only the cropped window is resampled, from the input rows it reaches:
+/// the same values as resizing whole and cropping, in memory bounded by `crop` and the input,
+/// whatever the picture's shape (a 1 × 1,000,000 picture would resize to 224 × 224,000,000).
 fn resize_and_crop(im: &Image, size: usize, crop: usize) -> Image {
     let (w, h) = (im.width, im.height);
     if w == 0 || h == 0 || size == 0 || crop > size {
@@ -179,23 +181,34 @@ fn resize_and_crop(im: &Image, size: usize, crop: usize) -> Image {
             size,
         )
     };
-    let resized = if (nw, nh) == (w, h) {
-        im.clone()
-    } else {
-        let horiz = resample_axis(&im.data, w, h, nw, true);
-        let data = resample_axis(&horiz, nw, h, nh, false);
-        Image {
-            width: nw,
-            height: nh,
-            data,
-        }
-    };
     // As transformers' center_crop: the offset rounds down, as for an integer division.
     let (top, left) = ((nh - crop) / 2, (nw - crop) / 2);
     let mut out = Image::new(crop, crop);
-    for y in 0..crop {
-        let src = &resized.data[((top + y) * nw + left) * 3..][..crop * 3];
-        out.data[y * crop * 3..][..crop * 3].copy_from_slice(src);
+    if (nw, nh) == (w, h) {
+        for y in 0..crop {
+            let src = &im.data[((top + y) * w + left) * 3..][..crop * 3];
+            out.data[y * crop * 3..][..crop * 3].copy_from_slice(src);
+        }
+        return out;
+    }
+    let xs = taps(w, nw, left..left + crop);
+    let ys = taps(h, nh, top..top + crop);
+    // The input rows the cropped rows reach.
+    let r0 = ys.iter().map(|t| t.0).min().unwrap_or(0);
+    let r1 = ys.iter().map(|t| t.0 + t.1.len()).max().unwrap_or(0);
+    // Horizontal pass over those rows, cropped columns only: (r1 − r0) × crop.
+    let mut horiz = vec![0.0f32; (r1 - r0) * crop * 3];
+    for (row, y) in (r0..r1).enumerate() {
+        for (x, (lo, ws)) in xs.iter().enumerate() {
+            let px = convolve(ws, |j| &im.data[(y * w + lo + j) * 3..][..3]);
+            horiz[(row * crop + x) * 3..][..3].copy_from_slice(&px);
+        }
+    }
+    for (y, (lo, ws)) in ys.iter().enumerate() {
+        for x in 0..crop {
+            let px = convolve(ws, |j| &horiz[((lo + j - r0) * crop + x) * 3..][..3]);
+            out.data[(y * crop + x) * 3..][..3].copy_from_slice(&px);
+        }
     }
     out
 }
@@ -213,14 +226,14 @@ fn cubic(x: f64) -> f64 {
     }
 }
 
-/// Resample RGB data along x (`horizontal`) or y to `out_len` samples.
-fn resample_axis(data: &[f32], w: usize, h: usize, out_len: usize, horizontal: bool) -> Vec<f32> {
-    let in_len = if horizontal { w } else { h };
+/// For each output sample in `range` of an axis resampled from `in_len` to `out_len`: the
+/// first input index and the normalized weights of the inputs from there (Pillow's bicubic
+/// resampling, widened by the scale when shrinking).
+fn taps(in_len: usize, out_len: usize, range: std::ops::Range<usize>) -> Vec<(usize, Vec<f64>)> {
     let scale = in_len as f64 / out_len as f64;
     let filter_scale = scale.max(1.0);
     let support = 2.0 * filter_scale;
-    // Per output sample: first input index and normalized weights.
-    let taps: Vec<(usize, Vec<f64>)> = (0..out_len)
+    range
         .map(|i| {
             let center = (i as f64 + 0.5) * scale;
             let lo = ((center - support + 0.5).floor().max(0.0)) as usize;
@@ -236,39 +249,104 @@ fn resample_axis(data: &[f32], w: usize, h: usize, out_len: usize, horizontal: b
                     .collect(),
             )
         })
-        .collect();
-    let (ow, oh) = if horizontal {
-        (out_len, h)
-    } else {
-        (w, out_len)
-    };
-    let mut out = vec![0.0f32; ow * oh * 3];
-    for y in 0..oh {
-        for x in 0..ow {
-            let (i, fixed) = if horizontal { (x, y) } else { (y, x) };
-            let (lo, ws) = &taps[i];
-            let mut acc = [0.0f64; 3];
-            for (j, wt) in ws.iter().enumerate() {
-                let src = if horizontal {
-                    (fixed * w + lo + j) * 3
-                } else {
-                    ((lo + j) * w + fixed) * 3
-                };
-                for c in 0..3 {
-                    acc[c] += wt * data[src + c] as f64;
-                }
-            }
-            for c in 0..3 {
-                out[(y * ow + x) * 3 + c] = acc[c].clamp(0.0, 1.0) as f32;
-            }
+        .collect()
+}
+
+/// One RGB output sample: the weighted sum of the inputs `pixel(j)`, clamped to [0, 1].
+fn convolve<'a>(ws: &[f64], pixel: impl Fn(usize) -> &'a [f32]) -> [f32; 3] {
+    let mut acc = [0.0f64; 3];
+    for (j, wt) in ws.iter().enumerate() {
+        let p = pixel(j);
+        for c in 0..3 {
+            acc[c] += wt * p[c] as f64;
         }
     }
-    out
+    acc.map(|v| v.clamp(0.0, 1.0) as f32)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The whole resize then the crop, written plainly: what the window must equal.
+    fn resize_whole_then_crop(im: &Image, size: usize, crop: usize) -> Image {
+        let (w, h) = (im.width, im.height);
+        let (nw, nh) = if w <= h {
+            (
+                size,
+                ((size as f64 * h as f64 / w as f64) as usize).max(size),
+            )
+        } else {
+            (
+                ((size as f64 * w as f64 / h as f64) as usize).max(size),
+                size,
+            )
+        };
+        let xs = taps(w, nw, 0..nw);
+        let ys = taps(h, nh, 0..nh);
+        let mut horiz = vec![0.0f32; nw * h * 3];
+        for y in 0..h {
+            for (x, (lo, ws)) in xs.iter().enumerate() {
+                let px = convolve(ws, |j| &im.data[(y * w + lo + j) * 3..][..3]);
+                horiz[(y * nw + x) * 3..][..3].copy_from_slice(&px);
+            }
+        }
+        let (top, left) = ((nh - crop) / 2, (nw - crop) / 2);
+        let mut out = Image::new(crop, crop);
+        for y in 0..crop {
+            let (lo, ws) = &ys[top + y];
+            for x in 0..crop {
+                let px = convolve(ws, |j| &horiz[((lo + j) * nw + left + x) * 3..][..3]);
+                out.data[(y * crop + x) * 3..][..3].copy_from_slice(&px);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_window_equals_the_whole_resize_bit_for_bit() {
+        for (w, h, size, crop) in [
+            (300, 200, 224, 224),
+            (97, 431, 64, 48),
+            (640, 480, 256, 224),
+            (5, 3, 32, 32),
+        ] {
+            let data = (0..w * h * 3)
+                .map(|i| ((i * 2654435761usize) % 1000) as f32 / 999.0)
+                .collect();
+            let im = Image {
+                width: w,
+                height: h,
+                data,
+            };
+            let a = resize_and_crop(&im, size, crop);
+            let b = resize_whole_then_crop(&im, size, crop);
+            assert!(
+                a.data
+                    .iter()
+                    .zip(&b.data)
+                    .all(|(x, y)| x.to_bits() == y.to_bits()),
+                "{w}x{h}"
+            );
+        }
+    }
+
+    /// Pictures of extreme shape resize within memory bounded by the crop and the input.
+    #[test]
+    fn extreme_shapes_cost_the_window_only() {
+        for (w, h) in [(1, 1_000_000), (100_000, 1)] {
+            let im = Image::filled(w, h, [0.25, 0.5, 0.75]);
+            let t = std::time::Instant::now();
+            let out = preprocess(&im, 224);
+            assert_eq!((out.width, out.height), (224, 224));
+            assert!(out.data.chunks_exact(3).all(|p| (p[1] - 0.5).abs() < 1e-6));
+            assert!(
+                t.elapsed().as_secs_f64() < 5.0,
+                "{w}x{h}: {:?}",
+                t.elapsed()
+            );
+        }
+    }
 
     #[test]
     fn constant_image_stays_constant_and_shapes_are_right() {

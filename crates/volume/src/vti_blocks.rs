@@ -336,7 +336,9 @@ mod tests {
             }
         }
         // 64 MiB of pseudo-random bytes from a short repeating pattern compress to little.
-        let pattern: Vec<u8> = (0..4096u32).map(|i| ((i * 2654435761) >> 13) as u8).collect();
+        let pattern: Vec<u8> = (0..4096u32)
+            .map(|i| ((i * 2654435761) >> 13) as u8)
+            .collect();
         let bomb = xz_preset(&pattern.repeat(1 << 14), 0);
         let mut dst = vec![0u8; 512];
         let read = std::rc::Rc::new(std::cell::Cell::new(0));
