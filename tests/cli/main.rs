@@ -8,3 +8,4 @@ mod cli_messages;
 mod hostile_cli;
 #[path = "../limits_util/mod.rs"]
 mod limits_util;
+mod special_inputs;

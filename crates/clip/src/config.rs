@@ -166,7 +166,7 @@ pub struct ConfigError(pub String);
 impl ClipConfig {
     /// Read `config.json`; errors name the file and the offending field.
     pub fn from_file(path: &Path) -> Result<ClipConfig, ClipError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ClipError::Io {
+        let text = t2tf_core::input::read_to_string(path).map_err(|e| ClipError::Io {
             path: path.to_path_buf(),
             source: e,
         })?;

@@ -153,6 +153,16 @@ fn resolve_local(req: &ModelRequest) -> Result<Option<ModelFiles>, ClipError> {
 
 /// Everything a model directory lacks, said at once.
 fn check_dir(dir: &Path, own_tokenizer: bool) -> Result<(), ClipError> {
+    // A name that is there but not a regular file (a pipe would block the read): said as such.
+    let names = [CONFIG, TOKENIZER]
+        .into_iter()
+        .chain(WEIGHT_FILES.iter().map(|w| w.0));
+    for name in names {
+        let path = dir.join(name);
+        if let Ok(meta) = std::fs::metadata(&path) {
+            t2tf_core::input::regular(&meta).map_err(|e| ClipError::Io { path, source: e })?;
+        }
+    }
     let mut missing = Vec::new();
     if !dir.join(CONFIG).is_file() {
         missing.push(CONFIG.to_string());
@@ -319,7 +329,7 @@ fn shard_names(index: &Path) -> Result<Vec<String>, ClipError> {
         path: index.to_path_buf(),
         msg,
     };
-    let text = std::fs::read_to_string(index).map_err(|e| ClipError::Io {
+    let text = t2tf_core::input::read_to_string(index).map_err(|e| ClipError::Io {
         path: index.to_path_buf(),
         source: e,
     })?;

@@ -53,7 +53,7 @@ impl Preprocessing {
     /// false` means mean 0 and std 1. A crop that is not `image_size` (the tower could not
     /// take it), a non-positive std or a malformed value is an error naming the file.
     pub fn from_file(path: &Path, image_size: usize) -> Result<Preprocessing, ClipError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ClipError::Io {
+        let text = t2tf_core::input::read_to_string(path).map_err(|e| ClipError::Io {
             path: path.to_path_buf(),
             source: e,
         })?;

@@ -24,10 +24,12 @@ impl ClipTokenizer {
             path: path.to_path_buf(),
             msg,
         };
-        if !path.is_file() {
+        if !path.exists() {
             return Err(err("file not found".into()));
         }
-        let mut tok = Tokenizer::from_file(path).map_err(|e| err(format!("cannot parse: {e}")))?;
+        let bytes = t2tf_core::input::read(path).map_err(|e| err(e.to_string()))?;
+        let mut tok =
+            Tokenizer::from_bytes(&bytes).map_err(|e| err(format!("cannot parse: {e}")))?;
         tok.with_truncation(Some(TruncationParams {
             max_length: context,
             ..Default::default()

@@ -117,7 +117,7 @@ fn sniff(path: &Path) -> Result<Format, ClipError> {
         source,
     };
     let mut head = Vec::with_capacity(64);
-    std::fs::File::open(path)
+    t2tf_core::input::open(path)
         .map_err(io)?
         .take(64)
         .read_to_end(&mut head)
@@ -167,7 +167,7 @@ impl SafetensorsFile {
             path: path.to_path_buf(),
             source,
         };
-        let file = std::fs::File::open(path).map_err(io)?;
+        let file = t2tf_core::input::open(path).map_err(io)?;
         // SAFETY: the file is opened read-only; like every mmap reader we rely on nobody
         // truncating the weights while the model loads (they are copied out right away).
         let mmap = unsafe { Mmap::map(&file) }.map_err(io)?;

@@ -3,7 +3,6 @@
 //! This is the currency between the renderer and CLIP: the renderer writes `Image`s, CLIP's
 //! image encoder reads them, and CLIP's backward returns a gradient of the same shape.
 
-use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
@@ -164,7 +163,7 @@ impl Image {
 
     /// [`Image::load_png`], the decoded size checked against `budget` before allocating.
     pub fn load_png_within(path: &Path, budget: Budget) -> Result<Image, ImageError> {
-        let file = File::open(path).map_err(|source| ImageError::Open {
+        let file = crate::input::open(path).map_err(|source| ImageError::Open {
             path: path.to_path_buf(),
             source,
         })?;

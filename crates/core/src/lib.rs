@@ -9,6 +9,7 @@
 
 pub mod fs;
 pub mod image;
+pub mod input;
 pub mod math;
 pub mod memory;
 pub mod units;

@@ -56,7 +56,7 @@ pub(crate) fn read_text(path: &Path) -> Result<String, FormatError> {
     if path.is_dir() {
         return Err(FormatError::file(path, "is a directory, not a file"));
     }
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let bytes = t2tf_core::input::read(path).map_err(|e| FormatError::io(path, e))?;
     String::from_utf8(bytes).map_err(|e| {
         FormatError::file(
             path,

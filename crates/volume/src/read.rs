@@ -115,7 +115,7 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
             "use a smaller volume",
         )
         .map_err(|e| VolumeError::file(path, e.to_string()))?;
-    let bytes = std::fs::read(path).map_err(|e| VolumeError::Io {
+    let bytes = t2tf_core::input::read(path).map_err(|e| VolumeError::Io {
         path: path.to_path_buf(),
         error: e,
     })?;
@@ -127,7 +127,7 @@ pub fn decode(path: &Path, opts: &ReadOptions) -> Result<Decoded, VolumeError> {
 /// block-decoded source reads); `None` otherwise, or when the file cannot be mapped
 /// (`decode` then reads it and reports any error).
 fn locate(path: &Path, kind: Kind, opts: &ReadOptions) -> Option<(Located, memmap2::Mmap)> {
-    let file = std::fs::File::open(path).ok()?;
+    let file = t2tf_core::input::open(path).ok()?;
     // SAFETY: read only; the file changing underneath is unsupported (see `Source::map`).
     let map = unsafe { memmap2::Mmap::map(&file) }.ok()?;
     let want = opts.array.as_deref();
@@ -182,6 +182,8 @@ pub(super) fn file_metadata(path: &Path) -> Result<std::fs::Metadata, VolumeErro
     if meta.is_dir() {
         return Err(PathError::Directory.at(path));
     }
+    // A FIFO would block the read, a device would be read forever.
+    t2tf_core::input::regular(&meta).map_err(|e| VolumeError::file(path, e.to_string()))?;
     Ok(meta)
 }
 

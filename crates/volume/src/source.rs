@@ -58,7 +58,7 @@ impl Source {
             path: path.to_path_buf(),
             error,
         };
-        let file = std::fs::File::open(path).map_err(io)?;
+        let file = t2tf_core::input::open(path).map_err(io)?;
         // SAFETY: the map is read only; the file changing underneath is documented above
         // as unsupported (as for any reader that reads a file twice).
         let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| {

@@ -69,7 +69,7 @@ impl TorchCheckpoint {
             path: path.to_path_buf(),
             source: e,
         };
-        let file = std::fs::File::open(path).map_err(io_err)?;
+        let file = t2tf_core::input::open(path).map_err(io_err)?;
         // SAFETY: the file is opened read-only; like every mmap reader we rely on nobody
         // truncating the checkpoint while the model loads (tensors are copied out right away).
         let mmap = unsafe { Mmap::map(&file) }.map_err(io_err)?;

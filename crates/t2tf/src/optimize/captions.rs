@@ -49,7 +49,7 @@ impl CaptionPool {
     /// error naming the file.
     pub fn from_file(path: &Path) -> Result<CaptionPool, OptimizeError> {
         let path_buf = || path.to_path_buf();
-        let bytes = std::fs::read(path).map_err(|error| CaptionError::Read {
+        let bytes = crate::input::read(path).map_err(|error| CaptionError::Read {
             path: path_buf(),
             error,
         })?;
@@ -142,7 +142,7 @@ pub fn hash_files(paths: &[PathBuf]) -> Result<[u8; 32], OptimizeError> {
             path: path.clone(),
             error,
         };
-        let mut f = std::fs::File::open(path).map_err(err)?;
+        let mut f = crate::input::open(path).map_err(err)?;
         loop {
             let n = f.read(&mut buf).map_err(err)?;
             if n == 0 {

@@ -148,9 +148,9 @@ impl Job {
         match &self.target {
             Target::Prompt(p) => driver::check_prompt(p)?,
             Target::Image(path) => {
-                if !path.is_file() {
+                if let Err(e) = crate::input::open(path) {
                     return Err(PipelineError::Job(format!(
-                        "{}: the reference image is not a readable file",
+                        "{}: the reference image cannot be read: {e}",
                         path.display()
                     )));
                 }
