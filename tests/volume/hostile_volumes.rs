@@ -45,6 +45,34 @@ fn ascii_integers_must_fit_their_declared_type() {
     load("a.vti", &vti("Float32", bad)).unwrap();
 }
 
+/// 64-bit integers are checked from their text: as f64, 2⁶⁴ and u64::MAX are one number.
+#[test]
+fn ascii_64_bit_integers_are_checked_exactly() {
+    let max = "0 1 2 3 4 5 6 18446744073709551615";
+    load("a.vti", &vti("UInt64", max)).unwrap();
+    load("a.vtk", &legacy("unsigned_long", max)).unwrap();
+    for (ty, legacy_ty, value) in [
+        ("UInt64", "unsigned_long", "18446744073709551616"),
+        ("UInt64", "unsigned_long", "-1"),
+        ("Int64", "long", "9223372036854775808"),
+        ("Int64", "long", "-9223372036854775809"),
+    ] {
+        let values = format!("0 1 2 3 4 5 6 {value}");
+        let e = load("a.vti", &vti(ty, &values)).unwrap_err();
+        assert!(e.contains(ty) && e.contains("value 7"), "{ty} {value}: {e}");
+        let e = load("a.vtk", &legacy(legacy_ty, &values)).unwrap_err();
+        assert!(e.contains("value 7"), "{legacy_ty} {value}: {e}");
+    }
+    load(
+        "a.vti",
+        &vti(
+            "Int64",
+            "0 1 2 3 4 5 -9223372036854775808 9223372036854775807",
+        ),
+    )
+    .unwrap();
+}
+
 #[test]
 fn float64_beyond_f32_range_normalizes_to_finite_values() {
     let v = load(

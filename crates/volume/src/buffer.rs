@@ -248,6 +248,37 @@ impl TypedBuffer {
         }
     }
 
+    /// A text value of a 64-bit integer array checked exactly against its type, from its text:
+    /// as f64, 2⁶⁴ and u64::MAX are the same number, so [`TypedBuffer::check_text_values`]
+    /// cannot tell an overflow from the largest value. Other types and tokens that are not
+    /// plain integers are left to that check.
+    pub fn check_text_token(
+        token: &str,
+        index: usize,
+        declared: ScalarType,
+    ) -> Result<(), TextValueError> {
+        let (lo, hi) = match declared {
+            ScalarType::U64 => (0i128, u64::MAX as i128),
+            ScalarType::I64 => (i64::MIN as i128, i64::MAX as i128),
+            _ => return Ok(()),
+        };
+        let digits = token.strip_prefix(['+', '-']).unwrap_or(token);
+        if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+            return Ok(());
+        }
+        let fits = token.parse::<i128>().is_ok_and(|v| (lo..=hi).contains(&v));
+        if fits {
+            return Ok(());
+        }
+        Err(TextValueError {
+            index,
+            value: token.parse().unwrap_or(f64::INFINITY),
+            type_name: declared.vtk_xml_name(),
+            lo: lo as f64,
+            hi: hi as f64,
+        })
+    }
+
     /// Like [`TypedBuffer::from_f64`] but keeps the scalar type the file declared.
     pub fn from_f64_as(values: Vec<f64>, declared: ScalarType) -> Self {
         TypedBuffer {

@@ -703,6 +703,9 @@ fn read_array(
                 index: i,
                 text: truncate(tok),
             })?;
+            if let Some(t) = ty {
+                TypedBuffer::check_text_token(tok, i, t)?;
+            }
             // COLOR_SCALARS text holds byte/255; VTK's reader turns it back into bytes the
             // same way, so data units match what ParaView shows.
             values.push(if color {

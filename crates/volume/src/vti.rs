@@ -693,6 +693,7 @@ fn read_array(
                     index: i,
                     text: tok.chars().take(40).collect(),
                 })?;
+                TypedBuffer::check_text_token(tok, i, ty)?;
                 values.push(v);
             }
             if values.len() != n {
