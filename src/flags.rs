@@ -28,7 +28,8 @@ const SETTING_FLAGS: [&str; 14] = [
 ];
 
 /// Options the library names in backticks, and the flags that set them.
-const OPTION_FLAGS: [(&str, &str); 9] = [
+const OPTION_FLAGS: [(&str, &str); 10] = [
+    ("`rescale`", "--rescale MIN,MAX"),
     ("`dims`", "--dims"),
     ("`dtype`", "--dtype"),
     ("`byte_order`", "--byte-order"),

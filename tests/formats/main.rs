@@ -5,6 +5,7 @@
 
 mod formats_convert;
 mod formats_errors;
+mod formats_hostile;
 mod formats_placeholders;
 mod formats_roundtrip;
 mod formats_scripts;

@@ -179,14 +179,43 @@ pub fn list_presets(path: &Path) -> Result<Vec<PresetSummary>, FormatError> {
 /// Write a preset in the format its extension names: JSON and XML keep its colour space,
 /// a VisIt table (RGB only) gets the densified colours.
 pub fn write_preset(path: &Path, preset: &Preset) -> Result<(), FormatError> {
-    let text = format_of(path)?.write_preset(preset);
-    write_text(path, &text)
+    let format = format_of(path)?;
+    check_range(path, &preset.tf)?;
+    write_text(path, &format.write_preset(preset))
 }
 
 /// Write a TF file in the format its extension names (atomically).
 pub fn write_tf(path: &Path, tf: &ExportTf) -> Result<(), FormatError> {
-    let text = format_of(path)?.write_tf(tf);
-    write_text(path, &text)
+    let format = format_of(path)?;
+    check_range(path, tf)?;
+    write_text(path, &format.write_tf(tf))
+}
+
+/// A TF whose data range no double spans (±1e308: the width overflows) would come out with
+/// `inf` and `NaN` positions in a `.ct` and in resampled colours: refused before writing.
+fn check_range(path: &Path, tf: &ExportTf) -> Result<(), FormatError> {
+    let [lo, hi] = tf.data_range();
+    if (hi - lo).is_finite() || tf.rgb_points.is_empty() && tf.opacity_points.is_empty() {
+        return Ok(());
+    }
+    Err(FormatError::file(
+        path,
+        format!(
+            "the transfer function spans {lo:e} to {hi:e}, wider than a double can measure; \
+             rescale it first (`rescale`)"
+        ),
+    ))
+}
+
+/// `text` for an XML attribute or element: characters XML 1.0 cannot hold (control characters
+/// other than tab, line feed and carriage return; U+FFFE and U+FFFF) removed, the rest escaped.
+pub(crate) fn xml_text(text: &str) -> String {
+    let allowed: String = text
+        .chars()
+        .filter(|&c| !(c.is_control() && !matches!(c, '\t' | '\n' | '\r')))
+        .filter(|&c| c != '\u{fffe}' && c != '\u{ffff}')
+        .collect();
+    quick_xml::escape::escape(allowed.as_str()).into_owned()
 }
 
 /// Write `text` atomically through `t2tf_core::fs`, its message (which names the file) kept.

@@ -4,7 +4,6 @@
 
 use std::path::Path;
 
-use quick_xml::escape::escape;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::{Reader, XmlVersion};
 
@@ -76,7 +75,7 @@ pub(crate) fn preset_to_paraview_xml(p: &Preset) -> String {
     let mut s = String::from("<ColorMaps>\n");
     s.push_str(&format!(
         "  <ColorMap name=\"{}\" space=\"{}\"",
-        escape(tf.name.as_str()),
+        crate::xml_text(&tf.name),
         space.paraview_name()
     ));
     if space == ColorSpace::Hsv && p.hsv_wrap {

@@ -38,6 +38,8 @@ use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer,
 pub(crate) enum VtiError {
     #[error("the XML part is not valid UTF-8 ({0})")]
     XmlNotUtf8(std::str::Utf8Error),
+    #[error("the XML part holds a NUL byte at byte {position}, which XML does not allow")]
+    Nul { position: usize },
     #[error("malformed XML near byte {position}: {error}")]
     MalformedXml {
         position: u64,
@@ -327,6 +329,11 @@ struct Header<'a> {
 
 /// The XML part's declarations, gathered element by element ([`HeaderParser`]).
 fn parse_header(xml: &str) -> Result<Header<'_>, VtiError> {
+    // XML 1.0 has no NUL, not even escaped; a parser that skips one reads what the file's
+    // author never wrote.
+    if let Some(at) = xml.bytes().position(|b| b == 0) {
+        return Err(VtiError::Nul { position: at });
+    }
     let mut reader = Reader::from_str(xml);
     let mut p = HeaderParser {
         layout: Layout {
