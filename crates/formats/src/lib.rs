@@ -212,7 +212,7 @@ fn check_range(path: &Path, tf: &ExportTf) -> Result<(), FormatError> {
 pub(crate) fn xml_text(text: &str) -> String {
     let allowed: String = text
         .chars()
-        .filter(|&c| !(c.is_control() && !matches!(c, '\t' | '\n' | '\r')))
+        .filter(|&c| !c.is_control() || matches!(c, '\t' | '\n' | '\r'))
         .filter(|&c| c != '\u{fffe}' && c != '\u{ffff}')
         .collect();
     quick_xml::escape::escape(allowed.as_str()).into_owned()
