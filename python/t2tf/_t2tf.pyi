@@ -1,6 +1,7 @@
 """Type stubs of the compiled module `t2tf._t2tf` (crates/python)."""
 import os
-from typing import Any, Callable, Dict, Iterable, Mapping, Optional, Sequence, Tuple, Union
+from pathlib import Path
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -72,7 +73,7 @@ class Volume:
     def non_finite(self) -> int:
         """How many values are NaN or infinite."""
     @property
-    def path(self) -> Optional[str]:
+    def path(self) -> Optional[Path]:
         """The file the volume was read from; None for an array."""
     def to_numpy(self) -> np.ndarray:
         """The values in data units, read-only, indexed [z, y, x]."""
