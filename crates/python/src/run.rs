@@ -276,7 +276,7 @@ impl Owned {
             }
             Owned::Step { step, total, log } => {
                 let fields = serde_json::to_value(log).expect("a StepLog serializes");
-                if let Some(obj) = json_to_py(py, &fields)?.cast_into::<PyDict>().ok() {
+                if let Ok(obj) = json_to_py(py, &fields)?.cast_into::<PyDict>() {
                     d.update(obj.as_mapping())?;
                 }
                 d.set_item("event", "step")?;

@@ -81,7 +81,7 @@ impl PyTransferFunction {
             .iter()
             .flat_map(|(x, c)| [*x, c[0], c[1], c[2]])
             .collect();
-        Ok(PyArray1::from_vec(py, rows).reshape([self.preset.tf.rgb_points.len(), 4])?)
+        PyArray1::from_vec(py, rows).reshape([self.preset.tf.rgb_points.len(), 4])
     }
 
     /// Opacity points as an array of rows (value, opacity).
@@ -89,18 +89,14 @@ impl PyTransferFunction {
     fn opacity_points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let pts = &self.preset.tf.opacity_points;
         let rows: Vec<f64> = pts.iter().flat_map(|(x, o)| [*x, *o]).collect();
-        Ok(PyArray1::from_vec(py, rows).reshape([pts.len(), 2])?)
+        PyArray1::from_vec(py, rows).reshape([pts.len(), 2])
     }
 
     /// `n` evenly spaced data values over `range` and the colour and opacity there:
     /// `(values (n,), rgba (n, 4))`, colours in RGB whatever the preset's colour space,
     /// opacity 1 where the preset has no opacity points.
     #[pyo3(signature = (n = 256))]
-    fn sample<'py>(
-        &self,
-        py: Python<'py>,
-        n: usize,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>)> {
+    fn sample<'py>(&self, py: Python<'py>, n: usize) -> PyResult<Sampled<'py>> {
         if n < 2 {
             return Err(errors::settings(format!(
                 "sample needs at least 2 values, got {n}"
@@ -140,6 +136,9 @@ impl PyTransferFunction {
         )
     }
 }
+
+/// What `TransferFunction.sample` returns: the values and the RGBA rows.
+type Sampled<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>);
 
 fn format_error(e: t2tf::formats::FormatError) -> PyErr {
     FormatError::new_err(errors::message(&e))
