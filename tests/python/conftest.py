@@ -3,6 +3,8 @@
 Every optimization uses the tiny test model tests/fixtures/clip/quick_gelu with the CLIP
 tokenizer in ../shared, so runs take well under a second.
 """
+import importlib
+import importlib.util
 import os
 import shutil
 import struct
@@ -53,9 +55,20 @@ def t2tf_command():
 def require(tool, env="T2TF_REQUIRE_PARAVIEW"):
     """Skip unless `tool` is on PATH; fail instead when `env` is 1 (CI)."""
     if shutil.which(tool) is None:
-        if os.environ.get(env) == "1":
-            pytest.fail("%s not found but %s=1" % (tool, env))
-        pytest.skip("%s not found" % tool)
+        missing(tool, env)
+
+
+def require_module(name, env="T2TF_REQUIRE_PYVISTA"):
+    """The module `name`: skip without it; fail instead when `env` is 1 (CI)."""
+    if importlib.util.find_spec(name.split(".")[0]) is None:
+        missing(name, env)
+    return importlib.import_module(name)
+
+
+def missing(what, env):
+    if os.environ.get(env) == "1":
+        pytest.fail("%s not found but %s=1" % (what, env))
+    pytest.skip("%s not found" % what)
 
 
 def read_png(path):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import t2tf
-from conftest import HEADSQ, NEGHIP, PRESET
+from conftest import HEADSQ, NEGHIP, PRESET, require_module
 
 
 def picture(volume):
@@ -83,7 +83,7 @@ def test_nan_is_empty_space():
 
 
 def test_a_vtk_image_is_read_without_a_copy():
-    vtk = pytest.importorskip("vtkmodules.vtkImagingCore")
+    vtk = require_module("vtkmodules.vtkImagingCore")
     from vtkmodules.util.numpy_support import vtk_to_numpy
 
     from t2tf.vtk import volume_from_vtk
