@@ -155,3 +155,9 @@ def test_save_errors_are_output_errors(volume, tmp_path):
         r.save(tmp_path / "file")
     with pytest.raises(t2tf.SettingsError, match="plain file name"):
         r.save(tmp_path / "out", name="a/b")
+
+
+def test_names_follow_the_clis_rule_for_any_prompt(volume, tmp_path):
+    r = t2tf.optimize(volume, "-x ray of a head", **dict(QUICK, steps=0))
+    assert r.transfer_function.name.startswith("x-ray-of-a-head-")
+    assert r.save(tmp_path / "-out")["outputs"][0] == "out.json"

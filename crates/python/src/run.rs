@@ -165,13 +165,19 @@ fn apply_settings(job: &mut Job, extra: Option<&Bound<'_, PyDict>>) -> PyResult<
 
 /// The TF base name `t2tf optimize` would choose for `target` (and `--out`), by its own rule.
 fn default_name(target: &Target, out: Option<&Path>) -> PyResult<String> {
+    // `--flag=VALUE`, so a value starting with '-' is not read as a flag.
+    let flag = |name: &str, value: &std::ffi::OsStr| {
+        let mut arg = OsString::from(format!("--{name}="));
+        arg.push(value);
+        arg
+    };
     let mut argv: Vec<OsString> = vec!["t2tf".into(), "optimize".into(), "volume".into()];
-    match target {
-        Target::Prompt(p) => argv.extend(["--prompt".into(), p.into()]),
-        Target::Image(i) => argv.extend(["--reference-image".into(), i.into()]),
-    }
+    argv.push(match target {
+        Target::Prompt(p) => flag("prompt", p.as_ref()),
+        Target::Image(i) => flag("reference-image", i.as_os_str()),
+    });
     if let Some(o) = out {
-        argv.extend(["--out".into(), o.into()]);
+        argv.push(flag("out", o.as_os_str()));
     }
     let parsed = t2tf_cli::Cli::try_parse_from(argv)
         .map_err(|e| errors::settings(e.to_string().trim().to_string()))?;
