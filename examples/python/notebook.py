@@ -26,6 +26,8 @@ volume = t2tf.Volume(values.reshape(64, 64, 64))
 volume
 
 # %% Optimize, with a line of progress every 10 steps (returning False would stop the run).
+
+
 def progress(event):
     if event["event"] == "step" and event["step"] % 10 == 0:
         print("step %d/%d  loss %.3f" % (event["step"], event["steps"], event["loss"]))

@@ -100,6 +100,16 @@ class TransferFunction:
     @staticmethod
     def load(path: _Path, preset: Optional[str] = None) -> "TransferFunction":
         """Read a ParaView JSON preset (.json), ParaView XML (.xml) or VisIt table (.ct)."""
+    @staticmethod
+    def from_points(
+        rgb_points: npt.ArrayLike,
+        opacity_points: npt.ArrayLike = (),
+        *,
+        name: str = "tf",
+        unit_distance: Optional[float] = None,
+    ) -> "TransferFunction":
+        """From rows (value, r, g, b) and (value, opacity) in data units, ascending, in
+        [0, 1]; opacity for `unit_distance` world units (None: the volume's mean spacing)."""
     def save(self, path: _Path) -> None:
         """Write it in the format the extension names (.json, .xml or .ct)."""
     @property

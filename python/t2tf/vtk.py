@@ -18,8 +18,8 @@ def volume_from_vtk(image, array=None):
     else:
         data = point_data.GetArray(array)
     if data is None:
-        raise ValueError("the image has no point array %r" % (array,) if array else
-                         "the image has no point array")
+        named = " %r" % array if array is not None else ""
+        raise ValueError("the image has no point array" + named)
     if data.GetNumberOfComponents() != 1:
         raise ValueError("point array %r has %d components; t2tf needs one"
                          % (data.GetName(), data.GetNumberOfComponents()))

@@ -50,7 +50,8 @@ def run_driver(mode, env, tmp_path):
 
 def test_pvpython_imports_t2tf(pv_env, tmp_path):
     script = tmp_path / "version.py"
-    script.write_text("import t2tf, numpy\nprint('t2tf', t2tf.__version__, 'numpy', numpy.__version__)\n")
+    script.write_text("import numpy, t2tf\n"
+                      "print('t2tf', t2tf.__version__, 'numpy', numpy.__version__)\n")
     assert ("t2tf " + t2tf.__version__) in pvpython([script], pv_env, tmp_path)
 
 

@@ -73,3 +73,19 @@ def test_render_errors_are_settings_errors():
         t2tf.render(volume, tf, up="w")
     with pytest.raises(t2tf.SettingsError, match="size"):
         t2tf.render(volume, tf, size=0)
+
+
+def test_a_tf_from_points_renders_as_its_saved_file(tmp_path):
+    rgb = np.array([[0, 0.1, 0.2, 0.9], [128, 1, 0.5, 0], [255, 1, 1, 1]])
+    tf = t2tf.TransferFunction.from_points(rgb, [(0, 0), (100, 0), (255, 0.8)], name="mine")
+    assert tf.name == "mine" and tf.range == (0.0, 255.0) and tf.unit_distance is None
+    np.testing.assert_array_equal(tf.rgb_points, rgb)
+    tf.save(tmp_path / "mine.json")
+    volume = t2tf.read_volume(NEGHIP)
+    saved = t2tf.TransferFunction.load(tmp_path / "mine.json")
+    np.testing.assert_array_equal(t2tf.render(volume, tf, size=48),
+                                  t2tf.render(volume, saved, size=48))
+    with pytest.raises(t2tf.FormatError, match="below the previous"):
+        t2tf.TransferFunction.from_points([(1, 0, 0, 0), (0, 1, 1, 1)])
+    with pytest.raises(t2tf.FormatError, match="no colour points"):
+        t2tf.TransferFunction.from_points([])

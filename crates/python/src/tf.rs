@@ -46,6 +46,30 @@ impl PyTransferFunction {
         Ok(PyTransferFunction { preset })
     }
 
+    /// A transfer function from rows (value, r, g, b) and (value, opacity) in data units,
+    /// ascending, colours and opacities in [0, 1]; the opacity is for `unit_distance` world
+    /// units (None: the volume's mean spacing where it is used).
+    #[staticmethod]
+    #[pyo3(signature = (rgb_points, opacity_points = Vec::new(), *, name = "tf".to_string(), unit_distance = None))]
+    fn from_points(
+        rgb_points: Vec<[f64; 4]>,
+        opacity_points: Vec<[f64; 2]>,
+        name: String,
+        unit_distance: Option<f64>,
+    ) -> PyResult<PyTransferFunction> {
+        let tf = ExportTf {
+            rgb_points: rgb_points
+                .iter()
+                .map(|&[x, r, g, b]| (x, [r, g, b]))
+                .collect(),
+            opacity_points: opacity_points.iter().map(|&[x, o]| (x, o)).collect(),
+            unit_distance,
+            name,
+        };
+        tf.validate(Path::new(&tf.name)).map_err(format_error)?;
+        Ok(PyTransferFunction::rgb(tf))
+    }
+
     /// Write it in the format the extension names (.json, .xml or .ct), as `t2tf convert`
     /// does (atomically).
     fn save(&self, path: PathBuf) -> PyResult<()> {

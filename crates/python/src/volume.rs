@@ -17,11 +17,15 @@ use t2tf::volume::{ByteOrder, Geometry, ReadOptions, ScalarType, SharedBytes, Vo
 
 use crate::errors::{self, VolumeError};
 
-/// What in-memory volumes are called in messages and in report.json.
+/// What errors call a volume made from an array.
 const ARRAY_NAME: &str = "(numpy array)";
 
-/// A scalar volume: its values normalized, its statistics and mip levels, ready to render
-/// and optimize for.
+/// A scalar volume, ready to render and optimize for: `Volume(values, spacing=(1, 1, 1),
+/// origin=(0, 0, 0))` with `values` a 3-D array indexed [z, y, x] (x fastest, as VTK and raw
+/// files store it) of integers or floats (NaN and Inf are empty space), `spacing` and
+/// `origin` (x, y, z) in world units. A C-contiguous array of uint8 to uint64, int8 to int64,
+/// float32 or float64 (either byte order) is read in place, not copied: do not change it
+/// while the volume lives. Other arrays are copied to a C-contiguous one first.
 #[pyclass(name = "Volume", module = "t2tf", frozen)]
 pub struct PyVolume {
     pub volume: Volume,
@@ -129,8 +133,8 @@ fn c_array<'py>(values: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyUntypedArra
         .map_err(Into::into)
 }
 
-/// Spacing and origin as the library wants them: finite, spacing positive (the library
-/// checks again and names the volume).
+/// The grid of an array of `shape` [z, y, x]: dims are (x, y, z) in VTK's order. The library
+/// checks spacing and origin when it builds the volume.
 fn geometry(shape: &[usize], spacing: [f64; 3], origin: [f64; 3]) -> Geometry {
     Geometry {
         dims: [shape[2], shape[1], shape[0]],
