@@ -8,6 +8,8 @@
 //! stubs are `python/t2tf/_t2tf.pyi`.
 
 mod errors;
+mod events;
+mod result;
 mod run;
 mod tf;
 mod volume;
@@ -38,7 +40,7 @@ fn _t2tf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<volume::PyVolume>()?;
     m.add_class::<tf::PyTransferFunction>()?;
     m.add_class::<run::PyModel>()?;
-    m.add_class::<run::OptimizeResult>()?;
+    m.add_class::<result::OptimizeResult>()?;
     m.add_function(wrap_pyfunction!(volume::read_volume, m)?)?;
     m.add_function(wrap_pyfunction!(tf::render, m)?)?;
     m.add_function(wrap_pyfunction!(run::load_model, m)?)?;
