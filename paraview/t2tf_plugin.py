@@ -1,9 +1,13 @@
 """ParaView plugin: "Text to Transfer Function" (XML name TextToTransferFunction).
 
 Load it with Tools > Manage Plugins > Load New (this file), with PV_PLUGIN_PATH naming its
-folder, or from pvpython with LoadPlugin(path, ns=globals()). The filter takes image data,
-runs the t2tf binary (T2TF_BIN, else PATH, else beside this file) with --progress json,
-and applies the result to its own output display: colour, opacity, ScalarOpacityUnitDistance,
+folder, or from pvpython with LoadPlugin(path, ns=globals()). The filter takes image data
+and runs t2tf in this process when ParaView's Python can import the t2tf module (`pip install
+--user .` for the Python ParaView uses, or PYTHONPATH): the point array is handed over
+through vtk_to_numpy, no file is written, and ParaView's progress bar and abort button drive
+the run. Otherwise (or when T2TF_BIN names a binary) it runs the t2tf binary (T2TF_BIN, else
+PATH, else beside this file) with --progress json. The output window says which. Either way
+it applies the result to its own output display: colour, opacity, ScalarOpacityUnitDistance,
 range never rescaled, the preset registered in ParaView's preset manager, and optionally the
 camera of t2tf's view. The output is the input plus field data t2tf_report (report.json),
 t2tf_preset (the preset's name) and t2tf_out (the folder t2tf wrote).
@@ -48,6 +52,19 @@ def message(text, error=True):
         window.DisplayErrorText(line)
     else:
         window.DisplayText(line)
+
+
+def t2tf_module():
+    """The t2tf Python module, or None to run the binary: when T2TF_BIN names one, or when
+    this Python cannot import the module."""
+    if os.environ.get("T2TF_BIN"):
+        return None
+    try:
+        import t2tf
+        import t2tf.vtk  # noqa: F401 (the VTK bridge the filter uses)
+    except ImportError:
+        return None
+    return t2tf
 
 
 def find_binary():
@@ -179,6 +196,40 @@ def optimize(volume, out, prompt, negatives=(), steps=300, views=3, seed=0, mode
     args += list(extra)
     done = Run(args, out).run(progress, aborted, timeout)
     return read_result(done)
+
+
+def optimize_in_process(t2tf, image, array, out, prompt, negatives=(), steps=300, views=3,
+                        seed=0, model=None, tokenizer=None, reference_image=None,
+                        progress=None, aborted=None):
+    """Run t2tf in this process on `image`'s point array `array` (read in place, no file
+    written) and save its files into `out`; returns the result as read_result gives it.
+    `progress(fraction, text)` per step; `aborted()` is asked after each step and stops the
+    run there (keeping that step's TF)."""
+    if not (prompt or "").strip() and not reference_image:
+        raise T2tfError("the prompt is empty: type what the rendering should show (Prompt)")
+
+    def on_event(event):
+        if event["event"] == "step" and progress is not None:
+            steps_ = max(1, int(event["steps"]))
+            progress(float(event["step"]) / steps_, "step %s/%s" % (event["step"], steps_))
+        elif event["event"] == "warning":
+            message("warning: " + event["message"], False)
+        return not (aborted is not None and aborted())
+
+    try:
+        volume = t2tf.vtk.volume_from_vtk(image, array)
+        run = t2tf.optimize(
+            volume, (prompt or "").strip() or None, negatives=[n for n in negatives if n.strip()],
+            steps=int(steps), views=int(views), seed=int(seed), model=model or None,
+            tokenizer=tokenizer or None, reference_image=reference_image or None,
+            progress=on_event)
+        report = run.save(out)
+    except (t2tf.Error, ValueError) as e:
+        raise T2tfError(str(e))
+    result = read_result({"out": out, "files": report["outputs"], "interrupted": run.interrupted})
+    # An array has no file to reopen, so no pvpython script holds the camera: the run has it.
+    result["camera"] = run.camera
+    return result
 
 
 def _script_list(text, name):
@@ -558,10 +609,33 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
 
     def _run(self, image):
         array = self._array(image)
-        find_binary()  # fail early and clearly, before writing anything
+        module = t2tf_module()
+        binary = None if module else find_binary()  # fail early, before writing anything
         if not self._prompt.strip() and not self._reference:
             raise T2tfError("the prompt is empty: type what the rendering should show (Prompt)")
         out = tempfile.mkdtemp(prefix="t2tf-plugin-")
+        self.UpdateProgress(0.0)
+        if module:
+            message("running t2tf %s in-process (%s)" % (module.__version__, module.__file__),
+                    False)
+            result = optimize_in_process(
+                module, image, array, os.path.join(out, "tf"), self._prompt, self._negatives,
+                self._steps, self._views, self._seed, self._model or None,
+                self._tokenizer or None, self._reference or None,
+                progress=lambda f, text: self.UpdateProgress(f), aborted=self.GetAbortExecute)
+            volume = None
+        else:
+            message("running the t2tf binary %s" % binary, False)
+            result, volume = self._run_binary(image, array, out)
+        self.UpdateProgress(1.0)
+        result["array"] = array
+        result["volume"] = volume
+        if result["interrupted"]:
+            message("cancelled: kept the transfer function of the last finished step", False)
+        return result
+
+    def _run_binary(self, image, array, out):
+        """`t2tf optimize` on the upstream file, else on the image written to a .vti."""
         proxy = _proxy_of(self)
         upstream = _upstream_file(proxy, array) if proxy is not None else None
         extra = []
@@ -572,19 +646,13 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         else:
             volume = os.path.join(out, "input.vti")
             write_vti(image, array, volume)
-        self.UpdateProgress(0.0)
         result = optimize(
             volume, os.path.join(out, "tf"), self._prompt, self._negatives, self._steps,
             self._views, self._seed, self._model or None, self._tokenizer or None,
             reference_image=self._reference or None, extra=extra,
             progress=lambda f, text: self.UpdateProgress(f),
             aborted=self.GetAbortExecute)
-        self.UpdateProgress(1.0)
-        result["array"] = array
-        result["volume"] = volume
-        if result["interrupted"]:
-            message("cancelled: kept the transfer function of the last finished step", False)
-        return result
+        return result, volume
 
     def _annotate(self, out, result):
         fd = out.GetFieldData()
@@ -628,7 +696,8 @@ def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, v
         raise T2tfError("no active source: open a volume first")
     if not (prompt or "").strip() and not reference_image:
         raise T2tfError("the prompt is empty: type what the rendering should show")
-    find_binary()
+    if servermanager.ActiveConnection.IsRemote() or t2tf_module() is None:
+        find_binary()  # fail early and clearly (remote runs always use the binary)
     source.UpdatePipeline()
     info = source.GetDataInformation()
     if info.GetDataClassName() not in ("vtkImageData", "vtkUniformGrid", "vtkStructuredPoints"):

@@ -35,8 +35,13 @@ pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
 pub use summary::{summarize, Summary};
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 pub use t2tf_core::memory::Budget;
+
+/// Values another owner keeps in memory (e.g. a NumPy array of a Python caller), which a
+/// volume reads in place for as long as it lives ([`Volume::from_shared_within`]).
+pub type SharedBytes = Arc<dyn AsRef<[u8]> + Send + Sync>;
 
 /// Number of histogram bins over the normalized value range.
 pub const HISTOGRAM_BINS: usize = 256;
@@ -208,31 +213,37 @@ impl Volume {
         buffer: &TypedBuffer,
         budget: Budget,
     ) -> Result<Volume, VolumeError> {
-        check_geometry(name, &geometry, buffer.len())?;
-        // What is made here: level 0's f32 copy and the coarser levels with their brick
-        // ranges (a renderer's copies are checked where they are made).
-        let bytes = pyramid::level_shapes(geometry)
-            .iter()
-            .try_fold(0u64, |acc, (dims, _)| {
-                t2tf_core::memory::product(dims)?;
-                acc.checked_add(pyramid::level_bytes(*dims) as u64)
-            });
-        budget
-            .check(
-                format!(
-                    "{}x{}x{} points",
-                    geometry.dims[0], geometry.dims[1], geometry.dims[2]
-                ),
-                bytes,
-                1,
-                "use a smaller volume or crop it",
-            )
-            .map_err(|e| VolumeError::file(name, e.to_string()))?;
+        check_in_memory(name, &geometry, buffer.len(), budget)?;
         let source = source::Source::memory(name, buffer.clone());
+        let ty = buffer.scalar_type();
+        Self::streamed(name, geometry, ty, source, stream::Hold::All, budget)
+    }
+
+    /// [`Volume::from_buffer_within`] over values of type `scalar_type` in `byte_order` that
+    /// stay where they are: the volume keeps `bytes` and reads level 0 from them (no copy of
+    /// the values in their own type). They must not change while the volume lives; the
+    /// statistics and coarse levels are computed now.
+    pub fn from_shared_within(
+        name: &Path,
+        geometry: Geometry,
+        scalar_type: ScalarType,
+        byte_order: ByteOrder,
+        bytes: SharedBytes,
+        budget: Budget,
+    ) -> Result<Volume, VolumeError> {
+        let len = (*bytes).as_ref().len();
+        if len % scalar_type.size() != 0 {
+            return Err(VolumeError::file(
+                name,
+                format!("{len} bytes are not a whole number of {scalar_type} values"),
+            ));
+        }
+        check_in_memory(name, &geometry, len / scalar_type.size(), budget)?;
+        let source = source::Source::shared(name, scalar_type, byte_order, bytes);
         Self::streamed(
             name,
             geometry,
-            buffer.scalar_type(),
+            scalar_type,
             source,
             stream::Hold::All,
             budget,
@@ -306,6 +317,35 @@ impl Volume {
     pub fn memory_bytes(&self) -> usize {
         self.levels.iter().map(Level::memory_bytes).sum()
     }
+}
+
+/// Before a volume is built over `values` values in memory: the geometry fits them, and
+/// level 0's f32 copy and the coarser levels with their brick ranges fit `budget` (a
+/// renderer's copies are checked where they are made).
+fn check_in_memory(
+    name: &Path,
+    geometry: &Geometry,
+    values: usize,
+    budget: Budget,
+) -> Result<(), VolumeError> {
+    check_geometry(name, geometry, values)?;
+    let bytes = pyramid::level_shapes(*geometry)
+        .iter()
+        .try_fold(0u64, |acc, (dims, _)| {
+            t2tf_core::memory::product(dims)?;
+            acc.checked_add(pyramid::level_bytes(*dims) as u64)
+        });
+    budget
+        .check(
+            format!(
+                "{}x{}x{} points",
+                geometry.dims[0], geometry.dims[1], geometry.dims[2]
+            ),
+            bytes,
+            1,
+            "use a smaller volume or crop it",
+        )
+        .map_err(|e| VolumeError::file(name, e.to_string()))
 }
 
 /// `t` in [0, 1] in data units for the normalization range `norm_range`.
@@ -503,6 +543,36 @@ mod tests {
         assert!(v.data()[2].is_nan());
         assert_eq!(v.data()[3], 1.0);
         assert_eq!(v.histogram.iter().sum::<u64>(), 6);
+    }
+
+    #[test]
+    fn shared_bytes_give_the_buffers_volume() {
+        let values: Vec<u16> = (0..60).map(|i| (i * 997 % 1000) as u16).collect();
+        let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
+        let buf = TypedBuffer::new(ScalarType::U16, ByteOrder::Big, bytes.clone());
+        let a = Volume::from_buffer(Path::new("t"), geom([5, 4, 3]), &buf).unwrap();
+        let shared: SharedBytes = Arc::new(bytes);
+        let b = Volume::from_shared_within(
+            Path::new("t"),
+            geom([5, 4, 3]),
+            ScalarType::U16,
+            ByteOrder::Big,
+            shared.clone(),
+            Budget::system(),
+        )
+        .unwrap();
+        assert_eq!((a.range, &a.histogram), (b.range, &b.histogram));
+        assert_eq!(a.data(), b.data());
+        let odd: SharedBytes = Arc::new(vec![0u8; 7]);
+        let e = Volume::from_shared_within(
+            Path::new("t"),
+            geom([7, 1, 1]),
+            ScalarType::U16,
+            ByteOrder::Little,
+            odd,
+            Budget::system(),
+        );
+        assert!(e.unwrap_err().to_string().contains("whole number"));
     }
 
     #[test]

@@ -14,7 +14,9 @@ use std::path::{Path, PathBuf};
 
 use super::blocks::{Blocks, Table};
 use super::stats::{code_stats, count_codes, small_codes, MinMax, Stats};
-use super::{buffer::for_each_value, ByteOrder, Geometry, ScalarType, TypedBuffer, VolumeError};
+use super::{
+    buffer::for_each_value, ByteOrder, Geometry, ScalarType, SharedBytes, TypedBuffer, VolumeError,
+};
 
 /// Values visited at a time by the statistics pass (and released behind it when mapped).
 const BLOCK_VALUES: usize = 4 << 20;
@@ -32,6 +34,15 @@ pub(crate) struct Source {
     len: usize,
 }
 
+/// Bytes another owner keeps in memory (`SharedBytes`); opaque to `Debug`.
+struct Shared(SharedBytes);
+
+impl std::fmt::Debug for Shared {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Shared({} bytes)", (*self.0).as_ref().len())
+    }
+}
+
 /// Where the bytes are.
 #[derive(Debug)]
 enum Bytes {
@@ -39,6 +50,8 @@ enum Bytes {
     Map { map: memmap2::Mmap, offset: usize },
     /// Decoded into memory.
     Memory(TypedBuffer),
+    /// In memory another owner shares (a NumPy array), read in place.
+    Shared(Shared),
     /// Decoded block by block from a memory map of the file (compressed or base64 `.vti`).
     /// Boxed: its table and cache make it much larger than the other variants.
     Blocks(Box<Blocks>),
@@ -110,6 +123,23 @@ impl Source {
         }
     }
 
+    /// Values of type `ty` in `order` that another owner keeps in memory, read in place.
+    pub(crate) fn shared(
+        path: &Path,
+        ty: ScalarType,
+        order: ByteOrder,
+        bytes: SharedBytes,
+    ) -> Source {
+        let len = (*bytes).as_ref().len() / ty.size();
+        Source {
+            path: path.to_path_buf(),
+            ty,
+            order,
+            bytes: Bytes::Shared(Shared(bytes)),
+            len,
+        }
+    }
+
     /// Values of a `.vti` array read block by block from `map`, the file at `path`.
     pub(crate) fn blocks(
         path: &Path,
@@ -167,6 +197,7 @@ impl Source {
         let all = match &self.bytes {
             Bytes::Map { map, offset } => &map[*offset..*offset + self.len * size],
             Bytes::Memory(b) => b.raw().2,
+            Bytes::Shared(s) => &(*s.0).as_ref()[..self.len * size],
             Bytes::Blocks(b) => return b.for_bytes(range.start * size..range.end * size, size, f),
         };
         f(&all[range.start * size..range.end * size]);
@@ -184,7 +215,7 @@ impl Source {
                 super::pages::dont_need(map, offset + range.start * size..offset + range.end * size)
             }
             Bytes::Blocks(b) => b.release(range.start * size..range.end * size),
-            Bytes::Memory(_) => {}
+            Bytes::Memory(_) | Bytes::Shared(_) => {}
         }
     }
 

@@ -279,6 +279,11 @@ impl Optimized {
         self.finished.outcome.steps.len()
     }
 
+    /// The camera the exported scripts open with (the preview's first view).
+    pub fn camera(&self) -> &ParaViewCamera {
+        &self.view
+    }
+
     /// ScalarOpacityUnitDistance of the exported opacity.
     pub fn unit_distance(&self) -> f64 {
         self.unit_distance

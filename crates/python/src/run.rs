@@ -1,0 +1,237 @@
+//! `t2tf.optimize` and `t2tf.load_model`: the job and the model from Python's arguments,
+//! run in a rayon pool built as the CLI builds it, so the same volume, settings, seed and
+//! threads give the CLI's TF bit for bit (`events` runs it and forwards its progress).
+
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use clap::Parser;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use t2tf::clip::{Compute, Precision};
+use t2tf::memory::Budget;
+use t2tf::optimize::settings::{defaults, Settings};
+use t2tf::pipeline::{Job, Model, ModelOptions, Target};
+
+use crate::errors;
+use crate::events::run_with_events;
+use crate::result::OptimizeResult;
+use crate::volume::PyVolume;
+
+/// A CLIP model loaded once, to run several optimizations with.
+#[pyclass(name = "Model", module = "t2tf", frozen)]
+pub struct PyModel {
+    model: Arc<Model>,
+}
+
+#[pymethods]
+impl PyModel {
+    /// The Hub id or folder it was loaded from.
+    #[getter]
+    fn id(&self) -> &str {
+        &self.model.info().id
+    }
+
+    fn __repr__(&self) -> String {
+        format!("Model({:?})", self.model.info().id)
+    }
+}
+
+/// A memory budget from bytes (int) or a size like "16G"; None: what the system has.
+fn budget(max_memory: Option<&Bound<'_, PyAny>>) -> PyResult<Budget> {
+    let bytes = match max_memory {
+        None => None,
+        Some(m) => Some(match m.extract::<u64>() {
+            Ok(b) => b,
+            Err(_) => {
+                let text: String = m.extract()?;
+                t2tf::memory::parse_size(&text)
+                    .map_err(|e| errors::settings(format!("max_memory: {e}")))?
+            }
+        }),
+    };
+    Ok(Budget::new(bytes))
+}
+
+/// Load a CLIP model: a Hugging Face Hub id (downloaded into the Hub cache on first use)
+/// or a folder with config.json, tokenizer.json and the weights; None: the default.
+#[pyfunction]
+#[pyo3(signature = (model = None, *, tokenizer = None, revision = None, precision = "f32", max_memory = None))]
+pub fn load_model(
+    py: Python<'_>,
+    model: Option<PathBuf>,
+    tokenizer: Option<PathBuf>,
+    revision: Option<String>,
+    precision: &str,
+    max_memory: Option<&Bound<'_, PyAny>>,
+) -> PyResult<PyModel> {
+    let precision =
+        Precision::resolve(precision).map_err(|e| errors::settings(format!("precision: {e}")))?;
+    let mut opts = ModelOptions::new(model.map_or_else(
+        || t2tf::clip::DEFAULT_MODEL.to_string(),
+        |m| m.to_string_lossy().into_owned(),
+    ));
+    if let Some(r) = revision {
+        opts.revision = r;
+    }
+    opts.tokenizer = tokenizer;
+    opts.compute = Compute::new(precision);
+    opts.budget = budget(max_memory)?;
+    let model = py.detach(|| Model::load(&opts)).map_err(errors::pipeline)?;
+    Ok(PyModel {
+        model: Arc::new(model),
+    })
+}
+
+/// The model `optimize` was given: a loaded one, else loaded now from the keywords.
+fn model_for(
+    py: Python<'_>,
+    model: Option<&Bound<'_, PyAny>>,
+    tokenizer: Option<PathBuf>,
+    revision: Option<String>,
+    precision: &str,
+    max_memory: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Arc<Model>> {
+    if let Some(m) = model.and_then(|m| m.cast::<PyModel>().ok()) {
+        if tokenizer.is_some() || revision.is_some() || precision != "f32" {
+            return Err(errors::settings(
+                "tokenizer, revision and precision are the loaded model's: give them to load_model",
+            ));
+        }
+        return Ok(m.get().model.clone());
+    }
+    let path = model.map(|m| m.extract::<PathBuf>()).transpose()?;
+    let loaded = load_model(py, path, tokenizer, revision, precision, max_memory)?;
+    Ok(loaded.model)
+}
+
+/// The paper's settings and the render options `optimize` takes as keywords, as the CLI's
+/// flags of the same names set them.
+fn apply_settings(job: &mut Job, extra: Option<&Bound<'_, PyDict>>) -> PyResult<()> {
+    let Some(extra) = extra else {
+        return Ok(());
+    };
+    let s: &mut Settings = &mut job.settings;
+    for (key, value) in extra.iter() {
+        let key: String = key.extract()?;
+        match key.as_str() {
+            "lr" => s.lr = value.extract()?,
+            "momentum" => s.momentum = value.extract()?,
+            "prior_weight" => s.prior_weight = value.extract()?,
+            "prior_ab" => {
+                s.prior_a = value.extract()?;
+                s.prior_b = s.prior_a;
+            }
+            "prior_start" => s.prior_start = value.extract()?,
+            "l1" => s.l1 = value.extract()?,
+            "l2" => s.l2 = value.extract()?,
+            "control_points" => s.control_points = value.extract()?,
+            "negatives_per_step" => s.negatives_per_step = value.extract()?,
+            "negatives_file" => job.negatives_file = value.extract()?,
+            "up" => {
+                let up: String = value.extract()?;
+                job.up = up
+                    .parse()
+                    .map_err(|e| errors::settings(format!("up: {}", errors::message(&e))))?;
+            }
+            // The CLI reads the step as f64 and hands the library an f32: the same here.
+            "step_size" => job.step_size = value.extract::<Option<f64>>()?.map(|v| v as f32),
+            "level" => job.level = value.extract()?,
+            "render_size" => job.render_size = value.extract()?,
+            "caption_cache" => job.caption_cache = value.extract()?,
+            _ => {
+                return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+                    "optimize() got an unexpected keyword argument '{key}'"
+                )))
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The TF base name `t2tf optimize` would choose for `target` (and `--out`), by its own rule.
+pub fn default_name(target: &Target, out: Option<&Path>) -> PyResult<String> {
+    // `--flag=VALUE`, so a value starting with '-' is not read as a flag.
+    let flag = |name: &str, value: &std::ffi::OsStr| {
+        let mut arg = OsString::from(format!("--{name}="));
+        arg.push(value);
+        arg
+    };
+    let mut argv: Vec<OsString> = vec!["t2tf".into(), "optimize".into(), "volume".into()];
+    argv.push(match target {
+        Target::Prompt(p) => flag("prompt", p.as_ref()),
+        Target::Image(i) => flag("reference-image", i.as_os_str()),
+    });
+    if let Some(o) = out {
+        argv.push(flag("out", o.as_os_str()));
+    }
+    let parsed = t2tf_cli::Cli::try_parse_from(argv)
+        .map_err(|e| errors::settings(e.to_string().trim().to_string()))?;
+    match parsed.command {
+        t2tf_cli::Command::Optimize(a) => {
+            a.tf_name().map_err(|e| errors::settings(format!("{e:#}")))
+        }
+        _ => unreachable!("parsed as optimize"),
+    }
+}
+
+/// Optimize a transfer function so renderings of `volume` match `prompt` (or, with
+/// `reference_image`, a picture). See the package docs for every keyword.
+#[pyfunction]
+#[pyo3(signature = (volume, prompt = None, *, negatives = Vec::new(), steps = defaults::STEPS, views = defaults::VIEWS, seed = defaults::SEED, model = None, tokenizer = None, revision = None, precision = "f32", threads = None, progress = None, reference_image = None, max_memory = None, **settings))]
+#[allow(clippy::too_many_arguments)] // each is one keyword of the Python function
+pub fn optimize(
+    py: Python<'_>,
+    volume: Py<PyVolume>,
+    prompt: Option<String>,
+    negatives: Vec<String>,
+    steps: usize,
+    views: usize,
+    seed: u64,
+    model: Option<&Bound<'_, PyAny>>,
+    tokenizer: Option<PathBuf>,
+    revision: Option<String>,
+    precision: &str,
+    threads: Option<usize>,
+    progress: Option<Py<PyAny>>,
+    reference_image: Option<PathBuf>,
+    max_memory: Option<&Bound<'_, PyAny>>,
+    settings: Option<&Bound<'_, PyDict>>,
+) -> PyResult<OptimizeResult> {
+    let target = match (prompt, reference_image) {
+        (Some(p), None) => Target::Prompt(p),
+        (None, Some(r)) => Target::Image(r),
+        (Some(_), Some(_)) => {
+            return Err(errors::settings(
+                "give a prompt or a reference_image, not both",
+            ))
+        }
+        (None, None) => {
+            return Err(errors::settings(
+                "say what the renderings should show: a prompt (or a reference_image)",
+            ))
+        }
+    };
+    let mut job = Job::new(target.clone());
+    job.negatives = negatives;
+    job.settings.steps = steps;
+    job.settings.views = views;
+    job.settings.seed = seed;
+    job.budget = budget(max_memory)?;
+    apply_settings(&mut job, settings)?;
+    let job = job.validate().map_err(errors::pipeline)?;
+    if threads == Some(0) {
+        return Err(errors::settings("threads must be at least 1"));
+    }
+    let pool = t2tf_cli::thread_pool(threads).map_err(|e| errors::settings(format!("{e:#}")))?;
+    let model = model_for(py, model, tokenizer, revision, precision, max_memory)?;
+    let name = default_name(&target, None)?;
+    let optimized = run_with_events(py, &pool, &volume.get().volume, &model, &job, progress)?;
+    Ok(OptimizeResult {
+        optimized,
+        target,
+        name,
+    })
+}

@@ -1,0 +1,228 @@
+//! `t2tf.TransferFunction` (a preset in data units: load, save, sample) and `t2tf.render`
+//! (one view of a volume with it, as `t2tf render` draws it).
+
+use std::path::{Path, PathBuf};
+
+use numpy::{PyArray1, PyArray2, PyArrayMethods};
+use pyo3::prelude::*;
+
+use t2tf::camera::{Camera, Orbit, UpAxis};
+use t2tf::formats::{preset_lut, read_preset, write_preset, ExportTf, Preset, Sampling};
+use t2tf::memory::Budget;
+use t2tf::render::{CpuBackend, RenderOptions};
+
+use crate::errors::{self, FormatError, RenderError};
+use crate::volume::PyVolume;
+
+/// A transfer function: colour and opacity points in data units, in the colour space its
+/// file gave (ParaView presets may interpolate in Lab, HSV, …).
+#[pyclass(name = "TransferFunction", module = "t2tf", frozen)]
+pub struct PyTransferFunction {
+    pub preset: Preset,
+}
+
+impl PyTransferFunction {
+    /// An RGB transfer function (what the optimizer makes).
+    pub fn rgb(tf: ExportTf) -> PyTransferFunction {
+        PyTransferFunction {
+            preset: Preset {
+                tf,
+                space: t2tf::tf::ColorSpace::Rgb,
+                hsv_wrap: false,
+                extra: Default::default(),
+            },
+        }
+    }
+}
+
+#[pymethods]
+impl PyTransferFunction {
+    /// Read a ParaView JSON preset (.json), ParaView XML colour map (.xml) or VisIt colour
+    /// table (.ct); `preset` picks one of a file that holds several.
+    #[staticmethod]
+    #[pyo3(signature = (path, preset = None))]
+    fn load(path: PathBuf, preset: Option<&str>) -> PyResult<PyTransferFunction> {
+        let preset = read_preset(&path, preset).map_err(format_error)?;
+        Ok(PyTransferFunction { preset })
+    }
+
+    /// A transfer function from rows (value, r, g, b) and (value, opacity) in data units,
+    /// ascending, colours and opacities in [0, 1]; the opacity is for `unit_distance` world
+    /// units (None: the volume's mean spacing where it is used).
+    #[staticmethod]
+    #[pyo3(signature = (rgb_points, opacity_points = Vec::new(), *, name = "tf".to_string(), unit_distance = None))]
+    fn from_points(
+        rgb_points: Vec<[f64; 4]>,
+        opacity_points: Vec<[f64; 2]>,
+        name: String,
+        unit_distance: Option<f64>,
+    ) -> PyResult<PyTransferFunction> {
+        let tf = ExportTf {
+            rgb_points: rgb_points
+                .iter()
+                .map(|&[x, r, g, b]| (x, [r, g, b]))
+                .collect(),
+            opacity_points: opacity_points.iter().map(|&[x, o]| (x, o)).collect(),
+            unit_distance,
+            name,
+        };
+        tf.validate(Path::new(&tf.name)).map_err(format_error)?;
+        Ok(PyTransferFunction::rgb(tf))
+    }
+
+    /// Write it in the format the extension names (.json, .xml or .ct), as `t2tf convert`
+    /// does (atomically).
+    fn save(&self, path: PathBuf) -> PyResult<()> {
+        write_preset(&path, &self.preset).map_err(format_error)
+    }
+
+    /// The preset's name.
+    #[getter]
+    fn name(&self) -> &str {
+        &self.preset.tf.name
+    }
+
+    /// (first, last) data value of its points.
+    #[getter]
+    fn range(&self) -> (f64, f64) {
+        let [lo, hi] = self.preset.tf.data_range();
+        (lo, hi)
+    }
+
+    /// ScalarOpacityUnitDistance its opacities are meant for (world units), if it says.
+    #[getter]
+    fn unit_distance(&self) -> Option<f64> {
+        self.preset.tf.unit_distance
+    }
+
+    /// Colour points as an array of rows (value, r, g, b), in the preset's colour space.
+    #[getter]
+    fn rgb_points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let rows: Vec<f64> = self
+            .preset
+            .tf
+            .rgb_points
+            .iter()
+            .flat_map(|(x, c)| [*x, c[0], c[1], c[2]])
+            .collect();
+        PyArray1::from_vec(py, rows).reshape([self.preset.tf.rgb_points.len(), 4])
+    }
+
+    /// Opacity points as an array of rows (value, opacity).
+    #[getter]
+    fn opacity_points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let pts = &self.preset.tf.opacity_points;
+        let rows: Vec<f64> = pts.iter().flat_map(|(x, o)| [*x, *o]).collect();
+        PyArray1::from_vec(py, rows).reshape([pts.len(), 2])
+    }
+
+    /// `n` evenly spaced data values over `range` and the colour and opacity there:
+    /// `(values (n,), rgba (n, 4))`, colours in RGB whatever the preset's colour space,
+    /// opacity 1 where the preset has no opacity points.
+    #[pyo3(signature = (n = 256))]
+    fn sample<'py>(&self, py: Python<'py>, n: usize) -> PyResult<Sampled<'py>> {
+        if n < 2 {
+            return Err(errors::settings(format!(
+                "sample needs at least 2 values, got {n}"
+            )));
+        }
+        let tf = self.preset.rgb_linear();
+        let [lo, hi] = tf.data_range();
+        let opacity: Vec<(f64, [f64; 1])> =
+            tf.opacity_points.iter().map(|&(x, o)| (x, [o])).collect();
+        let values: Vec<f64> = (0..n)
+            .map(|i| lo + (hi - lo) * i as f64 / (n - 1) as f64)
+            .collect();
+        let rgba: Vec<f64> = values
+            .iter()
+            .flat_map(|&x| {
+                let c = t2tf::tf::interpolate(&tf.rgb_points, x);
+                let o = if opacity.is_empty() {
+                    1.0
+                } else {
+                    t2tf::tf::interpolate(&opacity, x)[0]
+                };
+                [c[0], c[1], c[2], o]
+            })
+            .collect();
+        let rgba = PyArray1::from_vec(py, rgba).reshape([n, 4])?;
+        Ok((PyArray1::from_vec(py, values), rgba))
+    }
+
+    fn __repr__(&self) -> String {
+        let tf = &self.preset.tf;
+        format!(
+            "TransferFunction(name={:?}, range={:?}, {} colour points, {} opacity points)",
+            tf.name,
+            self.range(),
+            tf.rgb_points.len(),
+            tf.opacity_points.len()
+        )
+    }
+}
+
+/// What `TransferFunction.sample` returns: the values and the RGBA rows.
+type Sampled<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>);
+
+fn format_error(e: t2tf::formats::FormatError) -> PyErr {
+    FormatError::new_err(errors::message(&e))
+}
+
+/// One view of `volume` with `tf`, as `t2tf render` draws it: the exact TF through the
+/// renderer's LUT, the final-picture step and level, an orbit camera. Returns an array of
+/// uint8 (size, size, 3), row 0 at the top.
+#[pyfunction]
+#[pyo3(signature = (volume, tf, *, yaw = 30.0, pitch = 10.0, distance = 2.5, size = 512, up = "z", background = "gray:0.3", seed = 0, unit_distance = None))]
+#[allow(clippy::too_many_arguments)] // each is one keyword of the Python function
+pub fn render<'py>(
+    py: Python<'py>,
+    volume: &PyVolume,
+    tf: &PyTransferFunction,
+    yaw: f64,
+    pitch: f64,
+    distance: f64,
+    size: usize,
+    up: &str,
+    background: &str,
+    seed: u64,
+    unit_distance: Option<f64>,
+) -> PyResult<Bound<'py, PyAny>> {
+    if size == 0 || size > 8192 {
+        return Err(errors::settings(format!(
+            "size {size} must be between 1 and 8192"
+        )));
+    }
+    let up: UpAxis = up
+        .parse()
+        .map_err(|e| errors::settings(format!("up: {}", errors::message(&e))))?;
+    let bg = t2tf::background::from_name(background, size, size, seed)
+        .map_err(|e| errors::settings(format!("background: {}", errors::message(&e))))?;
+    let v = &volume.volume;
+    let name = Path::new(&tf.preset.tf.name);
+    let lut =
+        preset_lut(&tf.preset, name, v, unit_distance, Sampling::Exact).map_err(format_error)?;
+    let orbit = Orbit {
+        yaw: yaw.to_radians(),
+        pitch: pitch.to_radians(),
+        distance,
+        up,
+    };
+    let camera =
+        Camera::orbit(&v.geometry, orbit).map_err(|e| RenderError::new_err(errors::message(&e)))?;
+    let image = py
+        .detach(|| {
+            let backend = CpuBackend::new(Budget::system());
+            backend.render(v, &lut, &camera, &bg, &RenderOptions::final_quality())
+        })
+        .map_err(|e| RenderError::new_err(errors::message(&e)))?
+        .image;
+    rgb8(py, &image)
+}
+
+/// An RGB image as a uint8 array (height, width, 3).
+pub fn rgb8<'py>(py: Python<'py>, image: &t2tf::image::Image) -> PyResult<Bound<'py, PyAny>> {
+    let bytes = image.to_rgb8();
+    Ok(PyArray1::from_vec(py, bytes)
+        .reshape([image.height, image.width, 3])?
+        .into_any())
+}

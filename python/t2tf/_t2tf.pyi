@@ -1,0 +1,241 @@
+"""Type stubs of the compiled module `t2tf._t2tf` (crates/python)."""
+import os
+from pathlib import Path
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+_Path = Union[str, "os.PathLike[str]"]
+_Size = Union[int, str]
+
+DEFAULT_MODEL: str
+__version__: str
+
+class Error(Exception):
+    """Base class of every t2tf error."""
+
+class VolumeError(Error):
+    """A volume that cannot be read or used."""
+
+class ModelError(Error):
+    """A CLIP model that cannot be found or loaded."""
+
+class SettingsError(Error):
+    """A setting out of its valid range."""
+
+class FormatError(Error):
+    """A transfer-function file that cannot be read or written."""
+
+class RenderError(Error):
+    """A picture that cannot be rendered."""
+
+class OutputError(Error):
+    """Output files that cannot be written."""
+
+class BudgetError(Error):
+    """Something that does not fit the memory budget."""
+
+class Volume:
+    """A scalar volume: its values normalized, its statistics and mip levels.
+
+    `values` is a 3-D array indexed [z, y, x] (x fastest, as VTK and raw files store it)
+    of integers or floats; NaN and infinite values are empty space. A C-contiguous array
+    of uint8, int8, uint16, int16, uint32, int32, uint64, int64, float32 or float64 (either
+    byte order) is read in place: the volume keeps it and reads its memory, so do not
+    change it while the volume lives. Other arrays (Fortran order, strided views, bool,
+    float16, lists) are copied to a C-contiguous array first. `spacing` and `origin` are
+    (x, y, z) in world units.
+    """
+
+    def __init__(
+        self,
+        values: npt.ArrayLike,
+        spacing: Tuple[float, float, float] = (1.0, 1.0, 1.0),
+        origin: Tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None: ...
+    @property
+    def shape(self) -> Tuple[int, int, int]:
+        """(nz, ny, nx)."""
+    @property
+    def spacing(self) -> Tuple[float, float, float]:
+        """World distance between neighbouring points along x, y, z."""
+    @property
+    def origin(self) -> Tuple[float, float, float]:
+        """World position of point [0, 0, 0] (x, y, z)."""
+    @property
+    def range(self) -> Tuple[float, float]:
+        """(min, max) of the finite values, in data units."""
+    @property
+    def dtype(self) -> str:
+        """NumPy's name of the values' type ("uint8", "float32", ...)."""
+    @property
+    def non_finite(self) -> int:
+        """How many values are NaN or infinite."""
+    @property
+    def path(self) -> Optional[Path]:
+        """The file the volume was read from; None for an array."""
+    def to_numpy(self) -> np.ndarray:
+        """The values in data units, read-only, indexed [z, y, x]."""
+
+def read_volume(
+    path: _Path,
+    *,
+    dims: Optional[Tuple[int, int, int]] = None,
+    dtype: Any = None,
+    spacing: Optional[Tuple[float, float, float]] = None,
+    byte_order: Optional[str] = None,
+    array: Optional[str] = None,
+) -> Volume:
+    """Read a `.raw`, `.vti` or legacy `.vtk` volume as `t2tf optimize` does.
+
+    Raw files named NAME_XxYxZ_DTYPE.raw describe themselves; others need `dims` (x, y, z)
+    and `dtype` ("uint16", np.uint16, ...). `byte_order` is "little" or "big"; `array`
+    picks a point array of a .vti/.vtk file; `spacing` replaces the file's.
+    """
+
+class TransferFunction:
+    """Colour and opacity points in data units, in the colour space their file gave."""
+
+    @staticmethod
+    def load(path: _Path, preset: Optional[str] = None) -> "TransferFunction":
+        """Read a ParaView JSON preset (.json), ParaView XML (.xml) or VisIt table (.ct)."""
+    @staticmethod
+    def from_points(
+        rgb_points: npt.ArrayLike,
+        opacity_points: npt.ArrayLike = (),
+        *,
+        name: str = "tf",
+        unit_distance: Optional[float] = None,
+    ) -> "TransferFunction":
+        """From rows (value, r, g, b) and (value, opacity) in data units, ascending, in
+        [0, 1]; opacity for `unit_distance` world units (None: the volume's mean spacing)."""
+    def save(self, path: _Path) -> None:
+        """Write it in the format the extension names (.json, .xml or .ct)."""
+    @property
+    def name(self) -> str: ...
+    @property
+    def range(self) -> Tuple[float, float]:
+        """(first, last) data value of its points."""
+    @property
+    def unit_distance(self) -> Optional[float]:
+        """ScalarOpacityUnitDistance its opacities are meant for (world units)."""
+    @property
+    def rgb_points(self) -> np.ndarray:
+        """Rows (value, r, g, b), in the preset's colour space."""
+    @property
+    def opacity_points(self) -> np.ndarray:
+        """Rows (value, opacity)."""
+    def sample(self, n: int = 256) -> Tuple[np.ndarray, np.ndarray]:
+        """`n` values evenly over `range` and RGBA there: ((n,), (n, 4)), RGB colours."""
+
+def render(
+    volume: Volume,
+    tf: TransferFunction,
+    *,
+    yaw: float = 30.0,
+    pitch: float = 10.0,
+    distance: float = 2.5,
+    size: int = 512,
+    up: str = "z",
+    background: str = "gray:0.3",
+    seed: int = 0,
+    unit_distance: Optional[float] = None,
+) -> np.ndarray:
+    """One view as `t2tf render` draws it: uint8 (size, size, 3), row 0 at the top.
+
+    Angles in degrees, `distance` in bounding radii; `up` is x, y, z, -x, -y or -z;
+    `background` is gray, gray:V, white, black, checkerboard, noise or fourier.
+    """
+
+class Model:
+    """A CLIP model loaded once, to run several optimizations with."""
+
+    @property
+    def id(self) -> str: ...
+
+def load_model(
+    model: Optional[_Path] = None,
+    *,
+    tokenizer: Optional[_Path] = None,
+    revision: Optional[str] = None,
+    precision: str = "f32",
+    max_memory: Optional[_Size] = None,
+) -> Model:
+    """Load a CLIP model: a Hub id (downloaded into the Hugging Face cache on first use) or
+    a folder with config.json, tokenizer.json and weights; None: DEFAULT_MODEL."""
+
+class Result:
+    """What `optimize` returns."""
+
+    @property
+    def transfer_function(self) -> TransferFunction:
+        """The optimized TF in data units, as the written files hold it."""
+    @property
+    def report(self) -> Dict[str, Any]:
+        """What report.json holds (prompt, settings, steps, steps_run, scores, timings)."""
+    @property
+    def preview(self) -> np.ndarray:
+        """The four preview views tiled: uint8 (height, width, 3)."""
+    @property
+    def steps_run(self) -> int: ...
+    @property
+    def interrupted(self) -> bool:
+        """Whether the run was stopped before its last step."""
+    @property
+    def camera(self) -> Dict[str, Any]:
+        """ParaView camera of the first preview view: position, focal_point, view_up,
+        view_angle."""
+    def save(self, out_dir: _Path, name: Optional[str] = None) -> Dict[str, Any]:
+        """Write the files `t2tf optimize` writes into `out_dir`; returns the report
+        written. `name` defaults to the CLI's rule for `--out out_dir` (the folder's name)."""
+
+Progress = Callable[[Dict[str, Any]], Optional[bool]]
+
+def optimize(
+    volume: Volume,
+    prompt: Optional[str] = None,
+    *,
+    negatives: Sequence[str] = (),
+    steps: int = 300,
+    views: int = 3,
+    seed: int = 0,
+    model: Union[None, _Path, Model] = None,
+    tokenizer: Optional[_Path] = None,
+    revision: Optional[str] = None,
+    precision: str = "f32",
+    threads: Optional[int] = None,
+    progress: Optional[Progress] = None,
+    reference_image: Optional[_Path] = None,
+    max_memory: Optional[_Size] = None,
+    lr: float = 10.0,
+    momentum: float = 0.75,
+    prior_weight: float = 0.02,
+    prior_ab: float = 0.5,
+    prior_start: int = 100,
+    l1: float = 2e-5,
+    l2: float = 8e-4,
+    control_points: int = 32,
+    negatives_per_step: int = 128,
+    negatives_file: Optional[_Path] = None,
+    up: str = "z",
+    step_size: Optional[float] = None,
+    level: Optional[int] = None,
+    render_size: Optional[int] = None,
+    caption_cache: Optional[_Path] = ...,
+) -> Result:
+    """Optimize a transfer function so renderings of `volume` match `prompt` (Algorithm 1
+    with the paper's defaults; every keyword is the `t2tf optimize` flag of that name).
+
+    `model` is a Hub id, a folder or a loaded `Model` (None: DEFAULT_MODEL). `threads`
+    runs it in a pool of that many threads (None: one per CPU); the same volume,
+    settings, seed and threads give the CLI's TF bit for bit.
+
+    `progress(event)` is called on the caller's thread with a dict per phase
+    ({"event": "phase", "phase": ...}), per step ({"event": "step", "step": 1-based,
+    "steps", "loss", "clip", "prompt_probability", ...}) and per warning
+    ({"event": "warning", "message": ...}); returning False stops the run after that step
+    and the partial result is returned (`interrupted` is True). Ctrl-C, or an exception
+    raised by `progress`, also stops the run after the current step and is then raised
+    (KeyboardInterrupt, or that exception); the partial result is dropped.
+    """

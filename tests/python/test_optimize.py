@@ -1,0 +1,163 @@
+"""t2tf.optimize: results, progress events, stopping (callback, exception, Ctrl-C), errors,
+and Result.save."""
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import t2tf
+from conftest import MODEL, NEGHIP, QUICK, TOKENIZER
+
+
+@pytest.fixture(scope="module")
+def volume():
+    return t2tf.read_volume(NEGHIP)
+
+
+def test_a_run_gives_the_tf_report_and_preview(volume):
+    events = []
+    r = t2tf.optimize(volume, "a protein molecule", progress=events.append, **QUICK)
+    assert (r.steps_run, r.interrupted) == (3, False)
+    report = r.report
+    assert report["steps_run"] == 3 and len(report["steps"]) == 3
+    assert report["prompt"] == "a protein molecule"
+    assert report["settings"]["seed"] == 3 and report["render"]["threads"] == 2
+    assert r.preview.dtype == np.uint8 and r.preview.ndim == 3 and r.preview.shape[2] == 3
+    tf = r.transfer_function
+    assert tf.name.startswith("a-protein-molecule-")
+    assert tf.range == pytest.approx(volume.range)
+    assert set(r.camera) == {"position", "focal_point", "view_up", "view_angle"}
+    kinds = [e["event"] for e in events]
+    assert kinds[0] == "phase" and kinds.count("step") == 3
+    steps = [e for e in events if e["event"] == "step"]
+    assert [e["step"] for e in steps] == [1, 2, 3] and steps[0]["steps"] == 3
+    assert steps[0]["loss"] == report["steps"][0]["total"]
+
+
+def test_the_same_seed_gives_the_same_tf_with_a_loaded_model(volume):
+    model = t2tf.load_model(MODEL, tokenizer=TOKENIZER)
+    settings = dict(QUICK, model=model, tokenizer=None)
+    a = t2tf.optimize(volume, "a protein molecule", **settings)
+    b = t2tf.optimize(volume, "a protein molecule", **settings)
+    np.testing.assert_array_equal(a.transfer_function.sample(300)[1],
+                                  b.transfer_function.sample(300)[1])
+    c = t2tf.optimize(volume, "a protein molecule", **dict(settings, seed=4))
+    assert not np.array_equal(a.transfer_function.sample(300)[1],
+                              c.transfer_function.sample(300)[1])
+
+
+def test_returning_false_stops_after_that_step(volume):
+    def stop_at_two(event):
+        return not (event["event"] == "step" and event["step"] == 2)
+
+    r = t2tf.optimize(volume, "a protein molecule", progress=stop_at_two,
+                      **dict(QUICK, steps=50))
+    assert (r.steps_run, r.interrupted) == (2, True)
+    assert r.report["interrupted"] is True
+
+
+def test_an_exception_in_the_callback_stops_the_run_and_is_raised(volume):
+    seen = []
+
+    def fail(event):
+        seen.append(event)
+        if event["event"] == "step":
+            raise ValueError("enough")
+
+    with pytest.raises(ValueError, match="enough"):
+        t2tf.optimize(volume, "a protein molecule", progress=fail, **dict(QUICK, steps=50))
+    assert [e["event"] for e in seen].count("step") == 1
+
+
+def test_ctrl_c_stops_the_run_then_raises_keyboard_interrupt(tmp_path):
+    # In a child process: SIGINT goes to the whole process, pytest included.
+    script = textwrap.dedent("""
+        import os, signal, threading, time, sys
+        import t2tf
+        steps = []
+        def progress(event):
+            if event["event"] == "step":
+                steps.append(event["step"])
+                if len(steps) == 1:  # Ctrl-C while the next steps compute
+                    threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT)).start()
+        t0 = time.time()
+        try:
+            t2tf.optimize(t2tf.read_volume(sys.argv[1]), "a protein molecule", model=sys.argv[2],
+                          tokenizer=sys.argv[3], steps=100000, views=1, progress=progress)
+        except KeyboardInterrupt:
+            print("interrupted after", len(steps), "steps in", round(time.time() - t0, 2), "s")
+    """)
+    out = subprocess.run([sys.executable, "-c", script, str(NEGHIP), str(MODEL), str(TOKENIZER)],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    words = out.stdout.split()
+    assert words[:2] == ["interrupted", "after"], out.stdout + out.stderr
+    assert 1 <= int(words[2]) < 100000
+
+
+@pytest.mark.parametrize("kwargs, error, words", [
+    (dict(prompt="  "), t2tf.SettingsError, "prompt is empty"),
+    (dict(prompt=None), t2tf.SettingsError, "prompt"),
+    (dict(prompt="x", reference_image="a.png"), t2tf.SettingsError, "not both"),
+    (dict(prompt="x", views=0), t2tf.SettingsError, "views"),
+    (dict(prompt="x", prior_ab=-1.0), t2tf.SettingsError, "prior_ab"),
+    (dict(prompt="x", threads=0), t2tf.SettingsError, "threads"),
+    (dict(prompt="x", precision="f16"), t2tf.SettingsError, "precision"),
+    (dict(prompt="x", up="w"), t2tf.SettingsError, "up"),
+    (dict(prompt="x", model="no-such-folder/"), t2tf.ModelError, "no-such-folder"),
+    (dict(prompt=None, reference_image="missing.png"), t2tf.SettingsError, "missing.png"),
+    (dict(prompt="x", max_memory="1K"), t2tf.BudgetError, "only 1.0 KiB is available"),
+])
+def test_errors_are_t2tf_exceptions(volume, kwargs, error, words):
+    settings = dict(QUICK)
+    settings.update(kwargs)
+    prompt = settings.pop("prompt")
+    with pytest.raises(error, match=words):
+        t2tf.optimize(volume, prompt, **settings)
+
+
+def test_unknown_keywords_are_type_errors(volume):
+    with pytest.raises(TypeError, match="stpes"):
+        t2tf.optimize(volume, "x", stpes=3)
+
+
+def test_save_writes_the_clis_output_set(volume, tmp_path):
+    r = t2tf.optimize(volume, "a protein molecule", **QUICK)
+    report = r.save(tmp_path / "Neghip TF")
+    out = tmp_path / "Neghip TF"
+    # The CLI's rule: the TF files are named after the folder.
+    assert report["outputs"][:3] == ["neghip-tf.json", "neghip-tf.xml", "neghip-tf.ct"]
+    assert "neghip-tf_paraview.py" in report["outputs"]  # a file volume gets the scripts
+    for name in report["outputs"]:
+        assert (out / name).is_file(), name
+    on_disk = json.loads((out / "report.json").read_text())
+    assert on_disk["steps_run"] == 3 and on_disk["outputs"] == report["outputs"]
+    saved = t2tf.TransferFunction.load(out / "neghip-tf.json")
+    np.testing.assert_allclose(saved.sample(200)[1],
+                               r.transfer_function.sample(200)[1], atol=1e-12)
+    assert r.save(tmp_path / "again", name="bone")["outputs"][0] == "bone.json"
+
+
+def test_an_array_volume_saves_without_scripts(neghip, tmp_path):
+    r = t2tf.optimize(t2tf.Volume(neghip), "a protein molecule", **QUICK)
+    outputs = r.save(tmp_path / "out")["outputs"]
+    assert not any(name.endswith(".py") for name in outputs)
+    assert r.report["volume"]["path"] == "(in memory)"
+
+
+def test_save_errors_are_output_errors(volume, tmp_path):
+    r = t2tf.optimize(volume, "a protein molecule", **dict(QUICK, steps=0))
+    (tmp_path / "file").write_text("")
+    with pytest.raises(t2tf.OutputError, match="not a folder"):
+        r.save(tmp_path / "file")
+    with pytest.raises(t2tf.SettingsError, match="plain file name"):
+        r.save(tmp_path / "out", name="a/b")
+
+
+def test_names_follow_the_clis_rule_for_any_prompt(volume, tmp_path):
+    r = t2tf.optimize(volume, "-x ray of a head", **dict(QUICK, steps=0))
+    assert r.transfer_function.name.startswith("x-ray-of-a-head-")
+    assert r.save(tmp_path / "-out")["outputs"][0] == "out.json"
