@@ -1,6 +1,6 @@
 //! `t2tf._t2tf`: the Python module around the t2tf library. Volumes come in as NumPy
 //! arrays (read in place where their layout allows) or files; transfer functions, previews
-//! and renders go out as NumPy arrays; [`run::optimize`] runs the pipeline with the GIL
+//! and renders go out as NumPy arrays; `run::optimize` runs the pipeline with the GIL
 //! released; `cli_main` is the `t2tf` command itself (`t2tf_cli::main`), so the wheel's
 //! `t2tf` script and the Rust binary are one program.
 //!
