@@ -28,6 +28,8 @@ const X_AXIS: u32 = 48;
 const Y_AXIS: u32 = 64;
 /// Margins around the plot, in pixels.
 const MARGIN: u32 = 10;
+/// Top of the opacity axis: a little above 1, so control points at full opacity show whole.
+const Y_TOP: f64 = 1.04;
 
 const BACKGROUND: RGBColor = RGBColor(255, 255, 255);
 const BARS: RGBColor = RGBColor(200, 200, 200);
@@ -215,15 +217,15 @@ pub(crate) fn draw(
             .margin_top(4)
             .set_label_area_size(LabelAreaPosition::Left, Y_AXIS)
             .set_label_area_size(LabelAreaPosition::Right, Y_AXIS)
-            .build_cartesian_2d(lo..hi, 0.0..1.0)
+            .build_cartesian_2d(lo..hi, 0.0..Y_TOP)
             .map_err(draw_error)?
-            .set_secondary_coord(lo..hi, 0.0..decades);
+            .set_secondary_coord(lo..hi, 0.0..decades * Y_TOP);
         chart
             .configure_mesh()
             .disable_mesh()
             .disable_x_axis()
             .y_desc(curve.name())
-            .y_labels(6)
+            .y_labels(7)
             .y_label_formatter(&|v| format!("{v:.1}"))
             .label_style((family, 13).into_font().color(&TEXT))
             .axis_desc_style((family, 14).into_font().color(&TEXT))
@@ -231,8 +233,8 @@ pub(crate) fn draw(
             .map_err(draw_error)?;
         chart
             .configure_secondary_axes()
-            .y_desc("voxels per value (log scale)")
-            .y_labels(decades as usize + 1)
+            .y_desc("voxels per bin (log scale)")
+            .y_labels(decades as usize + 2)
             .y_label_formatter(&|v| count_label(*v))
             .label_style((family, 13).into_font().color(&TEXT))
             .axis_desc_style((family, 14).into_font().color(&TEXT))
@@ -381,10 +383,15 @@ mod tests {
         assert_eq!(px, bx);
         assert!(by.start >= py.end, "{l:?}");
         let mid_y = ((by.start + by.end) / 2) as usize;
-        assert_eq!(im.pixel(bx.start as usize + 1, mid_y), [1.0, 0.0, 0.0]);
+        // Each column shows the colour at its middle: within 1/100 of the end colours.
+        let near =
+            |p: [f32; 3], want: [f32; 3]| p.iter().zip(want).all(|(a, b)| (a - b).abs() < 0.01);
+        let left = im.pixel(bx.start as usize, mid_y);
+        assert!(near(left, [1.0, 0.0, 0.0]), "{left:?}");
         let mid = im.pixel(((bx.start + bx.end) / 2) as usize, mid_y);
         assert!(mid[1] > 0.95 && mid[0] < 0.05, "{mid:?}");
-        assert_eq!(im.pixel(bx.end as usize - 2, mid_y), [0.0, 0.0, 1.0]);
+        let right = im.pixel(bx.end as usize - 3, mid_y);
+        assert!(near(right, [0.0, 0.0, 1.0]), "{right:?}");
         // Histogram: the tall bar reaches the upper half; a count of 1 still shows (log
         // scale); the empty bins show nothing.
         let col = |t: f64| px.start + ((px.end - px.start) as f64 * t) as i32;
@@ -399,12 +406,18 @@ mod tests {
         assert!(any(&im, short..short + 1, py.end - 4..py.end, rgb(BARS)));
         let empty = col(100.5 / 256.0);
         assert!(!any(&im, empty..empty + 1, py.clone(), rgb(BARS)));
-        // The curve's peak (a control point) at the top in the middle.
+        // The curve's peak (a control point) at 1 in the middle.
+        let row = |v: f64| py.start + ((1.0 - v / Y_TOP) * (py.end - py.start) as f64) as i32;
         let c = col(0.5);
-        assert!(any(&im, c - 2..c + 3, py.start..py.start + 6, rgb(POINT)));
+        assert!(any(
+            &im,
+            c - 2..c + 3,
+            row(1.0) - 2..row(1.0) + 3,
+            rgb(POINT)
+        ));
         // At a quarter, σ = 127.5: the line is half-way up.
         let q = col(0.25);
-        let y = (py.start + py.end) / 2;
+        let y = row(0.5);
         assert!(any(&im, q - 1..q + 2, y - 4..y + 5, rgb(LINE)));
         // Text: the title above the plot, numbers left, right and under the bar.
         assert!(dark(&im, 0..720, 0..py.start));
@@ -456,9 +469,15 @@ mod tests {
         let (im, l) = draw(&tf(), &[1; 256], c, &labels(), 720, 420).unwrap();
         let (px, py) = l.plot;
         let x = (px.start + px.end) / 2;
-        let y = py.start + ((1.0 - c.value(255.0)) * (py.end - py.start) as f64) as i32;
+        let row = |v: f64| py.start + ((1.0 - v / Y_TOP) * (py.end - py.start) as f64) as i32;
+        let y = row(c.value(255.0));
         assert!(any(&im, x - 2..x + 3, y - 3..y + 4, rgb(POINT)));
-        assert!(!any(&im, x - 2..x + 3, py.start..py.start + 3, rgb(POINT)));
+        assert!(!any(
+            &im,
+            x - 2..x + 3,
+            row(1.0) - 3..row(1.0) + 3,
+            rgb(POINT)
+        ));
     }
 
     #[test]
