@@ -180,7 +180,7 @@ pub fn cache_entries(dir: &Path) -> Result<Vec<CacheEntry>, CacheError> {
             continue;
         };
         // Any version of t2tf's format ("T2TFEMB" and a version digit).
-        if !meta.is_file() || &header[..7] != &MAGIC[..7] {
+        if !meta.is_file() || header[..7] != MAGIC[..7] {
             continue;
         }
         let word = |at: usize| {
