@@ -60,7 +60,7 @@ fn main() {
     ] {
         if needed && !found {
             println!(
-                "cargo:warning={var} is set but {what} is not all here: those tests will run and fail"
+                "cargo:warning={var} is set but not all of {what} were found: those tests will run and fail"
             );
         }
     }
