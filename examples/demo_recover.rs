@@ -17,7 +17,7 @@
 //! which is why this demonstration uses pictures.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use t2tf::camera::UpAxis;
@@ -82,6 +82,25 @@ fn render_all(r: &VolumeRenderer, cp: &ControlPoints, views: &[View]) -> Result<
         .collect()
 }
 
+/// Seconds between progress lines: the descent takes about 100 s at the default steps.
+const LINE_EVERY: Duration = Duration::from_secs(5);
+
+/// When to say how far the descent is: at the first step (so a reader sees it started), then
+/// every `LINE_EVERY`, and at the last.
+struct Pacer {
+    last: Option<Instant>,
+}
+
+impl Pacer {
+    fn due(&mut self, now: Instant, step: usize, steps: usize) -> bool {
+        let due = step == steps || self.last.is_none_or(|t| now - t >= LINE_EVERY);
+        if due {
+            self.last = Some(now);
+        }
+        due
+    }
+}
+
 fn main() -> Result<()> {
     let mut out = PathBuf::from("demo_recover.png");
     let mut steps = 200usize;
@@ -120,16 +139,26 @@ fn main() -> Result<()> {
     };
     let (p0, _) = initialize(&r, &tf, &volume.histogram, &settings.validate()?)?;
     let t0 = Instant::now();
+    println!("descending {steps} steps × 8 views at {SIZE}²");
+    // The loss is evaluated once per step: wrapped, it says how far the descent is.
+    let mut loss = pixel_loss(&targets);
+    let mut pacer = Pacer { last: None };
+    let mut step = 0;
+    let mut paced = |images: &[Image]| {
+        let r = loss(images);
+        step += 1;
+        if let Ok((l, _)) = &r {
+            if pacer.due(Instant::now(), step, steps) {
+                println!(
+                    "step {step}/{steps}  pixel loss {l:.5}  {:.0} s",
+                    t0.elapsed().as_secs_f64()
+                );
+            }
+        }
+        r
+    };
     // lr 30, the recovery test's measured best on the nucleon.
-    let (p, losses) = descend(
-        &r,
-        &tf,
-        &train,
-        p0.clone(),
-        steps,
-        30.0,
-        &mut pixel_loss(&targets),
-    )?;
+    let (p, losses) = descend(&r, &tf, &train, p0.clone(), steps, 30.0, &mut paced)?;
     let secs = t0.elapsed().as_secs_f64();
     let cp0 = tf.control_points(&p0).map_err(|e| anyhow::anyhow!("{e}"))?;
     let cp = tf.control_points(&p).map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -153,4 +182,24 @@ fn main() -> Result<()> {
         out.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn progress_lines_come_first_every_few_seconds_and_last() {
+        let t = Instant::now();
+        let mut p = Pacer { last: None };
+        assert!(p.due(t, 1, 200), "the first step is said");
+        assert!(!p.due(t + Duration::from_secs(1), 2, 200));
+        assert!(!p.due(t + Duration::from_millis(4900), 40, 200));
+        assert!(p.due(t + LINE_EVERY, 41, 200));
+        assert!(!p.due(t + LINE_EVERY + Duration::from_secs(1), 42, 200));
+        assert!(
+            p.due(t + LINE_EVERY + Duration::from_secs(1), 200, 200),
+            "the last step is said"
+        );
+    }
 }

@@ -6,6 +6,10 @@
 //! The files name library items as `crate::optimize::…`; the imports below make those paths
 //! read the library's modules.
 
+// First, so that its `outln!` and `errln!` reach every module below.
+#[macro_use]
+mod out;
+
 mod commands;
 mod flags;
 mod model_args;
@@ -50,6 +54,8 @@ pub enum Command {
     Optimize(commands::optimize::OptimizeArgs),
     /// Download CLIP models into the Hugging Face cache, or list the cached ones.
     Model(model::ModelArgs),
+    /// List or clear t2tf's cache of caption embeddings.
+    Cache(commands::cache::CacheArgs),
 }
 
 /// The thread pool a command runs in: `--threads` (at most the logical CPUs, with a warning
@@ -59,9 +65,7 @@ pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> 
         Some(t) => {
             let (n, capped) = crate::memory::thread_count(t);
             if capped {
-                eprintln!(
-                    "t2tf: warning: --threads {t} is more than the {n} logical CPUs; using {n}"
-                );
+                errln!("t2tf: warning: --threads {t} is more than the {n} logical CPUs; using {n}");
             }
             n
         }
@@ -92,9 +96,11 @@ where
     let fetching = matches!(cli.command, Command::Model(_));
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        // `t2tf … | head -1`: the reader has what it wanted (out.rs).
+        Err(err) if out::reader_left(&err) => std::process::ExitCode::SUCCESS,
         Err(err) => {
             // One line: the chain of causes joined, most general first, with the flags.
-            eprintln!("t2tf: error: {}", flags::say(&format!("{err:#}"), fetching));
+            errln!("t2tf: error: {}", flags::say(&format!("{err:#}"), fetching));
             std::process::ExitCode::FAILURE
         }
     }
@@ -109,5 +115,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::ClipScore(a) => clip_score::run(a),
         Command::Optimize(a) => commands::optimize::run(a),
         Command::Model(a) => model::run(a),
+        Command::Cache(a) => commands::cache::run(a),
     }
 }

@@ -2,7 +2,7 @@
 //! line every few seconds in a log or a pipe (batch jobs), or one JSON object per line for
 //! programs (the ParaView plugin) with `--progress json`.
 
-use std::io::{IsTerminal, Write};
+use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
 /// How progress is shown (`--progress`).
@@ -58,6 +58,23 @@ pub struct Progress {
 /// Seconds between plain lines.
 const LINE_EVERY: Duration = Duration::from_secs(5);
 
+/// The first step whose progress shows an estimate: the first step carries one-off work
+/// (caption embeddings, the first touch of the volume), so the rate comes from the steps after
+/// it, and one such step alone is too noisy to predict from.
+const ETA_FROM_STEP: usize = 3;
+
+/// Seconds left, from the time since the first step ended (`since_first`) over the steps
+/// finished since then; `None` before [`ETA_FROM_STEP`].
+fn eta(done: usize, total: usize, since_first: f64) -> Option<f64> {
+    (done >= ETA_FROM_STEP.max(2))
+        .then(|| since_first / (done - 1) as f64 * total.saturating_sub(done) as f64)
+}
+
+/// An estimate for a person: "ETA 42 s", or "ETA …" while there is none yet.
+fn eta_text(eta: Option<f64>) -> String {
+    eta.map_or("ETA …".to_string(), |s| format!("ETA {s:.0} s"))
+}
+
 impl Progress {
     /// Start counting `total` steps.
     pub fn new(mode: ProgressMode, total: usize) -> Progress {
@@ -65,7 +82,7 @@ impl Progress {
         let bar = (mode == ProgressMode::Bar).then(|| {
             let bar = indicatif::ProgressBar::new(total as u64);
             if let Ok(style) = indicatif::ProgressStyle::with_template(
-                "{elapsed_precise} [{bar:30}] step {pos}/{len}  {msg}  ETA {eta}",
+                "{elapsed_precise} [{bar:30}] step {pos}/{len}  {msg}",
             ) {
                 bar.set_style(style.progress_chars("=> "));
             }
@@ -87,7 +104,7 @@ impl Progress {
     pub fn phase(&self, what: &str) {
         match self.mode {
             ProgressMode::Json => emit(&serde_json::json!({ "event": "phase", "phase": what })),
-            ProgressMode::Lines => eprintln!("t2tf: {what}"),
+            ProgressMode::Lines => errln!("t2tf: {what}"),
             _ => {}
         }
     }
@@ -96,19 +113,17 @@ impl Progress {
     pub fn step(&mut self, r: &StepReport) {
         self.done += 1;
         let elapsed = self.start.elapsed().as_secs_f64();
-        let remaining = self.total.saturating_sub(self.done) as f64;
         let first = *self.first_step.get_or_insert_with(Instant::now);
-        let eta = if self.done > 1 {
-            first.elapsed().as_secs_f64() / (self.done - 1) as f64 * remaining
-        } else {
-            elapsed * remaining
-        };
+        let eta = eta(self.done, self.total, first.elapsed().as_secs_f64());
         match self.mode {
             ProgressMode::Bar => {
                 if let Some(bar) = &self.bar {
                     bar.set_message(format!(
-                        "loss {:.4} (clip {:.4}, p(prompt) {:.3})",
-                        r.loss, r.clip, r.prompt_probability
+                        "loss {:.4} (clip {:.4}, p(prompt) {:.3})  {}",
+                        r.loss,
+                        r.clip,
+                        r.prompt_probability,
+                        eta_text(eta)
                     ));
                     bar.inc(1);
                 }
@@ -117,9 +132,14 @@ impl Progress {
                 let due = self.last_line.is_none_or(|t| t.elapsed() >= LINE_EVERY);
                 if due || self.done == self.total {
                     self.last_line = Some(Instant::now());
-                    eprintln!(
-                        "t2tf: step {}/{}  loss {:.4}  p(prompt) {:.3}  elapsed {:.0} s  ETA {:.0} s",
-                        self.done, self.total, r.loss, r.prompt_probability, elapsed, eta
+                    errln!(
+                        "t2tf: step {}/{}  loss {:.4}  p(prompt) {:.3}  elapsed {:.0} s  {}",
+                        self.done,
+                        self.total,
+                        r.loss,
+                        r.prompt_probability,
+                        elapsed,
+                        eta_text(eta)
                     );
                 }
             }
@@ -131,7 +151,8 @@ impl Progress {
                 "clip": finite(r.clip),
                 "p_prompt": finite(r.prompt_probability),
                 "elapsed_s": elapsed,
-                "eta_s": eta,
+                // null until there is an estimate (ETA_FROM_STEP).
+                "eta_s": eta.and_then(finite),
             })),
             ProgressMode::Auto | ProgressMode::None => {}
         }
@@ -172,9 +193,7 @@ fn finite(v: f64) -> Option<f64> {
 
 /// One line, written whole, so lines from threads never interleave.
 fn emit(v: &serde_json::Value) {
-    let mut line = v.to_string();
-    line.push('\n');
-    let _ = std::io::stderr().lock().write_all(line.as_bytes());
+    errln!("{v}");
 }
 
 #[cfg(test)]
@@ -189,5 +208,16 @@ mod tests {
         }
         assert_eq!(ProgressMode::Json.resolve(), ProgressMode::Json);
         assert_eq!(finite(f64::NAN), None);
+    }
+
+    #[test]
+    fn no_estimate_before_the_third_step() {
+        assert_eq!(eta(1, 100, 0.0), None);
+        assert_eq!(eta(2, 100, 1.0), None);
+        // Two steps in 4 s since the first ended: 2 s a step, 97 steps left.
+        assert_eq!(eta(3, 100, 4.0), Some(194.0));
+        assert_eq!(eta(100, 100, 50.0), Some(0.0));
+        assert_eq!(eta_text(None), "ETA …");
+        assert_eq!(eta_text(Some(193.6)), "ETA 194 s");
     }
 }

@@ -18,7 +18,7 @@ pub fn stop_flag() -> &'static AtomicBool {
     static INSTALLED: OnceLock<()> = OnceLock::new();
     INSTALLED.get_or_init(|| {
         if let Err(e) = install() {
-            eprintln!("warning: Ctrl-C will not stop cleanly: {e}");
+            errln!("t2tf: warning: Ctrl-C will not stop cleanly: {e}");
         }
     });
     &STOP

@@ -68,7 +68,7 @@ impl VolumeArgs {
             .collect();
         if !thin.is_empty() {
             // Said, since a slab seen edge-on shows almost nothing (docs: ARCHITECTURE.md).
-            eprintln!(
+            errln!(
                 "t2tf: warning: {} has one point along {}: it is drawn as a slab one spacing thick",
                 path.display(),
                 thin.join(" and ")

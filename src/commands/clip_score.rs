@@ -40,9 +40,9 @@ pub fn run(args: ClipScoreArgs) -> Result<()> {
     let text = clip.encode_text(&captions)?;
     let sims: Vec<f32> = text.iter().map(|t| cosine(&img[0], t)).collect();
     let probs = softmax_scaled(&sims, clip.logit_scale());
-    println!("cosine   softmax  caption");
+    outln!("cosine   softmax  caption")?;
     for ((s, p), c) in sims.iter().zip(&probs).zip(&captions) {
-        println!("{s:>7.4}  {p:>7.4}  {c}");
+        outln!("{s:>7.4}  {p:>7.4}  {c}")?;
     }
     Ok(())
 }

@@ -8,6 +8,10 @@ use crate::formats::{extension_list, format_of, list_presets, read_preset, write
 /// Convert a transfer function between ParaView JSON (.json), ParaView XML (.xml) and VisIt
 /// colour tables (.ct); the formats follow the file extensions.
 #[derive(clap::Args, Debug)]
+// clap writes an optional positional as [OUTPUT]; it is required unless --list.
+#[command(
+    override_usage = "t2tf convert [OPTIONS] <INPUT> <OUTPUT>\n       t2tf convert --list <INPUT>"
+)]
 #[command(after_help = "Examples:\n  \
     t2tf convert out/neghip.json neghip.ct\n  \
     t2tf convert preset.json preset_12bit.json --rescale 0,4095\n\n\
@@ -17,10 +21,14 @@ pub struct ConvertArgs {
     /// Input transfer function (.json, .xml or .ct).
     #[arg(help = format!("Input transfer function ({})", extension_list()))]
     pub input: PathBuf,
-    /// Output file; its extension picks the format (.json, .xml or .ct).
+    /// Output file; its extension picks the format (.json, .xml or .ct). Required unless
+    /// --list.
     #[arg(
         required_unless_present = "list",
-        help = format!("Output file; its extension picks the format ({})", extension_list())
+        help = format!(
+            "Output file (required unless --list); its extension picks the format ({})",
+            extension_list()
+        )
     )]
     pub output: Option<PathBuf>,
     /// The preset to convert from a file holding several (see --list).
@@ -69,11 +77,13 @@ fn list(input: &std::path::Path) -> anyhow::Result<()> {
             .space
             .unwrap_or_else(|| "categorical (not convertible)".into());
         match s.counts {
-            Some(c) => println!(
+            Some(c) => outln!(
                 "{}\t{kind}\t{} colour points\t{} opacity points",
-                s.name, c.colour, c.opacity
-            ),
-            None => println!("{}\t{kind}", s.name),
+                s.name,
+                c.colour,
+                c.opacity
+            )?,
+            None => outln!("{}\t{kind}", s.name)?,
         }
     }
     Ok(())
@@ -108,14 +118,14 @@ pub fn run(args: ConvertArgs) -> anyhow::Result<()> {
     write_preset(&output, &preset)?;
     let tf = &preset.tf;
     let [lo, hi] = tf.data_range();
-    println!(
+    outln!(
         "wrote {} ({}, {}: {} colour points, {} opacity points, data range {lo} to {hi})",
         output.display(),
         preset.space.paraview_name(),
         tf.name,
         tf.rgb_points.len(),
         tf.opacity_points.len()
-    );
+    )?;
     Ok(())
 }
 

@@ -52,7 +52,7 @@ pub fn run(args: InfoArgs) -> Result<()> {
     } else {
         text_report(&args, &volume, file_bytes, &rows, seconds)
     };
-    print!("{text}");
+    crate::out::out(format_args!("{text}"))?;
     Ok(())
 }
 

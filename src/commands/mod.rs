@@ -1,5 +1,6 @@
 //! One module per subcommand: its clap `Args` and its `run`.
 
+pub mod cache;
 pub mod clip_score;
 pub mod convert;
 pub mod info;

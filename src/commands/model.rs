@@ -11,6 +11,12 @@ use crate::units::human_bytes;
 
 /// Download or list CLIP models in the Hugging Face cache.
 #[derive(clap::Args, Debug)]
+#[command(after_help = "Examples:\n  \
+    t2tf model fetch\n  \
+    t2tf model fetch laion/CLIP-ViT-H-14-laion2B-s32B-b79K\n  \
+    t2tf model list\n\n\
+    On a cluster: fetch on a login node, then run with HF_HUB_OFFLINE=1 on compute nodes \
+    that share the cache.")]
 pub struct ModelArgs {
     #[command(subcommand)]
     pub action: ModelAction,
@@ -28,6 +34,11 @@ pub enum ModelAction {
                             for gated or private models.")]
     Fetch(FetchArgs),
     /// List the CLIP models in the cache with their revisions and sizes.
+    #[command(
+        after_help = "Examples:\n  t2tf model list\n  t2tf model list --all\n\n\
+                            The cache is $HF_HUB_CACHE, else $HF_HOME/hub, else \
+                            ~/.cache/huggingface/hub."
+    )]
     List(ListArgs),
 }
 
@@ -84,11 +95,11 @@ fn fetch(a: FetchArgs) -> Result<()> {
     for p in &paths {
         let size = std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
         let name = p.file_name().unwrap_or_default().to_string_lossy();
-        println!("  {name:<40} {:>10}", human_bytes(size.into()));
+        outln!("  {name:<40} {:>10}", human_bytes(size.into()))?;
     }
-    println!("  {summary}");
+    outln!("  {summary}")?;
     let snapshot = files.config.parent().unwrap_or(&files.config);
-    eprintln!(
+    errln!(
         "t2tf: {} at {} is in the cache; use it offline with HF_HUB_OFFLINE=1 and --model {}{}, \
          or --model with the folder below",
         a.repo,
@@ -100,7 +111,7 @@ fn fetch(a: FetchArgs) -> Result<()> {
             format!(" --revision {}", a.revision)
         }
     );
-    println!("{}", snapshot.display());
+    outln!("{}", snapshot.display())?;
     Ok(())
 }
 
@@ -112,24 +123,24 @@ fn list(a: ListArgs) -> Result<()> {
         .filter(|r| r.kind == RepoKind::Model && (a.all || is_clip(r)))
         .collect();
     if shown.is_empty() {
-        eprintln!(
+        errln!(
             "t2tf: no {}models in the cache at {} (`t2tf model fetch` downloads one)",
             if a.all { "" } else { "CLIP " },
             settings.cache_dir.display()
         );
         return Ok(());
     }
-    println!("{:<48} {:>10}  {:<20} weights", "repo", "size", "revisions");
+    outln!("{:<48} {:>10}  {:<20} weights", "repo", "size", "revisions")?;
     for r in shown {
-        println!(
+        outln!(
             "{:<48} {:>10}  {:<20} {}",
             r.repo_id,
             human_bytes(r.size_on_disk.into()),
             refs(r),
             weight_files(r).join(", ")
-        );
+        )?;
     }
-    println!("cache: {}", settings.cache_dir.display());
+    outln!("cache: {}", settings.cache_dir.display())?;
     Ok(())
 }
 

@@ -22,7 +22,7 @@ const DEFAULT_OUT: &str = "t2tf-output";
 /// Optimize a transfer function so renderings of VOLUME match a text prompt.
 #[derive(clap::Args, Debug, Clone)]
 #[command(
-    after_help = "Example: t2tf optimize bonsai_256x256x256_uint8.raw --prompt \"a potted tree\" --out bonsai-tf"
+    after_help = "Example:\n  t2tf optimize bonsai_256x256x256_uint8.raw --prompt \"a potted tree\" --out bonsai-tf"
 )]
 pub struct OptimizeArgs {
     /// The volume (.vti, legacy .vtk, or .raw named NAME_XxYxZ_DTYPE.raw).
@@ -285,7 +285,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         .validate()
         .with_context(|| format!("t2tf optimize {}", volume_path.display()))?;
     let args = run.args();
-    let _lock = claim_output(&args.out)?;
+    let lock = claim_output(&args.out)?;
     // Installed now, so a SIGTERM while loading still ends with a written result.
     let stop = signals::stop_flag();
     let budget = Budget::new(args.max_memory);
@@ -306,7 +306,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
                     prompt_probability: log.prompt_probability,
                 }),
                 Event::Warning(w) => {
-                    progress.suspend(|| eprintln!("t2tf: warning: {w}"));
+                    progress.suspend(|| errln!("t2tf: warning: {w}"));
                 }
             }
             // A signal (also one received while loading) stops the run after this step.
@@ -321,7 +321,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
         progress.finish();
         if result.interrupted() {
-            eprintln!(
+            errln!(
                 "stopped after {} of {} steps: writing the TF of the last step",
                 result.steps_run(),
                 run.job.settings().steps
@@ -330,7 +330,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         let report = result
             .write(&args.out, &run.name)
             .map_err(flags::pipeline)?;
-        eprintln!(
+        errln!(
             "wrote {} files to {}",
             report.outputs.len(),
             args.out.display()
@@ -338,8 +338,10 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         progress.done(&args.out, &report.outputs, result.interrupted());
         Ok(())
     })?;
+    // Released (and its file removed) here: `exit` below runs no destructor.
+    drop(lock);
     if let Some(sig) = signals::received() {
-        eprintln!(
+        errln!(
             "t2tf: stopped by {}: the TF of the last finished step was written to {}",
             signals::name(sig),
             args.out.display()
@@ -355,7 +357,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
 fn claim_output(out: &Path) -> Result<crate::fs::OutputLock> {
     let lock = crate::fs::OutputLock::acquire(out).map_err(flags::fs)?;
     for name in crate::fs::clean_stale(out)? {
-        eprintln!("t2tf: cleaned up {name}, left in --out by an interrupted run");
+        errln!("t2tf: cleaned up {name}, left in --out by an interrupted run");
     }
     Ok(lock)
 }

@@ -177,7 +177,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         }
     };
     image.save_png(&args.out)?;
-    eprintln!(
+    errln!(
         "wrote {} ({}x{})",
         args.out.display(),
         image.width,

@@ -263,6 +263,11 @@ fn sigterm_and_sighup_write_the_result_and_exit_128_plus_the_signal() {
         assert_eq!(status.code(), Some(code), "signal {sig}");
         let report = one_complete_set(&out);
         assert!(report["outputs"].as_array().unwrap().len() >= 5);
+        // The lock is released and its file removed on this path too (it exits early).
+        assert!(
+            !out.join(".t2tf.lock").exists(),
+            "signal {sig}: lock file left"
+        );
     }
 }
 

@@ -3,8 +3,11 @@
 //! One test binary per area (`cargo test --release --test cli`); each
 //! module covers one subject, so a test's name is `MODULE::TEST`.
 
+mod cli_cache;
+mod cli_help;
 mod cli_info;
 mod cli_messages;
+mod cli_streams;
 mod hostile_cli;
 #[path = "../limits_util/mod.rs"]
 mod limits_util;

@@ -11,7 +11,7 @@ use t2tf::image::Image;
 use t2tf::optimize::captions::{CacheOutcome, CaptionPool};
 use t2tf::optimize::driver::{self, Finished, Job, Models, Positive};
 use t2tf::optimize::report::Report;
-use t2tf::optimize::tf_plot::Curve;
+use t2tf::optimize::tf_plot::{Curve, PlotLabels};
 use t2tf::optimize::{OptimizeError, Renderer, Settings};
 
 const PROMPT: &str = "a red and yellow thing";
@@ -168,9 +168,13 @@ fn full_run_writes_every_output_and_caches_the_pool() {
     let curve = Curve::Opacity {
         unit_over_length: 0.01,
     };
-    driver::write_outputs(&dir, &mut report, &done, hist, curve).unwrap();
+    let labels = PlotLabels {
+        title: PROMPT.into(),
+        data_range: [0.0, 255.0],
+    };
+    driver::write_outputs(&dir, &mut report, &done, hist, curve, &labels).unwrap();
     let tf = Image::load_png(&dir.join("tf.png")).unwrap();
-    assert_eq!((tf.width, tf.height), (512, 256));
+    assert_eq!((tf.width, tf.height), (720, 420));
     let preview = Image::load_png(&dir.join("preview.png")).unwrap();
     assert_eq!((preview.width, preview.height), (2 * SIDE, 2 * SIDE));
     // The preview's first tile is the first orbit view's render of the final TF.

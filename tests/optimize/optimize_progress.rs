@@ -55,6 +55,9 @@ fn a_pipe_gets_plain_step_lines() {
     for l in &steps {
         assert!(l.contains("loss") && l.contains("ETA"), "{l}");
     }
+    // The first step has no estimate yet; the last has one.
+    assert!(steps[0].ends_with("ETA …"), "{}", steps[0]);
+    assert!(steps.last().unwrap().ends_with("ETA 0 s"), "{err}");
     assert!(
         !err.contains('\r') && !err.contains('\u{1b}'),
         "terminal codes in a log: {err:?}"
@@ -76,8 +79,14 @@ fn json_progress_is_one_object_per_line() {
     for (i, s) in steps.iter().enumerate() {
         assert_eq!(s["step"], i + 1);
         assert_eq!(s["steps"], 6);
-        for key in ["loss", "elapsed_s", "eta_s", "p_prompt"] {
+        for key in ["loss", "elapsed_s", "p_prompt"] {
             assert!(s[key].as_f64().is_some_and(f64::is_finite), "{key}: {s}");
+        }
+        // No estimate from the first steps: the first carries one-off work.
+        if i < 2 {
+            assert!(s["eta_s"].is_null(), "step {}: {s}", i + 1);
+        } else {
+            assert!(s["eta_s"].as_f64().is_some_and(f64::is_finite), "{s}");
         }
     }
     assert_eq!(steps[5]["eta_s"], 0.0);
@@ -100,4 +109,30 @@ fn json_progress_is_one_object_per_line() {
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     let engine = report["render"]["clip_engine"].as_str().unwrap_or_default();
     assert!(engine.contains("engine"), "{report}");
+    // And what else it takes to reproduce the run.
+    assert_eq!(report["render"]["clip_precision"], "f32", "{report}");
+    assert_eq!(report["render"]["threads"], 2, "{report}");
+    assert!(report["settings"]["seed"].is_u64(), "{report}");
+    assert_eq!(report["version"], env!("CARGO_PKG_VERSION"));
+    let commit = report["commit"].as_str().unwrap();
+    assert!(commit == "unknown" || commit.len() == 40, "{commit}");
+    let tokenizer = std::fs::read(TOKENIZER).unwrap();
+    let want: String = <sha2::Sha256 as sha2::Digest>::digest(&tokenizer)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    assert_eq!(report["model"]["tokenizer_sha256"], want.as_str());
+    assert_eq!(
+        report["model"]["weights_sha256"].as_str().map(str::len),
+        Some(64)
+    );
+    assert!(report["machine"]["logical_cpus"]
+        .as_u64()
+        .is_some_and(|n| n >= 1));
+    assert!(report["machine"]["cpu_flags"].is_array(), "{report}");
+    // The output lock lives only while the run does.
+    assert!(
+        !out.join(".t2tf.lock").exists(),
+        "the lock file was left behind"
+    );
 }

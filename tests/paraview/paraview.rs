@@ -7,7 +7,7 @@
 use crate::paraview_util;
 
 use paraview_util::{
-    assert_volume_only_inside, floats, neghip, paraview_available, projected_box, pvpython, repo,
+    assert_volume_only_inside, floats, neghip, projected_box, pvpython, repo, require_paraview,
     test_tf,
 };
 use std::path::Path;
@@ -63,10 +63,9 @@ fn assert_close(got: &[f64], want: &[f64], what: &str) {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn presets_import_and_apply_exactly() {
-    if !paraview_available("presets_import_and_apply_exactly") {
-        return;
-    }
+    require_paraview("presets_import_and_apply_exactly");
     let v = neghip();
     let tf = ExportTf::from_control_points("t2tf-test", &test_tf(), &v, None);
     let dir = tempfile::tempdir().unwrap();
@@ -131,10 +130,9 @@ fn presets_import_and_apply_exactly() {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn generated_script_renders_the_volume_in_paraview() {
-    if !paraview_available("generated_script_renders_the_volume_in_paraview") {
-        return;
-    }
+    require_paraview("generated_script_renders_the_volume_in_paraview");
     let v = neghip();
     let dir = tempfile::tempdir().unwrap();
     // An oblique view so the box projects to a hexagon-ish region, not the whole frame.
@@ -185,14 +183,13 @@ fn generated_script_renders_the_volume_in_paraview() {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn unit_distance_does_not_change_the_paraview_image() {
     // docs/DESIGN.md: with o = 1 − exp(−σu/L) and ScalarOpacityUnitDistance = u, VTK renders
     // 1 − exp(−σΔ/L) whatever u is. Two exports for u = 0.5 and u = 4 must render alike
     // (differences: the export tolerance and VTK's 1024-entry opacity table); a wrong
     // conversion (e.g. o = σu without the exponential) changes the image grossly.
-    if !paraview_available("unit_distance_does_not_change_the_paraview_image") {
-        return;
-    }
+    require_paraview("unit_distance_does_not_change_the_paraview_image");
     let v = neghip();
     let view = ParaViewCamera::front(&v.geometry, 2.5);
     let dir = tempfile::tempdir().unwrap();
@@ -232,12 +229,11 @@ print("RANGE %r %r" % (lo, hi))
 "#;
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn generated_script_opens_vti_and_legacy_vtk() {
     // ParaView writes its Wavelet source (21³ points from −10 to 10, array RTData) as .vti
     // and legacy .vtk; our script must open each with the right reader and array and show it.
-    if !paraview_available("generated_script_opens_vti_and_legacy_vtk") {
-        return;
-    }
+    require_paraview("generated_script_opens_vti_and_legacy_vtk");
     let dir = tempfile::tempdir().unwrap();
     let writer = dir.path().join("write.py");
     std::fs::write(&writer, WRITE_WAVELET).unwrap();

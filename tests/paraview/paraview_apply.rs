@@ -10,7 +10,7 @@ use crate::paraview_util;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use paraview_util::{neghip, paraview_available, projected_box, pvpython_output, repo, test_tf};
+use paraview_util::{neghip, projected_box, pvpython_output, repo, require_paraview, test_tf};
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::write_all;
 use t2tf::image::Image;
@@ -86,10 +86,9 @@ fn shown_inside(img: &Image, b: [f64; 4], bg: [f32; 3]) -> f64 {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn helper_shows_a_raw_volume_by_its_name_and_by_flags() {
-    if !paraview_available("helper_shows_a_raw_volume_by_its_name_and_by_flags") {
-        return;
-    }
+    require_paraview("helper_shows_a_raw_volume_by_its_name_and_by_flags");
     let v = neghip();
     let dir = tempfile::tempdir().unwrap();
     let json = preset(dir.path(), &v);
@@ -158,10 +157,9 @@ fn fails(args: &[&str], file: &str, needle: &str, shot: &Path) {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn helper_refuses_unreadable_volumes_and_empty_screenshots() {
-    if !paraview_available("helper_refuses_unreadable_volumes_and_empty_screenshots") {
-        return;
-    }
+    require_paraview("helper_refuses_unreadable_volumes_and_empty_screenshots");
     let v = neghip();
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

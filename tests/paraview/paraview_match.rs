@@ -14,8 +14,8 @@
 use crate::paraview_util;
 
 use paraview_util::{
-    assert_volume_only_inside, floats, neghip, neghip_path, paraview_available, projected_box,
-    pvpython, repo,
+    assert_volume_only_inside, floats, neghip, neghip_path, projected_box, pvpython, repo,
+    require_paraview,
 };
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -167,10 +167,9 @@ fn preview_camera(volume: &Volume) -> Camera {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn optimizer_output_opens_in_paraview_and_matches_our_render() {
-    if !paraview_available("optimizer_output_opens_in_paraview_and_matches_our_render") {
-        return;
-    }
+    require_paraview("optimizer_output_opens_in_paraview_and_matches_our_render");
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     // A few steps of the tiny random CLIP: the TF is whatever it makes of the prompt; what is
@@ -314,10 +313,9 @@ fn smooth_tf() -> ControlPoints {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn smooth_tf_oblique_view_matches_our_render() {
-    if !paraview_available("smooth_tf_oblique_view_matches_our_render") {
-        return;
-    }
+    require_paraview("smooth_tf_oblique_view_matches_our_render");
     let volume = neghip();
     let cam = Camera::orbit(
         &volume.geometry,
@@ -391,6 +389,7 @@ fn smooth_tf_oblique_view_matches_our_render() {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn optimizer_initial_tf_matches_our_render() {
     // `--steps 0` writes the paper's initialization: densities inversely proportional to the
     // histogram, scaled so that mean T_N = 0.05 from V0, colours in [0.3, 0.7]; a typical,
@@ -398,9 +397,7 @@ fn optimizer_initial_tf_matches_our_render() {
     // llvmpipe): 48.6 dB against our 0.1-voxel render, 41.8 dB against our default step (our
     // 0.1 vs default differ by 41.8 dB, so that is our step's own error). 8-bit PNGs cap the
     // PSNR near 58.9 dB. Bars ~3.5 dB under the measurements.
-    if !paraview_available("optimizer_initial_tf_matches_our_render") {
-        return;
-    }
+    require_paraview("optimizer_initial_tf_matches_our_render");
     let dir = tempfile::tempdir().unwrap();
     let (script, json) = optimize(&dir.path().join("run"), 0);
     let text = std::fs::read_to_string(&script).unwrap();

@@ -19,7 +19,7 @@ use crate::paraview_util;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use paraview_util::{paraview_available, pvpython, repo};
+use paraview_util::{pvpython, repo, require_paraview};
 use serde_json::{json, Value};
 use t2tf::camera::{Camera, Orbit, UpAxis};
 use t2tf::image::{psnr, Image};
@@ -176,10 +176,9 @@ fn lit(img: &Image, bg: f64) -> f64 {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn renders_match_paraview_screenshots() {
-    if !paraview_available("renders_match_paraview_screenshots") {
-        return;
-    }
+    require_paraview("renders_match_paraview_screenshots");
     let keep = std::env::var_os("T2TF_PARITY_KEEP").map(PathBuf::from);
     let tmp = tempfile::tempdir().unwrap();
     let dir = keep.unwrap_or_else(|| tmp.path().to_path_buf());

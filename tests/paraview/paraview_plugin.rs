@@ -16,7 +16,7 @@ use crate::paraview_util;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use paraview_util::{floats, paraview_available, repo, server, PVPYTHON};
+use paraview_util::{floats, repo, require_paraview, server, PVPYTHON};
 use t2tf::image::{psnr, Image};
 
 const NEGHIP: &str = "../shared/data/volumes/neghip_64x64x64_uint8.raw";
@@ -165,33 +165,32 @@ fn applies_and_matches(mode: &str, array: &str, volume_is_temp: bool, min_db: f6
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn plugin_applies_the_tf_of_a_vti_file() {
-    if paraview_available("plugin_applies_the_tf_of_a_vti_file") {
-        // The input comes from a .vti reader: t2tf reads that file itself. The volume is the
-        // 16-bit headsq: with the 8-bit neghip this comparison measured 33.9 dB (34.1 dB with
-        // --paraview-lut), because ParaView filters 8-bit volume textures at 8-bit precision
-        // (tests/paraview/paraview_match.rs: 31.3 dB, 35.8 dB for a float32 copy of the same data).
-        // Measured with headsq: 45.0 dB (exact TF, step 0.1 voxel).
-        applies_and_matches("vti", "ImageFile", false, 35.0);
-    }
+    require_paraview("plugin_applies_the_tf_of_a_vti_file");
+    // The input comes from a .vti reader: t2tf reads that file itself. The volume is the
+    // 16-bit headsq: with the 8-bit neghip this comparison measured 33.9 dB (34.1 dB with
+    // --paraview-lut), because ParaView filters 8-bit volume textures at 8-bit precision
+    // (tests/paraview/paraview_match.rs: 31.3 dB, 35.8 dB for a float32 copy of the same data).
+    // Measured with headsq: 45.0 dB (exact TF, step 0.1 voxel).
+    applies_and_matches("vti", "ImageFile", false, 35.0);
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn plugin_applies_the_tf_of_a_source_without_a_file() {
-    if paraview_available("plugin_applies_the_tf_of_a_source_without_a_file") {
-        // A Wavelet source: the plugin writes the image to a temporary .vti for t2tf.
-        // The Wavelet source is float, so the exact TF is compared (--paraview-lut measures
-        // lower on it). Measured 38.5–46.4 dB, depending on the TF the random test CLIP
-        // leads to; the bar is 35 dB.
-        applies_and_matches("nofile", "RTData", true, 35.0);
-    }
+    require_paraview("plugin_applies_the_tf_of_a_source_without_a_file");
+    // A Wavelet source: the plugin writes the image to a temporary .vti for t2tf.
+    // The Wavelet source is float, so the exact TF is compared (--paraview-lut measures
+    // lower on it). Measured 38.5–46.4 dB, depending on the TF the random test CLIP
+    // leads to; the bar is 35 dB.
+    applies_and_matches("nofile", "RTData", true, 35.0);
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn cancelled_run_keeps_the_last_steps_tf() {
-    if !paraview_available("cancelled_run_keeps_the_last_steps_tf") {
-        return;
-    }
+    require_paraview("cancelled_run_keeps_the_last_steps_tf");
     let dir = tempfile::tempdir().unwrap();
     let (out, res) = driver("cancel", dir.path());
     assert!(out.status.success(), "{}", text(&out));
@@ -217,10 +216,9 @@ fn cancelled_run_keeps_the_last_steps_tf() {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn problems_are_one_message_not_a_traceback() {
-    if !paraview_available("problems_are_one_message_not_a_traceback") {
-        return;
-    }
+    require_paraview("problems_are_one_message_not_a_traceback");
     let dir = tempfile::tempdir().unwrap();
     let (out, _) = driver("errors", dir.path());
     let all = text(&out);
@@ -240,11 +238,14 @@ fn problems_are_one_message_not_a_traceback() {
 const PROXY_SIZE: usize = 32;
 
 #[test]
+#[cfg_attr(
+    not(t2tf_pvserver),
+    ignore = "needs pvpython, xvfb-run, mpiexec and pvserver"
+)]
 fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
     let name = "pvserver_gets_a_bounded_proxy_and_the_tf_transfers";
-    if !paraview_available(name) || !server::pvserver_available(name) {
-        return;
-    }
+    require_paraview(name);
+    server::require_pvserver(name);
     let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("remote.json");
@@ -401,11 +402,10 @@ fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn macro_reads_the_prompt_from_the_environment_or_a_file() {
     let name = "macro_reads_the_prompt_from_the_environment_or_a_file";
-    if !paraview_available(name) {
-        return;
-    }
+    require_paraview(name);
     // pvpython has no dialog (that needs the GUI): the macro's other two sources of a prompt,
     // and the message when there is none. The plugin is found through T2TF_PLUGIN, as after
     // Macros > Import new macro (ParaView copies the macro away from the plugin).

@@ -10,7 +10,7 @@ use crate::paraview_util;
 
 use std::path::Path;
 
-use paraview_util::{neghip, paraview_available, pvpython};
+use paraview_util::{neghip, pvpython, require_paraview};
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::{paraview_script, write_all, ExportTf};
 use t2tf::tf::ControlPoints;
@@ -30,10 +30,9 @@ fn render(script: &Path, dir: &Path) -> String {
 }
 
 #[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn exported_close_points_fit_paraview_tables() {
-    if !paraview_available("exported_close_points_fit_paraview_tables") {
-        return;
-    }
+    require_paraview("exported_close_points_fit_paraview_tables");
     let v = neghip();
     let view = ParaViewCamera::front(&v.geometry, 2.5);
     let dir = tempfile::tempdir().unwrap();

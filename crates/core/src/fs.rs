@@ -287,10 +287,13 @@ fn finish_or_drop_set(dir: &Path, staged: &Path) -> Result<()> {
 
 /// An exclusive lock on an output folder, held while a run writes into it (an advisory
 /// `flock` on `.t2tf.lock`, released by the kernel however the process ends, so a killed run
-/// never leaves the folder locked). The file holds the owner's PID for the error message.
+/// never leaves the folder locked). The file holds the owner's PID for the error message, and
+/// is removed when the lock is dropped; a killed run leaves it behind, unlocked, and the next
+/// run takes it over.
 #[derive(Debug)]
 pub struct OutputLock {
-    _file: std::fs::File,
+    file: std::fs::File,
+    path: PathBuf,
     /// The folder, if this lock created it: a run that fails before writing anything takes
     /// it away again rather than leave an empty folder behind.
     created: Option<PathBuf>,
@@ -298,22 +301,26 @@ pub struct OutputLock {
 
 impl Drop for OutputLock {
     fn drop(&mut self) {
+        // Removed while the flock is still held (`file` closes after this body), so no other
+        // run holds a lock on it then; one that opened it and waits finds, once it gets the
+        // lock, that the name no longer leads to its file, and starts over (`acquire`).
+        if is_current(&self.file, &self.path) {
+            let _ = std::fs::remove_file(&self.path);
+        }
         let Some(dir) = &self.created else { return };
-        let only_the_lock = std::fs::read_dir(dir).is_ok_and(|entries| {
-            entries
-                .filter_map(|e| e.ok())
-                .all(|e| e.file_name() == LOCK_NAME)
-        });
-        if only_the_lock {
-            let _ = std::fs::remove_file(dir.join(LOCK_NAME));
+        let empty = std::fs::read_dir(dir).is_ok_and(|mut entries| entries.next().is_none());
+        if empty {
             let _ = std::fs::remove_dir(dir);
         }
     }
 }
 
+/// Attempts at locking a lock file that the holder removed between our open and our lock.
+/// Each failure means another run ended in that instant; a few in a row are already unlikely.
+const LOCK_ATTEMPTS: usize = 100;
+
 impl OutputLock {
-    /// Lock `dir` (created if missing) or fail naming the process that holds it. The lock
-    /// file is left in place when released: removing it would let two runs lock two files.
+    /// Lock `dir` (created if missing) or fail naming the process that holds it.
     pub fn acquire(dir: &Path) -> Result<OutputLock> {
         let created = (!dir.exists()).then(|| dir.to_path_buf());
         std::fs::create_dir_all(dir)
@@ -324,22 +331,46 @@ impl OutputLock {
             });
         }
         let path = dir.join(LOCK_NAME);
-        let mut file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
-            .map_err(|e| folder_error(&path, dir, &e))?;
-        lock_file(&file).map_err(|_| busy(dir, &path))?;
-        file.set_len(0)
-            .and_then(|()| writeln!(file, "{}", std::process::id()))
-            .map_err(FsError::io(dir, "cannot write to the output folder"))?;
-        Ok(OutputLock {
-            _file: file,
-            created,
-        })
+        for _ in 0..LOCK_ATTEMPTS {
+            let mut file = std::fs::OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(&path)
+                .map_err(|e| folder_error(&path, dir, &e))?;
+            lock_file(&file).map_err(|_| busy(dir, &path))?;
+            // The previous holder removes the file as it ends: a lock on a removed file locks
+            // nothing another run can see, so open the name again.
+            if !is_current(&file, &path) {
+                continue;
+            }
+            file.set_len(0)
+                .and_then(|()| writeln!(file, "{}", std::process::id()))
+                .map_err(FsError::io(dir, "cannot write to the output folder"))?;
+            return Ok(OutputLock {
+                file,
+                path,
+                created,
+            });
+        }
+        Err(busy(dir, &path))
     }
+}
+
+/// Whether `path` still names the open `file` (same device and inode).
+#[cfg(unix)]
+fn is_current(file: &std::fs::File, path: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (file.metadata(), std::fs::metadata(path)) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    }
+}
+
+#[cfg(not(unix))]
+fn is_current(_file: &std::fs::File, path: &Path) -> bool {
+    path.exists()
 }
 
 #[cfg(unix)]
@@ -604,6 +635,47 @@ mod tests {
         let prefix = format!("{}: cannot create the output folder: ", file.display());
         assert!(e.starts_with(&prefix), "{e}");
         assert!(file.is_file(), "a refused --out must not be touched");
+    }
+
+    #[test]
+    fn the_lock_file_is_removed_when_the_run_ends() {
+        let dir = tempfile::tempdir().unwrap();
+        let lock = OutputLock::acquire(dir.path()).unwrap();
+        let path = dir.path().join(LOCK_NAME);
+        assert!(path.is_file());
+        drop(lock);
+        assert!(!path.exists(), "{} left behind", path.display());
+        // A lock file left by a killed run (unlocked) is taken over and removed in turn.
+        std::fs::write(&path, "999999\n").unwrap();
+        let lock = OutputLock::acquire(dir.path()).unwrap();
+        let pid = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(pid.trim(), std::process::id().to_string());
+        drop(lock);
+        assert!(!path.exists());
+    }
+
+    #[test]
+    fn a_run_holding_the_removed_lock_file_sees_it_is_stale() {
+        // The race the removal opens: a second run opened the lock file, the first run ended
+        // and removed it, then the second run's flock succeeds on a file no one else can
+        // reach. `is_current` is the check `acquire` makes after locking.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(LOCK_NAME);
+        let first = OutputLock::acquire(dir.path()).unwrap();
+        let opened = std::fs::File::open(&path).unwrap();
+        assert!(is_current(&opened, &path));
+        drop(first);
+        assert!(lock_file(&opened).is_ok(), "the flock itself succeeds");
+        assert!(
+            !is_current(&opened, &path),
+            "a removed file passed as current"
+        );
+        // A third run creates the file anew, and the stale handle does not stop it.
+        let third = OutputLock::acquire(dir.path()).unwrap();
+        let reopened = std::fs::File::open(&path).unwrap();
+        assert!(!is_current(&opened, &path));
+        assert!(is_current(&reopened, &path));
+        drop(third);
     }
 
     #[test]

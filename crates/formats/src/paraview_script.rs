@@ -36,7 +36,11 @@ pub(crate) fn source_path(volume: &Volume) -> Result<(String, &SourceFormat), Fo
             "the volume was not read from a file, so no script can reopen it".into(),
         )
     })?;
-    let abs = std::path::absolute(&src.path).unwrap_or_else(|_| src.path.clone());
+    // Canonical where the file exists (no `..`, no symlinks: the script names the file the
+    // run read, from anywhere); else as given, made absolute.
+    let abs = std::fs::canonicalize(&src.path)
+        .or_else(|_| std::path::absolute(&src.path))
+        .unwrap_or_else(|_| src.path.clone());
     let text = abs.to_str().ok_or_else(|| {
         FormatError::file(
             &src.path,

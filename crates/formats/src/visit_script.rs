@@ -9,6 +9,9 @@
 //! signed 16- and 32-bit integers only, so uint16, uint32 and int8 data would wrap through a
 //! BOV header. For those the script writes a VTK XML `.vti` (which VisIt opens natively with
 //! its VTK reader) holding the raw file's bytes as they are, typed exactly (`UInt16`, ...).
+//! The `.bov` header or `.vti` copy is written beside the script (the run's output folder, or
+//! the temporary folder if that is not writable), never beside the volume, whose folder may be
+//! read-only.
 
 use std::fmt::Write as _;
 
@@ -57,7 +60,7 @@ fn visit_raw(t: ScalarType) -> Option<VisitRaw> {
     }
 }
 
-/// A BOV header for the raw file (`%s` stands for its name): DATA_SIZE in points, BRICK_SIZE
+/// A BOV header for the raw file (`%s` stands for its absolute path): DATA_SIZE in points, BRICK_SIZE
 /// the box's world size, NODAL (values sit on the points), as VisIt's BOV documentation
 /// describes the keywords.
 fn bov_header(g: &t2tf_volume::Geometry, fmt: &str, order: ByteOrder) -> String {
@@ -187,6 +190,7 @@ import sys
 import tempfile
 
 VOLUME = {path}
+SCRIPT_NAME = {script_py}
 VARIABLE = {var}
 COLOR_MIN = {lo:?}
 COLOR_MAX = {hi:?}
@@ -227,10 +231,21 @@ def write_vti(path):
     os.replace(part, path)
 
 
+def here():
+    # The folder of this script (the run's output folder): side files go there, not beside
+    # the volume, whose folder may be read-only. VisIt's -s may not set __file__; the script's
+    # path is then among the arguments.
+    path = globals().get("__file__")
+    if not path:
+        path = next((a for a in sys.argv if os.path.basename(a) == SCRIPT_NAME), None)
+    return os.path.dirname(os.path.abspath(path)) if path else os.getcwd()
+
+
 def database():
+    stem = os.path.splitext(os.path.basename(VOLUME))[0]
     if VTI_HEAD is not None:
-        name = os.path.splitext(os.path.basename(VOLUME))[0] + ".t2tf.vti"
-        for folder in (os.path.dirname(VOLUME), tempfile.gettempdir()):
+        name = stem + ".t2tf.vti"
+        for folder in (here(), tempfile.gettempdir()):
             vti = os.path.join(folder, name)
             if os.path.exists(vti) and os.path.getmtime(vti) >= os.path.getmtime(VOLUME):
                 return vti
@@ -242,11 +257,16 @@ def database():
         sys.exit("could not write a .vti copy of " + VOLUME)
     if BOV_HEADER is None:
         return VOLUME
-    bov = os.path.splitext(VOLUME)[0] + ".bov"
-    if not os.path.exists(bov):
-        with open(bov, "w") as f:
-            f.write(BOV_HEADER % os.path.basename(VOLUME))
-    return bov
+    # The header names the volume by its absolute path, so it may live in another folder.
+    for folder in (here(), tempfile.gettempdir()):
+        bov = os.path.join(folder, stem + ".bov")
+        try:
+            with open(bov, "w") as f:
+                f.write(BOV_HEADER % VOLUME)
+            return bov
+        except OSError:
+            continue
+    sys.exit("could not write a .bov header for " + VOLUME)
 
 
 OpenDatabase(database())
@@ -300,6 +320,7 @@ if shot:
     sys.exit(0)"#,
         name = one_line(&tf.name),
         script = one_line(script_name),
+        script_py = py_str(script_name),
         u = tf
             .unit_distance
             .unwrap_or_else(|| t2tf_tf::default_unit_distance(g)),

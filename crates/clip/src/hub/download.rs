@@ -255,7 +255,7 @@ impl Progress {
             return Progress::Bar(bar);
         }
         let size = total.map_or("unknown size".into(), |t| HumanBytes(t).to_string());
-        eprintln!("downloading {file} ({size})");
+        super::note(format_args!("downloading {file} ({size})"));
         Progress::Lines {
             file: file.to_string(),
             last: Instant::now(),
@@ -277,7 +277,7 @@ impl Progress {
                 if last.elapsed() >= LINE_EVERY {
                     *last = Instant::now();
                     let of = total.map_or(String::new(), |t| format!(" of {}", HumanBytes(t)));
-                    eprintln!("{file}: {}{of}", HumanBytes(done_now));
+                    super::note(format_args!("{file}: {}{of}", HumanBytes(done_now)));
                 }
             }
         }
@@ -290,7 +290,7 @@ impl Progress {
             Progress::Bar(bar) => bar.abandon(),
             Progress::Lines { file, done, .. } => {
                 let how = if ok { "downloaded" } else { "stopped" };
-                eprintln!("{file}: {how} ({})", HumanBytes(*done));
+                super::note(format_args!("{file}: {how} ({})", HumanBytes(*done)));
             }
         }
     }

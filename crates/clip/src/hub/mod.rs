@@ -37,6 +37,14 @@ pub use list::{cached_repos, CachedFile, CachedRepo, CachedSnapshot, RepoKind};
 use cache::{Cached, RepoCache};
 use http::{Client, Head, Metadata, Target};
 
+/// A line for the person running the download, on stderr. Never a panic, as `eprintln!` would
+/// be on a closed stream (a log pipe whose reader left): a download does not fail over what it
+/// says about itself.
+pub(crate) fn note(args: std::fmt::Arguments) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr().lock(), "{args}");
+}
+
 /// How to reach the Hub and where the cache is; [`HubSettings::from_env`] reads them as
 /// `huggingface_hub` does.
 #[derive(Clone, Debug)]
@@ -119,10 +127,10 @@ impl HubRepo<'_> {
             Err(e) => {
                 let cached = self.cached(filename)?;
                 if cached != Cached::Unknown {
-                    eprintln!(
+                    note(format_args!(
                         "warning: using the cached {filename} of {} at {} ({e})",
                         self.repo_id, self.revision
-                    );
+                    ));
                     return Ok(cached.into_path());
                 }
                 if !e.is_transient() {

@@ -117,6 +117,113 @@ pub fn cache_dir() -> Option<PathBuf> {
     nonempty("HOME").map(|h| PathBuf::from(h).join(".cache").join("t2tf"))
 }
 
+/// Why the caption cache could not be listed or cleared. The system's error is part of the
+/// message and not a `source`: the CLI prints the cause chain, which would say it twice.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {action}: {error}", path.display())]
+pub struct CacheError {
+    /// The file or folder.
+    pub path: PathBuf,
+    /// What was being done ("cannot list", "cannot remove").
+    pub action: &'static str,
+    /// What the system said.
+    pub error: std::io::Error,
+}
+
+/// One file of the caption-embedding cache.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CacheEntry {
+    /// The file.
+    pub path: PathBuf,
+    /// Its size in bytes.
+    pub bytes: u64,
+    /// Captions it holds embeddings of, and their dimension, as its header says.
+    pub captions: u64,
+    /// Embedding dimension.
+    pub dim: u64,
+}
+
+/// Folder of the embedding files inside the cache directory.
+const EMBEDDINGS: &str = "text-embeddings";
+
+/// The embedding files t2tf wrote in the cache directory `dir` (see [`cache_dir`]), by name.
+/// Only files named as t2tf names them (`text-embeddings/<64 hex digits>.bin`) and starting
+/// with t2tf's magic count, so [`clear_cache`] never touches a file that is not ours. A
+/// missing folder is an empty cache.
+pub fn cache_entries(dir: &Path) -> Result<Vec<CacheEntry>, CacheError> {
+    let folder = dir.join(EMBEDDINGS);
+    let list = match std::fs::read_dir(&folder) {
+        Ok(list) => list,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(error) => {
+            return Err(CacheError {
+                path: folder,
+                action: "cannot list",
+                error,
+            })
+        }
+    };
+    let mut entries = Vec::new();
+    for e in list.flatten() {
+        let name = e.file_name();
+        let Some(stem) = name.to_str().and_then(|n| n.strip_suffix(".bin")) else {
+            continue;
+        };
+        if stem.len() != 64 || !stem.bytes().all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f')) {
+            continue;
+        }
+        let path = e.path();
+        // Only the header is read: a cache file may be many megabytes.
+        let mut header = [0u8; 56];
+        let read = std::fs::File::open(&path).and_then(|mut f| f.read_exact(&mut header));
+        let (Ok(()), Ok(meta)) = (read, e.metadata()) else {
+            continue;
+        };
+        // Any version of t2tf's format ("T2TFEMB" and a version digit).
+        if !meta.is_file() || header[..7] != MAGIC[..7] {
+            continue;
+        }
+        let word = |at: usize| {
+            let mut w = [0u8; 8];
+            w.copy_from_slice(&header[at..at + 8]);
+            u64::from_le_bytes(w)
+        };
+        entries.push(CacheEntry {
+            path,
+            bytes: meta.len(),
+            captions: word(40),
+            dim: word(48),
+        });
+    }
+    entries.sort_by(|a, b| a.path.cmp(&b.path));
+    Ok(entries)
+}
+
+/// Remove t2tf's embedding files from the cache directory `dir` (those [`cache_entries`]
+/// lists), then the folders they leave empty; anything else there stays. Returns what was
+/// removed.
+pub fn clear_cache(dir: &Path) -> Result<Vec<CacheEntry>, CacheError> {
+    let entries = cache_entries(dir)?;
+    for e in &entries {
+        match std::fs::remove_file(&e.path) {
+            Ok(()) => {}
+            // Removed meanwhile (another clear): what was asked for is done.
+            Err(err) if err.kind() == std::io::ErrorKind::NotFound => {}
+            Err(error) => {
+                return Err(CacheError {
+                    path: e.path.clone(),
+                    action: "cannot remove",
+                    error,
+                })
+            }
+        }
+    }
+    // `remove_dir` removes only an empty folder: a file that is not ours keeps its folder.
+    let _ = std::fs::remove_dir(dir.join(EMBEDDINGS));
+    let _ = std::fs::remove_dir(dir);
+    Ok(entries)
+}
+
 /// SHA-256 of a file's bytes, read in 1 MiB chunks: `hash_files` of one file (its tests).
 #[cfg(test)]
 fn hash_file(path: &Path) -> Result<[u8; 32], OptimizeError> {
@@ -177,7 +284,7 @@ const HEADER: usize = 8 + 32 + 8 + 8 + 32;
 /// Where the embeddings for `key` live inside the cache directory `dir`.
 pub(crate) fn cache_path(dir: &Path, key: &[u8; 32]) -> PathBuf {
     let hex: String = key.iter().map(|b| format!("{b:02x}")).collect();
-    dir.join("text-embeddings").join(format!("{hex}.bin"))
+    dir.join(EMBEDDINGS).join(format!("{hex}.bin"))
 }
 
 /// Serialize embeddings: magic, key, count (u64), dimension (u64), SHA-256 of the values,
@@ -415,6 +522,60 @@ mod tests {
         assert!(matches!(o4, CacheOutcome::Stored(_)), "{o4:?}");
         assert_eq!(e4, emb);
         assert_eq!(calls.get(), 5);
+    }
+
+    #[test]
+    fn clear_removes_only_our_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = dir.path().join("t2tf");
+        assert!(
+            cache_entries(&cache).unwrap().is_empty(),
+            "a missing cache is empty"
+        );
+        let emb = vec![vec![0.5f32; 4]; 3];
+        let mut ours = Vec::new();
+        for text in ["a", "b"] {
+            let key = cache_key(b"model", &[text.to_string()]);
+            let path = cache_path(&cache, &key);
+            store(&path, &key, &emb).unwrap();
+            ours.push(path);
+        }
+        let folder = cache.join(EMBEDDINGS);
+        // Not ours: another name, and our name pattern holding another program's bytes.
+        let foreign = [
+            folder.join("notes.txt"),
+            folder.join(format!("{}.bin", "f".repeat(64))),
+            cache.join("other-tool.db"),
+        ];
+        for f in &foreign {
+            std::fs::write(f, b"not t2tf's: keep me").unwrap();
+        }
+        let listed = cache_entries(&cache).unwrap();
+        let mut paths: Vec<_> = listed.iter().map(|e| e.path.clone()).collect();
+        ours.sort();
+        paths.sort();
+        assert_eq!(paths, ours);
+        for e in &listed {
+            assert_eq!((e.captions, e.dim), (3, 4));
+            assert_eq!(e.bytes, (HEADER + 3 * 4 * 4) as u64);
+        }
+        let removed = clear_cache(&cache).unwrap();
+        assert_eq!(removed, listed);
+        for p in &ours {
+            assert!(!p.exists(), "{} not removed", p.display());
+        }
+        for f in &foreign {
+            assert!(f.is_file(), "{} removed", f.display());
+        }
+        assert!(cache_entries(&cache).unwrap().is_empty());
+        // With nothing else there, the folders go too.
+        for f in &foreign {
+            std::fs::remove_file(f).unwrap();
+        }
+        let key = cache_key(b"model", &["c".to_string()]);
+        store(&cache_path(&cache, &key), &key, &emb).unwrap();
+        assert_eq!(clear_cache(&cache).unwrap().len(), 1);
+        assert!(!cache.exists());
     }
 
     #[test]

@@ -315,6 +315,7 @@ pub fn write_outputs(
     finished: &Finished,
     histogram: &[u64],
     curve: super::tf_plot::Curve,
+    labels: &super::tf_plot::PlotLabels,
 ) -> Result<(), OutputError> {
     let t0 = Instant::now();
     std::fs::create_dir_all(dir).map_err(|source| OutputError::Folder {
@@ -322,7 +323,7 @@ pub fn write_outputs(
         source,
     })?;
     let cp = &finished.outcome.control_points;
-    super::tf_plot::save(&dir.join("tf.png"), cp, histogram, curve)?;
+    super::tf_plot::save(&dir.join("tf.png"), cp, histogram, curve, labels)?;
     finished.preview.save_png(&dir.join("preview.png"))?;
     report
         .outputs
@@ -342,9 +343,12 @@ pub enum OutputError {
         /// Why.
         source: std::io::Error,
     },
-    /// tf.png or preview.png.
+    /// preview.png.
     #[error(transparent)]
     Image(#[from] ImageError),
+    /// tf.png.
+    #[error(transparent)]
+    Plot(#[from] super::tf_plot::PlotError),
     /// report.json.
     #[error(transparent)]
     Report(#[from] ReportError),

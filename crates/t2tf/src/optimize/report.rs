@@ -88,6 +88,10 @@ pub struct ModelInfo {
     /// SHA-256 of the weight files, shard after shard (hex): the key of the caption-embedding
     /// cache.
     pub weights_sha256: Option<String>,
+    /// SHA-256 of the tokenizer.json used (hex): a `tokenizer` given apart from the model
+    /// changes the text embeddings.
+    #[serde(default)]
+    pub tokenizer_sha256: Option<String>,
     /// CLIP's logit scale (exp of the stored parameter).
     pub logit_scale: f64,
 }
@@ -105,6 +109,52 @@ pub struct VolumeInfo {
     pub range: [f64; 2],
     /// Voxels that are NaN or infinite (left out of the range and histogram).
     pub non_finite_voxels: usize,
+}
+
+/// The machine a run ran on: what decides which CLIP kernel runs and so the last bits of
+/// the result.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct MachineInfo {
+    /// The CPU's model name (`/proc/cpuinfo`), where the system says.
+    pub cpu_model: Option<String>,
+    /// The CPU's feature flags (`/proc/cpuinfo`), where the system says.
+    pub cpu_flags: Vec<String>,
+    /// Logical CPUs the process may use.
+    pub logical_cpus: usize,
+    /// Operating system and architecture (`linux x86_64`).
+    pub os: String,
+}
+
+impl MachineInfo {
+    /// This machine.
+    pub fn detect() -> MachineInfo {
+        let (cpu_model, cpu_flags) = std::fs::read_to_string("/proc/cpuinfo")
+            .map(|text| cpuinfo(&text))
+            .unwrap_or_default();
+        MachineInfo {
+            cpu_model,
+            cpu_flags,
+            logical_cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            os: format!("{} {}", std::env::consts::OS, std::env::consts::ARCH),
+        }
+    }
+}
+
+/// The first processor's model name and flags from `/proc/cpuinfo`'s text (x86 says
+/// "model name" and "flags"; ARM "Features", often with no model name).
+fn cpuinfo(text: &str) -> (Option<String>, Vec<String>) {
+    let first = text.split("\n\n").next().unwrap_or("");
+    let field = |keys: &[&str]| {
+        first.lines().find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            keys.contains(&k.trim()).then(|| v.trim().to_string())
+        })
+    };
+    let model = field(&["model name", "Model"]).filter(|m| !m.is_empty());
+    let flags = field(&["flags", "Features"])
+        .map(|f| f.split_whitespace().map(str::to_string).collect())
+        .unwrap_or_default();
+    (model, flags)
 }
 
 /// Result of the density initialization.
@@ -128,6 +178,12 @@ pub struct Report {
     pub tool: String,
     /// The crate version that wrote the report.
     pub version: String,
+    /// The git commit it was built from ("unknown" outside a git checkout).
+    #[serde(default)]
+    pub commit: String,
+    /// The machine it ran on.
+    #[serde(default)]
+    pub machine: MachineInfo,
     /// The text prompt (absent in reference-image mode).
     pub prompt: Option<String>,
     /// The reference image (reference-image mode).
@@ -168,6 +224,9 @@ impl Report {
         Report {
             tool: "t2tf".into(),
             version: env!("CARGO_PKG_VERSION").into(),
+            // Set by build.rs.
+            commit: env!("T2TF_GIT_COMMIT").into(),
+            machine: MachineInfo::detect(),
             caption_pool: "builtin".into(),
             settings,
             render: serde_json::Value::Null,
@@ -186,6 +245,45 @@ impl Report {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cpuinfo_gives_the_first_processors_model_and_flags() {
+        let text =
+            "processor\t: 0\nvendor_id\t: AuthenticAMD\nmodel name\t: AMD EPYC 9R14 96-Core \
+                    Processor\nflags\t\t: fpu avx2 avx512f avx512_bf16\n\nprocessor\t: 1\n\
+                    model name\t: other\nflags\t\t: fpu\n";
+        let (model, flags) = cpuinfo(text);
+        assert_eq!(model.as_deref(), Some("AMD EPYC 9R14 96-Core Processor"));
+        assert_eq!(flags, ["fpu", "avx2", "avx512f", "avx512_bf16"]);
+        assert_eq!(cpuinfo(""), (None, Vec::new()));
+        let arm = "processor\t: 0\nFeatures\t: fp asimd sve\n";
+        assert_eq!(
+            cpuinfo(arm),
+            (None, vec!["fp".into(), "asimd".into(), "sve".into()])
+        );
+    }
+
+    #[test]
+    fn a_report_says_what_built_it_and_where_it_ran() {
+        let r = Report::new(Settings::default());
+        assert_eq!(r.version, env!("CARGO_PKG_VERSION"));
+        // A 40-hex commit in a git checkout, "unknown" in a source tarball.
+        assert!(
+            r.commit == "unknown"
+                || (r.commit.len() == 40 && r.commit.bytes().all(|b| b.is_ascii_hexdigit())),
+            "{}",
+            r.commit
+        );
+        assert!(r.machine.logical_cpus >= 1);
+        if std::path::Path::new("/proc/cpuinfo").exists() && cfg!(target_arch = "x86_64") {
+            assert!(r.machine.cpu_model.is_some(), "{:?}", r.machine);
+            assert!(
+                r.machine.cpu_flags.iter().any(|f| f == "sse2"),
+                "{:?}",
+                r.machine
+            );
+        }
+    }
 
     #[test]
     fn report_round_trips_as_strict_json() {

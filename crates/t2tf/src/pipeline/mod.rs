@@ -429,6 +429,7 @@ pub fn optimize(
         "threads": rayon::current_num_threads(),
         // Which matrix kernel CLIP runs on this CPU (chosen at run time).
         "clip_engine": clip.compute().describe(),
+        "clip_precision": clip.compute().precision.name(),
     });
     finished.fill_report(&mut report);
     let view = script_view(settings, &g, j.up)?;

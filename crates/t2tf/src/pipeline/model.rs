@@ -98,10 +98,12 @@ impl Model {
             h.update(format!(" precision={}", compute.precision.name()));
             cache_key = h.finalize().into();
         }
+        let tokenizer_hash = captions::hash_files(std::slice::from_ref(&files.tokenizer))?;
         let info = ModelInfo {
             id: id.to_string(),
             revision,
             weights_sha256: Some(hex),
+            tokenizer_sha256: Some(tokenizer_hash.iter().map(|b| format!("{b:02x}")).collect()),
             logit_scale: clip.logit_scale() as f64,
         };
         Ok(Model {

@@ -8,6 +8,7 @@ use std::time::Instant;
 use super::{Optimized, PipelineError};
 use crate::optimize::driver::{self, OutputError};
 use crate::optimize::report::Report;
+use crate::optimize::tf_plot::PlotLabels;
 
 /// Names of the files of the set that are not the TF's own (`NAME.…`).
 const FIXED: [&str; 3] = ["tf.png", "preview.png", "report.json"];
@@ -87,12 +88,21 @@ impl Optimized {
             .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
             .collect();
         report.timings.output += t0.elapsed().as_secs_f64();
+        let labels = PlotLabels {
+            title: match (&report.prompt, &report.reference_image) {
+                (Some(p), _) => p.clone(),
+                (None, Some(image)) => format!("like {image}"),
+                (None, None) => name.to_string(),
+            },
+            data_range: self.volume.norm_range,
+        };
         driver::write_outputs(
             set.dir(),
             &mut report,
             &self.finished,
             &self.volume.histogram,
             self.tf_curve,
+            &labels,
         )?;
         set.commit(&report.outputs)?;
         Ok(report)
