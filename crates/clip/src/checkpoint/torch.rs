@@ -260,6 +260,35 @@ fn check_byteorder(
     }
 }
 
+/// The first `reach` bytes of an entry (`reach` ≤ its size, checked when the tensor was
+/// located): in place if STORED, inflated only that far if DEFLATED.
+fn entry_prefix<'a>(bytes: &'a [u8], e: &Entry, reach: usize) -> Result<Cow<'a, [u8]>, String> {
+    if reach >= e.size {
+        return entry_bytes(bytes, e, e.size);
+    }
+    let raw = &bytes[e.start..e.start + e.stored_len];
+    if !e.deflated {
+        if e.stored_len != e.size {
+            return Err("stored entry whose sizes disagree".into());
+        }
+        return Ok(Cow::Borrowed(&raw[..reach]));
+    }
+    let mut out = Vec::new();
+    out.try_reserve_exact(reach)
+        .map_err(|_| format!("cannot allocate {reach} bytes to inflate it"))?;
+    flate2::read::DeflateDecoder::new(raw)
+        .take(reach as u64)
+        .read_to_end(&mut out)
+        .map_err(|err| format!("cannot inflate: {err}"))?;
+    if out.len() != reach {
+        return Err(format!(
+            "inflates to {} bytes, fewer than the {reach} its tensor reads",
+            out.len()
+        ));
+    }
+    Ok(Cow::Owned(out))
+}
+
 /// An entry's bytes: in place if STORED, inflated (at most `limit` bytes) if DEFLATED.
 fn entry_bytes<'a>(bytes: &'a [u8], e: &Entry, limit: usize) -> Result<Cow<'a, [u8]>, String> {
     if e.size > limit {
@@ -376,12 +405,17 @@ fn read_f32(bytes: &[u8], loc: &Located) -> Result<Vec<f32>, String> {
             t.dtype.name()
         )
     })?;
-    let storage = entry_bytes(bytes, &loc.entry, usize::MAX)
-        .map_err(|m| format!("(storage {}): {m}", t.storage.key))?;
     let numel: usize = t.shape.iter().product(); // checked by `view_end` at open
     if numel == 0 {
         return Ok(Vec::new()); // the offset of an empty view need not lie in its storage
     }
+    // Only the part of the storage the view reaches is inflated: a storage entry far larger
+    // than the tensor the config asks for costs nothing beyond the tensor.
+    let reach = view_end(t)
+        .and_then(|end| usize::try_from(end).ok()?.checked_mul(t.dtype.size()))
+        .ok_or_else(|| "has a view too large to address".to_string())?;
+    let storage = entry_prefix(bytes, &loc.entry, reach)
+        .map_err(|m| format!("(storage {}): {m}", t.storage.key))?;
     let mut out = Vec::new();
     out.try_reserve_exact(numel)
         .map_err(|_| format!("has {numel} elements, too many to allocate"))?;
