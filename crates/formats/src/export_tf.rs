@@ -86,6 +86,35 @@ impl ExportTf {
         format!("{}-{hex}", base_name(&self.name))
     }
 
+    /// `n` ≥ 2 evenly spaced data values over [`ExportTf::data_range`] and the colour and
+    /// ParaView opacity there (RGBA; opacity 1 for a colour-only map), as the file's curves
+    /// interpolate linearly: what a plotting or volume tool (PyVista) takes as a table.
+    pub fn sample(&self, n: usize) -> (Vec<f64>, Vec<[f64; 4]>) {
+        let [lo, hi] = self.data_range();
+        let opacity: Vec<(f64, [f64; 1])> =
+            self.opacity_points.iter().map(|&(x, o)| (x, [o])).collect();
+        let values: Vec<f64> = (0..n)
+            .map(|i| lo + (hi - lo) * i as f64 / (n.max(2) - 1) as f64)
+            .collect();
+        let rgba = values
+            .iter()
+            .map(|&x| {
+                let [r, g, b] = if self.rgb_points.is_empty() {
+                    [1.0; 3]
+                } else {
+                    interpolate(&self.rgb_points, x)
+                };
+                let o = if opacity.is_empty() {
+                    1.0
+                } else {
+                    interpolate(&opacity, x)[0]
+                };
+                [r, g, b, o]
+            })
+            .collect();
+        (values, rgba)
+    }
+
     /// Data range covered by the points: [first x, last x] over both curves.
     pub fn data_range(&self) -> [f64; 2] {
         let xs = self
@@ -302,4 +331,30 @@ pub fn load_tf(
     unit_distance: Option<f64>,
 ) -> Result<ControlPoints, FormatError> {
     super::read_tf(path)?.to_control_points(path, volume, unit_distance)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn samples_interpolate_the_curves_over_the_range() {
+        let tf = ExportTf {
+            name: "t".into(),
+            rgb_points: vec![(0.0, [1.0, 0.0, 0.0]), (10.0, [0.0, 0.0, 1.0])],
+            opacity_points: vec![(0.0, 0.0), (5.0, 1.0), (10.0, 0.5)],
+            unit_distance: None,
+        };
+        let (values, rgba) = tf.sample(3);
+        assert_eq!(values, [0.0, 5.0, 10.0]);
+        assert_eq!(rgba[0], [1.0, 0.0, 0.0, 0.0]);
+        assert_eq!(rgba[1], [0.5, 0.0, 0.5, 1.0]);
+        assert_eq!(rgba[2], [0.0, 0.0, 1.0, 0.5]);
+        // A colour-only map is opaque.
+        let colour_only = ExportTf {
+            opacity_points: Vec::new(),
+            ..tf
+        };
+        assert!(colour_only.sample(4).1.iter().all(|p| p[3] == 1.0));
+    }
 }

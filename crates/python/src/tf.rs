@@ -126,25 +126,8 @@ impl PyTransferFunction {
                 "sample needs at least 2 values, got {n}"
             )));
         }
-        let tf = self.preset.rgb_linear();
-        let [lo, hi] = tf.data_range();
-        let opacity: Vec<(f64, [f64; 1])> =
-            tf.opacity_points.iter().map(|&(x, o)| (x, [o])).collect();
-        let values: Vec<f64> = (0..n)
-            .map(|i| lo + (hi - lo) * i as f64 / (n - 1) as f64)
-            .collect();
-        let rgba: Vec<f64> = values
-            .iter()
-            .flat_map(|&x| {
-                let c = t2tf::tf::interpolate(&tf.rgb_points, x);
-                let o = if opacity.is_empty() {
-                    1.0
-                } else {
-                    t2tf::tf::interpolate(&opacity, x)[0]
-                };
-                [c[0], c[1], c[2], o]
-            })
-            .collect();
+        let (values, rgba) = self.preset.rgb_linear().sample(n);
+        let rgba: Vec<f64> = rgba.into_iter().flatten().collect();
         let rgba = PyArray1::from_vec(py, rgba).reshape([n, 4])?;
         Ok((PyArray1::from_vec(py, values), rgba))
     }
