@@ -241,7 +241,7 @@ impl HubRepo<'_> {
                 "expected owner/name of letters, digits, '-', '_' and '.'",
             ));
         }
-        if !is_relative_name(&self.revision) {
+        if !is_revision(&self.revision) {
             return Err(invalid(
                 "revision",
                 &self.revision,
@@ -259,6 +259,23 @@ impl HubRepo<'_> {
     }
 }
 
+/// A revision as git allows a ref name (`git check-ref-format`), which is what the Hub takes:
+/// a relative name without control characters (a newline would make a ref file of that name in
+/// the cache), spaces, `~^:?*[`, `@{`, `..` or a component that starts with a dot or ends in
+/// `.lock`.
+fn is_revision(name: &str) -> bool {
+    is_relative_name(name)
+        && !name
+            .chars()
+            .any(|c| c.is_control() || c == ' ' || "~^:?*[".contains(c))
+        && !name.contains("@{")
+        && !name.contains("..")
+        && !name.ends_with('.')
+        && name
+            .split('/')
+            .all(|c| !c.starts_with('.') && !c.ends_with(".lock"))
+}
+
 /// A `/`-separated relative name with no empty, `.` or `..` component and no backslash.
 fn is_relative_name(name: &str) -> bool {
     !name.is_empty()
@@ -272,6 +289,25 @@ fn is_relative_name(name: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn revisions_are_git_ref_names() {
+        for ok in [
+            "main",
+            "v1.0",
+            "refs/pr/15",
+            "feature/x-y_z",
+            "0123456789abcdef0123456789abcdef01234567",
+        ] {
+            assert!(is_revision(ok), "{ok} refused");
+        }
+        for bad in [
+            "", "main\n", "a b", "a..b", "../x", "/abs", "x.lock", "a:b", "a@{1}", ".hidden", "x/",
+            "tab\t", "nul\0",
+        ] {
+            assert!(!is_revision(bad), "{bad:?} accepted");
+        }
+    }
 
     fn settings(dir: &Path) -> HubSettings {
         HubSettings {
