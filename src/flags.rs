@@ -105,11 +105,6 @@ pub fn volume(e: crate::volume::VolumeError) -> anyhow::Error {
     memory_hint(e.into())
 }
 
-/// An output-folder error as the command line says it.
-pub fn fs(e: crate::fs::FsError) -> anyhow::Error {
-    e.into()
-}
-
 /// Any error whose message came from the memory budget gets the budget's flag.
 pub fn memory_hint(e: anyhow::Error) -> anyhow::Error {
     let from_budget = e

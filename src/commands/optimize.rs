@@ -355,7 +355,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
 /// created and written) and what killed runs left there is cleaned up. The lock holds while
 /// it lives.
 fn claim_output(out: &Path) -> Result<crate::fs::OutputLock> {
-    let lock = crate::fs::OutputLock::acquire(out).map_err(flags::fs)?;
+    let lock = crate::fs::OutputLock::acquire(out)?;
     for name in crate::fs::clean_stale(out)? {
         errln!("t2tf: cleaned up {name}, left in --out by an interrupted run");
     }

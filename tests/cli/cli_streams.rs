@@ -133,20 +133,8 @@ fn a_full_stdout_is_one_error_line_not_a_panic() {
 }
 
 fn optimize(out: &Path, cache: &Path) -> Command {
-    let mut c = t2tf();
-    c.env("XDG_CACHE_HOME", cache)
-        .args([
-            "optimize",
-            VOLUME,
-            "--model",
-            MODEL,
-            "--tokenizer",
-            TOKENIZER,
-        ])
-        .args(["--prompt", "x", "--steps", "3", "--views", "1"])
-        .args(["--threads", "1", "--progress", "lines", "--out"])
-        .arg(out);
-    c
+    let run = ["--prompt", "x", "--steps", "3", "--views", "1"];
+    crate::hostile_cli::optimize_with_progress(out, cache, "lines", &run)
 }
 
 /// The run wrote its whole set: report.json and every file it lists.

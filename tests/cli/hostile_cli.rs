@@ -160,6 +160,17 @@ fn lying_png(path: &Path, w: u32, h: u32) {
 }
 
 fn optimize(out: &Path, cache: &Path, extra: &[&str]) -> Command {
+    optimize_with_progress(out, cache, "json", extra)
+}
+
+/// `t2tf optimize` of the test volume with the test model on one thread into `out`, its
+/// caption cache in `cache`, progress as `progress` says.
+pub(crate) fn optimize_with_progress(
+    out: &Path,
+    cache: &Path,
+    progress: &str,
+    extra: &[&str],
+) -> Command {
     let mut c = t2tf();
     c.env("XDG_CACHE_HOME", cache)
         .args([
@@ -170,7 +181,7 @@ fn optimize(out: &Path, cache: &Path, extra: &[&str]) -> Command {
             "--tokenizer",
             TOKENIZER,
         ])
-        .args(["--threads", "1", "--progress", "json", "--out"])
+        .args(["--threads", "1", "--progress", progress, "--out"])
         .arg(out)
         .args(extra);
     c

@@ -169,18 +169,7 @@ fn resize_and_crop(im: &Image, size: usize, crop: usize) -> Image {
     if w == 0 || h == 0 || size == 0 || crop > size {
         return Image::new(crop, crop);
     }
-    // As transformers' get_resize_output_image_size: the long side is truncated, not rounded.
-    let (nw, nh) = if w <= h {
-        (
-            size,
-            ((size as f64 * h as f64 / w as f64) as usize).max(size),
-        )
-    } else {
-        (
-            ((size as f64 * w as f64 / h as f64) as usize).max(size),
-            size,
-        )
-    };
+    let (nw, nh) = resized_size(w, h, size);
     // As transformers' center_crop: the offset rounds down, as for an integer division.
     let (top, left) = ((nh - crop) / 2, (nw - crop) / 2);
     let mut out = Image::new(crop, crop);
@@ -211,6 +200,22 @@ fn resize_and_crop(im: &Image, size: usize, crop: usize) -> Image {
         }
     }
     out
+}
+
+/// The picture's size once its shortest side is `size`: as transformers'
+/// get_resize_output_image_size, the long side is truncated, not rounded.
+fn resized_size(w: usize, h: usize, size: usize) -> (usize, usize) {
+    if w <= h {
+        (
+            size,
+            ((size as f64 * h as f64 / w as f64) as usize).max(size),
+        )
+    } else {
+        (
+            ((size as f64 * w as f64 / h as f64) as usize).max(size),
+            size,
+        )
+    }
 }
 
 /// Pillow's bicubic kernel with a = −0.5.
@@ -271,17 +276,7 @@ mod tests {
     /// The whole resize then the crop, written plainly: what the window must equal.
     fn resize_whole_then_crop(im: &Image, size: usize, crop: usize) -> Image {
         let (w, h) = (im.width, im.height);
-        let (nw, nh) = if w <= h {
-            (
-                size,
-                ((size as f64 * h as f64 / w as f64) as usize).max(size),
-            )
-        } else {
-            (
-                ((size as f64 * w as f64 / h as f64) as usize).max(size),
-                size,
-            )
-        };
+        let (nw, nh) = resized_size(w, h, size);
         let xs = taps(w, nw, 0..nw);
         let ys = taps(h, nh, 0..nh);
         let mut horiz = vec![0.0f32; nw * h * 3];
