@@ -16,7 +16,9 @@ use crate::paraview_util;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use paraview_util::{floats, repo, require_paraview, server, PVPYTHON};
+use paraview_util::{
+    floats, lost_display, repo, require_paraview, server, xvfb_pvpython, PVPYTHON,
+};
 use t2tf::image::{psnr, Image};
 
 const NEGHIP: &str = "../shared/data/volumes/neghip_64x64x64_uint8.raw";
@@ -31,13 +33,8 @@ fn driver(mode: &str, dir: &Path) -> (Output, Option<serde_json::Value>) {
     let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
     let json = dir.join(format!("{mode}.json"));
     let shot = dir.join(format!("{mode}.png"));
-    let mut attempt = 0;
-    loop {
-        attempt += 1;
-        let out = Command::new("timeout")
-            .args(["300", "xvfb-run", "-a", "pvpython", "--dr"])
-            .arg(repo().join("tests/paraview_plugin/driver.py"))
-            .arg(repo().join("paraview/t2tf_plugin.py"))
+    let out = xvfb_pvpython(&repo().join("tests/paraview_plugin/driver.py"), |c| {
+        c.arg(repo().join("paraview/t2tf_plugin.py"))
             .arg(mode)
             .arg(repo().join(if mode == "vti" { HEADSQ } else { NEGHIP }))
             .arg(repo().join("tests/fixtures/clip/quick_gelu"))
@@ -46,20 +43,12 @@ fn driver(mode: &str, dir: &Path) -> (Output, Option<serde_json::Value>) {
             .arg(&shot)
             .arg(SIZE.to_string())
             .env("PYTHONPATH", repo().join("paraview/compat"))
-            .env("T2TF_BIN", env!("CARGO_BIN_EXE_t2tf"))
-            .output()
-            .expect("run xvfb-run");
-        let lost_display = !out.status.success()
-            && String::from_utf8_lossy(&out.stderr).contains("bad X server connection");
-        if attempt < 3 && lost_display {
-            eprintln!("pvpython could not reach Xvfb (attempt {attempt}); retrying");
-            continue;
-        }
-        let value = std::fs::read_to_string(&json)
-            .ok()
-            .map(|t| serde_json::from_str(&t).expect("driver JSON"));
-        return (out, value);
-    }
+            .env("T2TF_BIN", env!("CARGO_BIN_EXE_t2tf"));
+    });
+    let value = std::fs::read_to_string(&json)
+        .ok()
+        .map(|t| serde_json::from_str(&t).expect("driver JSON"));
+    (out, value)
 }
 
 fn text(out: &Output) -> String {
@@ -256,28 +245,23 @@ fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
         // Dropped at the end of each attempt, passed or panicked: stops xvfb-run, mpiexec and
         // the ranks.
         let server = server::PvServer::start(2, dir.path()).unwrap_or_else(|e| panic!("{e}"));
-        let out = Command::new("timeout")
-            .args(["300", "xvfb-run", "-a", "pvpython", "--dr"])
-            .arg(repo().join("tests/paraview_plugin/remote.py"))
-            .arg(repo().join("paraview/t2tf_plugin.py"))
-            .arg(server.port.to_string())
-            .arg(repo().join(NEGHIP))
-            .arg(repo().join("tests/fixtures/clip/quick_gelu"))
-            .arg(repo().join("../shared/data/clip/tokenizer.json"))
-            .arg(PROXY_SIZE.to_string())
-            .args([&json, &full_png, &proxy_png])
-            .arg(SIZE.to_string())
-            .env("PYTHONPATH", repo().join("paraview/compat"))
-            .env("T2TF_BIN", env!("CARGO_BIN_EXE_t2tf"))
-            .output()
-            .expect("run xvfb-run pvpython");
+        let out = xvfb_pvpython(&repo().join("tests/paraview_plugin/remote.py"), |c| {
+            c.arg(repo().join("paraview/t2tf_plugin.py"))
+                .arg(server.port.to_string())
+                .arg(repo().join(NEGHIP))
+                .arg(repo().join("tests/fixtures/clip/quick_gelu"))
+                .arg(repo().join("../shared/data/clip/tokenizer.json"))
+                .arg(PROXY_SIZE.to_string())
+                .args([&json, &full_png, &proxy_png])
+                .arg(SIZE.to_string())
+                .env("PYTHONPATH", repo().join("paraview/compat"))
+                .env("T2TF_BIN", env!("CARGO_BIN_EXE_t2tf"));
+        });
         let log = server.log_text();
         // Another `xvfb-run -a` on this machine (another test binary) can take the same
         // display number and close it under the server or the client: seen once on a busy
         // machine as "bad X server connection" in a rank. Start both again.
-        let lost_display = !out.status.success()
-            && format!("{}{log}", text(&out)).contains("bad X server connection");
-        if lost_display && attempt < 3 {
+        if lost_display(&out, &log) && attempt < 3 {
             eprintln!("pvserver or pvpython lost its X display (attempt {attempt}); retrying");
             continue;
         }
@@ -412,21 +396,18 @@ fn macro_reads_the_prompt_from_the_environment_or_a_file() {
     let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("macro.json");
-    let out = Command::new("timeout")
-        .args(["300", "xvfb-run", "-a", "pvpython", "--dr"])
-        .arg(repo().join("tests/paraview_plugin/macro.py"))
-        .arg(repo().join("paraview/t2tf_macro.py"))
-        .arg(repo().join(NEGHIP))
-        .arg(repo().join("tests/fixtures/clip/quick_gelu"))
-        .arg(repo().join("../shared/data/clip/tokenizer.json"))
-        .arg(&json)
-        .env("PYTHONPATH", repo().join("paraview/compat"))
-        .env("T2TF_BIN", env!("CARGO_BIN_EXE_t2tf"))
-        .env("T2TF_PLUGIN", repo().join("paraview/t2tf_plugin.py"))
-        .env_remove("T2TF_PROMPT")
-        .env("T2TF_NO_DIALOG", "1")
-        .output()
-        .expect("run xvfb-run pvpython");
+    let out = xvfb_pvpython(&repo().join("tests/paraview_plugin/macro.py"), |c| {
+        c.arg(repo().join("paraview/t2tf_macro.py"))
+            .arg(repo().join(NEGHIP))
+            .arg(repo().join("tests/fixtures/clip/quick_gelu"))
+            .arg(repo().join("../shared/data/clip/tokenizer.json"))
+            .arg(&json)
+            .env("PYTHONPATH", repo().join("paraview/compat"))
+            .env("T2TF_BIN", env!("CARGO_BIN_EXE_t2tf"))
+            .env("T2TF_PLUGIN", repo().join("paraview/t2tf_plugin.py"))
+            .env_remove("T2TF_PROMPT")
+            .env("T2TF_NO_DIALOG", "1");
+    });
     let all = text(&out);
     assert!(out.status.success(), "{all}");
     assert!(

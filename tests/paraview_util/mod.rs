@@ -56,30 +56,42 @@ pub fn pvpython(script: &Path, args: &[&str]) -> String {
 }
 
 /// Run `xvfb-run -a pvpython --dr SCRIPT ARGS...` and return what it did, success or not.
-/// A failure to reach the X server (another process on this machine won the same display)
-/// is retried twice.
 pub fn pvpython_output(script: &Path, args: &[&str]) -> std::process::Output {
     let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
+    xvfb_pvpython(script, |c| {
+        c.args(args);
+    })
+}
+
+/// Run `timeout 300 xvfb-run -a pvpython --dr SCRIPT` with what `configure` adds (arguments,
+/// environment). The caller holds [`PVPYTHON`]. A failure to reach the X server is retried:
+/// an X server that another `xvfb-run` on this machine just stopped, or just started on the
+/// same display number, shows as "bad X server connection" and a SIGABRT in pvpython before
+/// the script runs a line.
+pub fn xvfb_pvpython(script: &Path, configure: impl Fn(&mut Command)) -> std::process::Output {
     let mut attempt = 0;
     loop {
         attempt += 1;
-        let out = Command::new("xvfb-run")
-            .args(["-a", "pvpython", "--dr"])
-            .arg(script)
-            .args(args)
-            .output()
-            .expect("run xvfb-run");
-        let lost_display = !out.status.success()
-            && String::from_utf8_lossy(&out.stderr).contains("bad X server connection");
-        // Under load, or with other processes starting X servers at the same time (two
-        // `xvfb-run -a` can probe the same free display), the server may not answer yet.
-        if attempt < 5 && lost_display {
+        let mut command = Command::new("timeout");
+        command
+            .args(["300", "xvfb-run", "-a", "pvpython", "--dr"])
+            .arg(script);
+        configure(&mut command);
+        let out = command.output().expect("run timeout xvfb-run pvpython");
+        if attempt < 5 && lost_display(&out, "") {
             eprintln!("pvpython could not reach Xvfb (attempt {attempt}); retrying");
             std::thread::sleep(std::time::Duration::from_millis(500 * attempt));
             continue;
         }
         return out;
     }
+}
+
+/// Whether a failed run (with `extra` log text, e.g. a server's) lost its X display.
+pub fn lost_display(out: &std::process::Output, extra: &str) -> bool {
+    !out.status.success()
+        && format!("{}{extra}", String::from_utf8_lossy(&out.stderr))
+            .contains("bad X server connection")
 }
 
 /// The TF the preset and script tests export: five points from transparent blue to opaque
