@@ -31,9 +31,32 @@ pub struct OptimizeArgs {
     #[command(flatten)]
     pub volume_args: VolumeArgs,
 
-    /// What the renderings should show, e.g. "a potted tree".
-    #[arg(long, required_unless_present = "reference_image")]
-    pub prompt: Option<String>,
+    /// What the renderings should show, e.g. "a potted tree". Repeat it for one TF per
+    /// prompt in one run (model, volume and captions loaded once): each goes to its own
+    /// sub-folder of --out, named from the prompt, and OUT/presets.json holds all of them.
+    #[arg(
+        long = "prompt",
+        value_name = "TEXT",
+        required_unless_present = "reference_image"
+    )]
+    pub prompts: Vec<String>,
+
+    /// Start from this TF file (ParaView .json/.xml, VisIt .ct) instead of the paper's
+    /// initialization: a refine. A few dozen steps usually suffice (see BENCHMARKS.md,
+    /// "Refining"); --steps 0 writes the start itself. A TF with opacity keeps its data
+    /// values; a colour map without opacity (a library preset) is spread over the data range,
+    /// as ParaView applies it, with the paper's densities.
+    #[arg(long, value_name = "FILE")]
+    pub init: Option<PathBuf>,
+
+    /// The preset of --init's file to start from (files with several); default: the first.
+    #[arg(long, value_name = "NAME", requires = "init")]
+    pub preset: Option<String>,
+
+    /// Keep the TF over the data range MIN,MAX as it starts (repeatable): those points get
+    /// no gradient while the rest is optimized.
+    #[arg(long = "lock", value_name = "MIN,MAX", value_parser = parse_range, allow_hyphen_values = true)]
+    pub locks: Vec<[f64; 2]>,
 
     /// What to suppress (repeatable); default: "a blank image".
     #[arg(long = "negative", value_name = "TEXT")]
@@ -109,7 +132,7 @@ pub struct OptimizeArgs {
     pub seed: u64,
 
     /// Use the CLIP embedding of this picture as the positive instead of a prompt.
-    #[arg(long, value_name = "PNG", conflicts_with = "prompt")]
+    #[arg(long, value_name = "PNG", conflicts_with = "prompts")]
     pub reference_image: Option<PathBuf>,
 
     /// Ray-marching step in voxels of the level used; default: the renderer's.
@@ -161,15 +184,22 @@ impl OptimizeArgs {
         }
     }
 
-    /// The library's job these flags describe.
-    pub fn job(&self) -> Job {
-        let target = match (&self.prompt, &self.reference_image) {
-            (_, Some(r)) => Target::Image(r.clone()),
-            (Some(p), None) => Target::Prompt(p.clone()),
-            // clap requires one of them.
-            (None, None) => Target::Prompt(String::new()),
+    /// The library's jobs these flags describe: one per prompt (or the reference image's).
+    pub fn jobs(&self, init: Option<&pipeline::InitTf>) -> Vec<Job> {
+        let targets: Vec<Target> = match &self.reference_image {
+            Some(r) => vec![Target::Image(r.clone())],
+            None => self.prompts.iter().cloned().map(Target::Prompt).collect(),
         };
+        targets
+            .into_iter()
+            .map(|t| self.job(t, init.cloned()))
+            .collect()
+    }
+
+    fn job(&self, target: Target, init: Option<pipeline::InitTf>) -> Job {
         let mut job = Job::new(target);
+        job.init = init;
+        job.locks = self.locks.clone();
         job.negatives = self.negatives.clone();
         job.negatives_file = self.negatives_file.clone();
         job.settings = self.settings();
@@ -181,7 +211,13 @@ impl OptimizeArgs {
         job
     }
 
+    /// Whether this run makes one TF per prompt (several `--prompt`).
+    pub fn is_batch(&self) -> bool {
+        self.prompts.len() > 1
+    }
+
     /// The TF base name: `--name`, or a slug of the prompt (or the reference image's stem).
+    /// A batch names each TF (and its sub-folder) from its prompt: [`batch_names`].
     pub fn tf_name(&self) -> Result<String> {
         if let Some(n) = &self.name {
             pipeline::check_name(n).map_err(|e| anyhow::anyhow!("--name: {e}"))?;
@@ -195,7 +231,7 @@ impl OptimizeArgs {
                 return Ok(f);
             }
         }
-        let source = match (&self.prompt, &self.reference_image) {
+        let source = match (self.prompts.first(), &self.reference_image) {
             (Some(p), _) => p.clone(),
             (None, Some(r)) => r
                 .file_stem()
@@ -225,12 +261,31 @@ impl OptimizeArgs {
         if self.out.exists() && !self.out.is_dir() {
             bail!("{}: --out exists and is not a folder", self.out.display());
         }
-        let name = self.tf_name()?;
-        let job = self.job().validate().map_err(flags::pipeline)?;
+        let init = match &self.init {
+            Some(f) => Some(
+                pipeline::InitTf::read(f, self.preset.as_deref())
+                    .map_err(|e| anyhow::anyhow!("--init: {}", flags::pipeline(e)))?,
+            ),
+            None => None,
+        };
+        let names = if self.is_batch() {
+            if self.name.is_some() {
+                bail!(
+                    "--name names one TF; with several --prompt each TF is named from its prompt"
+                );
+            }
+            batch_names(&self.prompts)
+        } else {
+            vec![self.tf_name()?]
+        };
+        let jobs = self
+            .jobs(init.as_ref())
+            .into_iter()
+            .map(|j| j.validate().map_err(flags::pipeline))
+            .collect::<Result<Vec<_>>>()?;
         Ok(ValidArgs {
             args: self,
-            job,
-            name,
+            runs: jobs.into_iter().zip(names).collect(),
         })
     }
 }
@@ -239,9 +294,8 @@ impl OptimizeArgs {
 #[derive(Debug)]
 pub struct ValidArgs {
     args: OptimizeArgs,
-    job: ValidJob,
-    /// The TF base name ([`OptimizeArgs::tf_name`]).
-    name: String,
+    /// Each run's job and TF base name ([`OptimizeArgs::tf_name`], [`batch_names`]).
+    runs: Vec<(ValidJob, String)>,
 }
 
 impl ValidArgs {
@@ -249,6 +303,37 @@ impl ValidArgs {
     pub fn args(&self) -> &OptimizeArgs {
         &self.args
     }
+}
+
+/// `MIN,MAX` as two numbers (`--lock`).
+fn parse_range(text: &str) -> Result<[f64; 2], String> {
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .map_err(|_| format!("{text:?} is not MIN,MAX (two numbers, e.g. 120,400)"))
+    };
+    match text.split_once(',') {
+        Some((a, b)) => Ok([parse(a)?, parse(b)?]),
+        None => Err(format!(
+            "{text:?} is not MIN,MAX (two numbers, e.g. 120,400)"
+        )),
+    }
+}
+
+/// One name per prompt of a batch: its slug, with -2, -3, … where two prompts give the same.
+pub fn batch_names(prompts: &[String]) -> Vec<String> {
+    let mut names: Vec<String> = Vec::with_capacity(prompts.len());
+    for p in prompts {
+        let base = slug(p);
+        let mut name = base.clone();
+        let mut n = 1;
+        while names.contains(&name) {
+            n += 1;
+            name = format!("{base}-{n}");
+        }
+        names.push(name);
+    }
+    names
 }
 
 /// Lower-case words of letters and digits joined by '-', at most 48 characters; "tf" if none.
@@ -295,47 +380,45 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             .volume_args
             .load_within(&args.volume, budget)
             .map_err(flags::volume)?;
+        // Locks and the init's range against the data, before the model loads.
+        if let Some((job, _)) = run.runs.first() {
+            job.check_volume(&volume)
+                .map_err(flags::pipeline)
+                .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
+        }
         let model = args.model.load(budget)?;
-        let mut progress = Progress::new(args.progress, run.job.settings().steps);
-        let mut on_event = |e: Event| {
-            match e {
-                Event::Phase(what) => progress.phase(what),
-                Event::Step { log, .. } => progress.step(&StepReport {
-                    loss: log.total,
-                    clip: log.clip,
-                    prompt_probability: log.prompt_probability,
-                }),
-                Event::Warning(w) => {
-                    progress.suspend(|| errln!("t2tf: warning: {w}"));
+        let batch = args.is_batch();
+        let mut written = Vec::with_capacity(run.runs.len());
+        for (i, (job, name)) in run.runs.iter().enumerate() {
+            if stop.load(std::sync::atomic::Ordering::SeqCst) {
+                errln!(
+                    "t2tf: stopped: {} of {} prompts not run",
+                    run.runs.len() - i,
+                    run.runs.len()
+                );
+                break;
+            }
+            if batch {
+                if let Target::Prompt(p) = &job.job().target {
+                    errln!("prompt {} of {}: {p:?}", i + 1, run.runs.len());
                 }
             }
-            // A signal (also one received while loading) stops the run after this step.
-            if stop.load(std::sync::atomic::Ordering::SeqCst) {
-                ControlFlow::Break(())
+            let out = if batch {
+                args.out.join(name)
             } else {
-                ControlFlow::Continue(())
-            }
-        };
-        let result = pipeline::optimize(&volume, &model, &run.job, &mut on_event)
-            .map_err(flags::pipeline)
-            .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
-        progress.finish();
-        if result.interrupted() {
+                args.out.clone()
+            };
+            written.push(optimize_one(args, job, &volume, &model, stop, &out, name)?);
+        }
+        if batch && !written.is_empty() {
+            let path = args.out.join("presets.json");
+            crate::formats::write_library(&path, &written)?;
             errln!(
-                "stopped after {} of {} steps: writing the TF of the last step",
-                result.steps_run(),
-                run.job.settings().steps
+                "wrote {} presets to {} (ParaView: Choose Preset > Import)",
+                written.len(),
+                path.display()
             );
         }
-        let report = result
-            .write(&args.out, &run.name)
-            .map_err(flags::pipeline)?;
-        errln!(
-            "wrote {} files to {}",
-            report.outputs.len(),
-            args.out.display()
-        );
-        progress.done(&args.out, &report.outputs, result.interrupted());
         Ok(())
     })?;
     // Released (and its file removed) here: `exit` below runs no destructor.
@@ -349,6 +432,55 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         std::process::exit(128 + sig);
     }
     Ok(())
+}
+
+/// One run with progress on stderr, its output set written to `out` with TF files `name`;
+/// returns the TF. A signal stops the run after the current step (its TF is the result).
+fn optimize_one(
+    args: &OptimizeArgs,
+    job: &ValidJob,
+    volume: &crate::volume::Volume,
+    model: &pipeline::Model,
+    stop: &std::sync::atomic::AtomicBool,
+    out: &Path,
+    name: &str,
+) -> Result<crate::formats::ExportTf> {
+    let steps = job.settings().steps;
+    let mut progress = Progress::new(args.progress, steps);
+    let mut on_event = |e: Event| {
+        match e {
+            Event::Phase(what) => progress.phase(what),
+            Event::Step { log, .. } => progress.step(&StepReport {
+                loss: log.total,
+                clip: log.clip,
+                prompt_probability: log.prompt_probability,
+            }),
+            Event::Warning(w) => {
+                progress.suspend(|| errln!("t2tf: warning: {w}"));
+            }
+        }
+        // A signal (also one received while loading) stops the run after this step.
+        if stop.load(std::sync::atomic::Ordering::SeqCst) {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    };
+    let result = pipeline::optimize(volume, model, job, &mut on_event)
+        .map_err(flags::pipeline)
+        .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
+    progress.finish();
+    if result.interrupted() {
+        errln!(
+            "stopped after {} of {} steps: writing the TF of the last step",
+            result.steps_run(),
+            steps
+        );
+    }
+    let report = result.write(out, name).map_err(flags::pipeline)?;
+    errln!("wrote {} files to {}", report.outputs.len(), out.display());
+    progress.done(out, &report.outputs, result.interrupted());
+    Ok(result.transfer_function(name))
 }
 
 /// Before any work: --out is ours (locked against a second run, which proves it can be

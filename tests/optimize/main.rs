@@ -15,4 +15,5 @@ mod optimize_loop;
 mod optimize_pipeline;
 mod optimize_progress;
 mod optimize_recovery;
+mod optimize_refine;
 mod optimize_render_size;

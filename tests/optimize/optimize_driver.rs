@@ -97,6 +97,7 @@ impl Setup {
             histogram: hist,
             logit_scale: 100.0,
             preview_views: 4,
+            start: None,
         };
         let models = Models {
             renderer: &self.f.toy,

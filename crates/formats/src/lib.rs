@@ -22,7 +22,7 @@ mod visit_script;
 use error::read_text;
 pub use error::FormatError;
 pub use export_tf::{load_tf, ExportTf};
-pub use paraview_json::{from_paraview_json, to_paraview_json};
+pub use paraview_json::{from_paraview_json, to_paraview_json, to_paraview_library};
 pub use paraview_script::paraview_script;
 pub use paraview_xml::to_paraview_xml;
 pub use preset::Preset;
@@ -182,6 +182,15 @@ pub fn write_preset(path: &Path, preset: &Preset) -> Result<(), FormatError> {
     let format = format_of(path)?;
     check_range(path, &preset.tf)?;
     write_text(path, &format.write_preset(preset))
+}
+
+/// Write `tfs` as one ParaView JSON library (atomically): ParaView's *Import Presets* adds
+/// each of them.
+pub fn write_library(path: &Path, tfs: &[ExportTf]) -> Result<(), FormatError> {
+    for tf in tfs {
+        check_range(path, tf)?;
+    }
+    write_text(path, &paraview_json::to_paraview_library(tfs))
 }
 
 /// Write a TF file in the format its extension names (atomically).

@@ -97,6 +97,20 @@ pub(crate) fn preset_to_paraview_json(p: &Preset) -> String {
     s
 }
 
+/// Several RGB presets in one ParaView JSON file: *Import Presets* adds each of them.
+pub fn to_paraview_library(tfs: &[ExportTf]) -> String {
+    let presets: Vec<serde_json::Value> = tfs
+        .iter()
+        .flat_map(|tf| match serde_json::from_str(&to_paraview_json(tf)) {
+            Ok(serde_json::Value::Array(items)) => items,
+            _ => unreachable!("to_paraview_json writes an array"),
+        })
+        .collect();
+    let mut s = serde_json::to_string_pretty(&presets).expect("JSON of numbers");
+    s.push('\n');
+    s
+}
+
 /// Every preset of a JSON file (a top-level array, or one object).
 fn preset_values<'a>(root: &'a Value, path: &Path) -> Result<Vec<&'a Value>, FormatError> {
     match root {

@@ -18,7 +18,7 @@ mod simplify;
 pub use colorspace::{ColorMap, ColorSpace};
 pub use lut::ControlPointsGrad;
 pub use opacity::{default_unit_distance, opacity_to_sigma, sigma_to_opacity};
-pub use params::{TfParams, TfParamsGrad};
+pub use params::{Anchors, TfParams, TfParamsGrad};
 pub use simplify::MIN_GAP;
 pub use simplify::{interpolate, EXPORT_TOLERANCE};
 pub use simplify::{simplified_curves, simplify_polyline};

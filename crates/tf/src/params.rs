@@ -223,6 +223,115 @@ impl TfParams {
     }
 }
 
+/// Control points whose positions are fixed: (point index, x), ascending in both, the first
+/// `(0, 0.0)` and the last `(K − 1, 1.0)`. Between two anchors the spacings place the points
+/// inside that interval only, so a change there moves no point outside it (what keeps a
+/// locked range of a TF where it is). The ends alone give [`TfParams::control_points`].
+pub type Anchors = [(usize, f64)];
+
+/// Is `anchors` well formed for `k` points?
+fn anchors_ok(anchors: &Anchors, k: usize) -> bool {
+    anchors.len() >= 2
+        && anchors[0] == (0, 0.0)
+        && anchors[anchors.len() - 1] == (k - 1, 1.0)
+        && anchors
+            .windows(2)
+            .all(|w| w[1].0 > w[0].0 && w[1].1 >= w[0].1)
+}
+
+impl TfParams {
+    /// [`TfParams::control_points`] with positions fixed at `anchors`: between anchors
+    /// (i0, x0) and (i1, x1), x_k = x0 + (x1 − x0) · c_k / D with c_k the sum of the
+    /// interval's spacings before k and D all of them. Panics on malformed anchors (the
+    /// caller builds them; see [`Anchors`]).
+    pub fn anchored_points(&self, anchors: &Anchors) -> ControlPoints {
+        let k = self.len();
+        assert!(
+            anchors_ok(anchors, k),
+            "malformed anchors {anchors:?} for {k} points"
+        );
+        let mut cp = self.control_points();
+        for w in anchors.windows(2) {
+            let ((i0, x0), (i1, x1)) = (w[0], w[1]);
+            let mut c = 0.0;
+            for i in i0..i1 {
+                c += softplus(self.spacing[i]) + SPACING_FLOOR;
+                cp.x[i + 1] = c;
+            }
+            for v in &mut cp.x[i0 + 1..i1] {
+                *v = x0 + (x1 - x0) * (*v / c);
+            }
+            cp.x[i0] = x0;
+            cp.x[i1] = x1;
+        }
+        cp
+    }
+
+    /// Backward of [`TfParams::anchored_points`]. Inside an interval of width W and spacing
+    /// sum D, ∂x_k/∂d_i = W ([i < k] − (x_k − x0)/W) / D for its inner points k; anchors are
+    /// constants. Densities and colours as in [`TfParams::backward`].
+    pub fn anchored_backward(&self, anchors: &Anchors, g: &ControlPointsGrad) -> TfParamsGrad {
+        let k = self.len();
+        assert!(
+            anchors_ok(anchors, k),
+            "malformed anchors {anchors:?} for {k} points"
+        );
+        let x = self.anchored_points(anchors).x;
+        let mut out = self.backward(g);
+        for w in anchors.windows(2) {
+            let ((i0, x0), (i1, x1)) = (w[0], w[1]);
+            let width = x1 - x0;
+            let total: f64 = (i0..i1)
+                .map(|i| softplus(self.spacing[i]) + SPACING_FLOOR)
+                .sum();
+            let local = |j: usize| {
+                if width > 0.0 {
+                    (x[j] - x0) / width
+                } else {
+                    0.0
+                }
+            };
+            let weighted: f64 = (i0 + 1..i1).map(|j| g.x[j] * local(j)).sum();
+            let mut suffix = 0.0;
+            for i in (i0..i1).rev() {
+                if i + 1 < i1 {
+                    suffix += g.x[i + 1];
+                }
+                out.spacing[i] = width * (suffix - weighted) / total * sigmoid(self.spacing[i]);
+            }
+        }
+        out
+    }
+
+    /// Parameters whose [`TfParams::anchored_points`] reproduce `cp` (whose points at the
+    /// anchors' indices must sit at the anchors' positions). Spacings are scaled per
+    /// interval so their mean softplus is 1, as [`TfParams::from_control_points`] does over
+    /// the whole range.
+    pub fn from_anchored_points(cp: &ControlPoints, anchors: &Anchors) -> TfParams {
+        let k = cp.len();
+        assert!(
+            anchors_ok(anchors, k),
+            "malformed anchors {anchors:?} for {k} points"
+        );
+        let mut p = TfParams::from_control_points(cp);
+        for w in anchors.windows(2) {
+            let ((i0, x0), (i1, x1)) = (w[0], w[1]);
+            let segments = (i1 - i0) as f64;
+            let width = x1 - x0;
+            for i in i0..i1 {
+                let d = if width > 0.0 {
+                    (cp.x[i + 1] - cp.x[i]) / width
+                } else {
+                    0.0
+                };
+                let target = d * segments - SPACING_FLOOR;
+                p.spacing[i] = softplus_inv(target.max(2e-12));
+            }
+        }
+        p
+    }
+}
+
 impl TfParamsGrad {
     /// Same layout as [`TfParams::to_flat`].
     pub fn to_flat(&self) -> Vec<f64> {
@@ -343,5 +452,71 @@ mod tests {
             rgb: vec![[1.0; 3]; k],
         });
         assert!(g.to_flat().iter().all(|v| v.is_finite()), "{g:?}");
+    }
+    #[test]
+    fn anchored_backward_matches_central_differences() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let k = 9;
+        let anchors = [(0, 0.0), (3, 0.25), (4, 0.25), (6, 0.7), (8, 1.0)];
+        let p = random_params(&mut rng, k);
+        let w = ControlPointsGrad {
+            x: (0..k).map(|_| rng.random_range(-1.0..1.0)).collect(),
+            sigma: (0..k).map(|_| rng.random_range(-1.0..1.0)).collect(),
+            rgb: (0..k)
+                .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)))
+                .collect(),
+        };
+        let cp = p.anchored_points(&anchors);
+        cp.validate().unwrap();
+        for &(i, x) in &anchors {
+            assert_eq!(cp.x[i], x);
+        }
+        let g = p.anchored_backward(&anchors, &w).to_flat();
+        let flat = p.to_flat();
+        let h = 1e-5;
+        for (i, gi) in g.iter().enumerate() {
+            let f = |d: f64| {
+                let mut a = flat.clone();
+                a[i] += d;
+                loss(
+                    &TfParams::from_flat(k, &a)
+                        .unwrap()
+                        .anchored_points(&anchors),
+                    &w,
+                )
+            };
+            let fd = (f(h) - f(-h)) / (2.0 * h);
+            assert!(
+                (fd - gi).abs() < 1e-6 + 1e-6 * fd.abs(),
+                "param {i}: fd {fd} analytic {gi}"
+            );
+        }
+        // A spacing between two adjacent anchors moves nothing.
+        assert_eq!(g[3], 0.0);
+    }
+
+    #[test]
+    fn anchored_points_round_trip_and_ends_alone_are_the_plain_map() {
+        let cp = ControlPoints {
+            x: vec![0.0, 0.1, 0.3, 0.3, 0.65, 1.0],
+            sigma: vec![0.0, 12.5, 255.0, 100.0, 3.0, 40.0],
+            rgb: vec![[0.3, 0.7, 0.5]; 6],
+        };
+        let anchors = [(0, 0.0), (2, 0.3), (3, 0.3), (5, 1.0)];
+        let back = TfParams::from_anchored_points(&cp, &anchors).anchored_points(&anchors);
+        for i in 0..cp.len() {
+            assert!(
+                (back.x[i] - cp.x[i]).abs() < 1e-9,
+                "x{i}: {} {}",
+                back.x[i],
+                cp.x[i]
+            );
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let p = random_params(&mut rng, 7);
+        let (a, b) = (p.control_points(), p.anchored_points(&[(0, 0.0), (6, 1.0)]));
+        for i in 0..7 {
+            assert!((a.x[i] - b.x[i]).abs() < 1e-15);
+        }
     }
 }

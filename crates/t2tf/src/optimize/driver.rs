@@ -11,8 +11,8 @@ use super::captions::{self, CacheOutcome, CaptionPool};
 use super::init::Initialization;
 use super::report::{InitInfo, PhaseTimes, Report, ReportError, Score, StepLog};
 use super::{
-    initialize, optimize, scores, BoxError, ImageEncoder, OptimizeError, Outcome, Parameterization,
-    Problem, Renderer, Targets, ValidSettings, View,
+    initialize, optimize, scores, start_from, BoxError, ImageEncoder, OptimizeError, Outcome,
+    Parameterization, Problem, Renderer, Targets, ValidSettings, View,
 };
 use crate::image::{Image, ImageError};
 
@@ -51,6 +51,18 @@ pub struct Job<'a> {
     pub logit_scale: f64,
     /// Views in preview.png and in the final scores.
     pub preview_views: usize,
+    /// Where the loop starts: `None` for the paper's initialization.
+    pub start: Option<Start<'a>>,
+}
+
+/// A run's given start: its control points (as many as the parameterization has) and, when
+/// they came from the paper's initialization, what that found.
+#[derive(Clone, Copy, Debug)]
+pub struct Start<'a> {
+    /// The TF the loop starts from.
+    pub control_points: &'a crate::tf::ControlPoints,
+    /// The paper's initialization it came from, if it did.
+    pub init: Option<&'a Initialization>,
 }
 
 /// The models a run drives: the renderer, CLIP's two towers and the TF parameterization.
@@ -132,7 +144,13 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
     times.text = t0.elapsed().as_secs_f64();
 
     let t0 = Instant::now();
-    let (params, init) = initialize(renderer, tf, job.histogram, s)?;
+    let (params, init) = match job.start {
+        None => initialize(renderer, tf, job.histogram, s)?,
+        Some(start) => {
+            let (params, given) = start_from(renderer, tf, start.control_points, s)?;
+            (params, start.init.cloned().unwrap_or(given))
+        }
+    };
     times.init = t0.elapsed().as_secs_f64();
 
     let targets = Targets {

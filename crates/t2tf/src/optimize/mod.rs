@@ -23,6 +23,7 @@ pub mod report;
 pub mod schedule;
 pub mod settings;
 pub(crate) mod sgd;
+pub mod start;
 pub mod tf_plot;
 
 use std::cell::RefCell;
@@ -544,6 +545,27 @@ pub fn initialize<R: Renderer, P: Parameterization>(
     let params = tf
         .params_for(&found.control_points)
         .map_err(OptimizeError::Parameters)?;
+    Ok((params, found))
+}
+
+/// Start from the given control points instead of the paper's initialization: their
+/// parameters, and what [`initialize`] would report (mean T_N of V0 measured once).
+pub fn start_from<R: Renderer, P: Parameterization>(
+    renderer: &R,
+    tf: &P,
+    cp: &ControlPoints,
+    settings: &ValidSettings,
+) -> Result<(Vec<f64>, init::Initialization), OptimizeError> {
+    let params = tf.params_for(cp).map_err(OptimizeError::Parameters)?;
+    let lut = cp.to_lut(tf.lut_size());
+    let mean = mean_transmittance(renderer, &lut, &View::initial(settings), None)?;
+    let found = init::Initialization {
+        control_points: cp.clone(),
+        scale: 1.0,
+        mean_transmittance: mean,
+        evaluations: 1,
+        reached: true,
+    };
     Ok((params, found))
 }
 

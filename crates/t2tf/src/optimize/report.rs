@@ -204,6 +204,13 @@ pub struct Report {
     pub render: serde_json::Value,
     /// What the density initialization found.
     pub initialization: InitInfo,
+    /// The TF the run started from instead of the paper's initialization (file, and the
+    /// preset's name in it); absent for a fresh run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init: Option<String>,
+    /// Data ranges [min, max] whose TF the run kept as it started.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub locks: Vec<[f64; 2]>,
     /// One log per step run.
     pub steps: Vec<StepLog>,
     /// Steps actually run (< settings.steps after Ctrl-C).

@@ -23,6 +23,7 @@
 
 mod model;
 mod outputs;
+mod start;
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -30,6 +31,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 pub use model::{Model, ModelOptions};
 pub use outputs::check_name;
+pub use start::{check_locks, InitTf, PARAVIEW_TABLE};
 
 use crate::camera::{Camera, Orbit, ParaViewCamera, UpAxis};
 use crate::image::Image;
@@ -39,9 +41,11 @@ use crate::optimize::captions::{self, CacheOutcome, CaptionPool};
 use crate::optimize::driver::{self, Finished, Models, Positive};
 use crate::optimize::report::{Report, StepLog, VolumeInfo};
 use crate::optimize::settings::{Settings, ValidSettings};
+use crate::optimize::start::StartTf;
 use crate::optimize::tf_plot::Curve;
+use crate::optimize::{BoxError, Parameterization, PointGrad};
 use crate::render::{CpuBackend, RenderOptions};
-use crate::tf::ControlPoints;
+use crate::tf::{ControlPoints, LutGrad};
 use crate::volume::Volume;
 
 /// Entries of the LUT the optimizer's renderer samples (one per histogram bin).
@@ -121,6 +125,11 @@ pub struct Job {
     /// Where caption embeddings are cached; `None`: not cached. [`Job::new`] sets the user's
     /// cache folder (`$XDG_CACHE_HOME/t2tf`, else `~/.cache/t2tf`).
     pub caption_cache: Option<PathBuf>,
+    /// Start from this TF instead of the paper's initialization (a refine).
+    pub init: Option<InitTf>,
+    /// Data ranges [min, max] whose TF stays as the run starts it: their gradient is masked,
+    /// so the loss sees them while their points do not move.
+    pub locks: Vec<[f64; 2]>,
 }
 
 impl Job {
@@ -137,6 +146,8 @@ impl Job {
             render_size: None,
             budget: Budget::system(),
             caption_cache: captions::cache_dir(),
+            init: None,
+            locks: Vec::new(),
         }
     }
 
@@ -170,6 +181,7 @@ impl Job {
                 )));
             }
         }
+        check_locks(&self.locks)?;
         let pool = match &self.negatives_file {
             Some(f) => CaptionPool::from_file(f)?,
             None => CaptionPool::builtin(),
@@ -215,6 +227,55 @@ impl ValidJob {
     pub fn pool(&self) -> &CaptionPool {
         &self.pool
     }
+
+    /// The checks that need the volume (locks inside its data range, the init's range
+    /// meeting it): [`optimize`] makes them first; a caller can make them before loading
+    /// the model.
+    pub fn check_volume(&self, volume: &Volume) -> Result<(), PipelineError> {
+        start::check_against(volume, self.job.init.as_ref(), &self.job.locks)
+    }
+}
+
+/// The parameterization a run optimizes: the paper's, or the paper's with a given start and
+/// locked ranges ([`StartTf`]).
+enum RunTf {
+    Paper(PaperTf),
+    Start(StartTf),
+}
+
+impl Parameterization for RunTf {
+    fn control_points(&self, params: &[f64]) -> Result<ControlPoints, BoxError> {
+        match self {
+            RunTf::Paper(t) => t.control_points(params),
+            RunTf::Start(t) => t.control_points(params),
+        }
+    }
+
+    fn lut_size(&self) -> usize {
+        match self {
+            RunTf::Paper(t) => t.lut_size(),
+            RunTf::Start(t) => t.lut_size(),
+        }
+    }
+
+    fn params_for(&self, cp: &ControlPoints) -> Result<Vec<f64>, BoxError> {
+        match self {
+            RunTf::Paper(t) => t.params_for(cp),
+            RunTf::Start(t) => t.params_for(cp),
+        }
+    }
+
+    fn backward(
+        &self,
+        params: &[f64],
+        lut: &LutGrad,
+        direct: &PointGrad,
+    ) -> Result<Vec<f64>, BoxError> {
+        match self {
+            RunTf::Paper(t) => t.backward(params, lut, direct),
+            RunTf::Start(t) => t.backward(params, lut, direct),
+        }
+    }
 }
 
 /// What a run reports while it works. The callback returns [`ControlFlow::Break`] to stop the
@@ -245,6 +306,7 @@ pub struct Optimized {
     volume: Volume,
     view: ParaViewCamera,
     unit_distance: f64,
+    lut_size: usize,
     tf_curve: Curve,
 }
 
@@ -292,7 +354,9 @@ impl Optimized {
     /// What the exports hold: the LUT the renderer sampled, not the raw control points (they
     /// differ where points collapsed within one LUT cell).
     fn exported_points(&self) -> ControlPoints {
-        self.control_points().to_lut(LUT_SIZE).to_control_points()
+        self.control_points()
+            .to_lut(self.lut_size)
+            .to_control_points()
     }
 }
 
@@ -307,6 +371,7 @@ pub fn optimize(
     on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
 ) -> Result<Optimized, PipelineError> {
     let j = &job.job;
+    job.check_volume(volume)?;
     let clip = model.clip();
     let stop = AtomicBool::new(false);
     let mut emit = |e: Event| {
@@ -336,7 +401,6 @@ pub fn optimize(
         (None, Target::Image(_)) => unreachable!("the image was loaded above"),
     };
     let g = volume.geometry;
-    let unit_distance = crate::tf::default_unit_distance(&g);
     let options = RenderOptions {
         step: j.step_size.unwrap_or(crate::render::DEFAULT_STEP),
         level: j.level,
@@ -366,11 +430,48 @@ pub fn optimize(
         histogram: &volume.histogram,
         logit_scale: model.info().logit_scale,
         preview_views: PREVIEW_VIEWS,
+        start: None,
     };
     let clip_model = ClipModel(clip);
-    let tf = PaperTf {
+    let paper = PaperTf {
         k: settings.control_points,
         lut_size: LUT_SIZE,
+    };
+    // A fresh run is the paper's; a refine or a run with locks starts from given points (the
+    // paper's initialization when there is no init, made here so the locks can cut it).
+    let (tf, planned, paper_init) = if j.init.is_none() && j.locks.is_empty() {
+        (RunTf::Paper(paper), None, None)
+    } else {
+        // The paper's densities are needed without an init, and for a colour-only one.
+        let paper_init = if j.init.as_ref().is_none_or(InitTf::colours_only) {
+            Some(crate::optimize::initialize(&renderer, &paper, &volume.histogram, settings)?.1)
+        } else {
+            None
+        };
+        let p = start::plan(
+            volume,
+            j.init.as_ref(),
+            paper_init.as_ref().map(|i| &i.control_points),
+            &j.locks,
+            settings.control_points,
+        )?;
+        if let Some((want, got)) = p.clipped_opacity {
+            emit(Event::Warning(&format!(
+                "the start's opacity reaches {want:.3}, more than the densest TF the optimizer represents at its unit distance ({got:.3}); it starts there"
+            )));
+        }
+        (RunTf::Start(p.tf.clone()), Some(p), paper_init)
+    };
+    let lut_size = tf.lut_size();
+    let unit_distance = planned
+        .as_ref()
+        .map_or_else(|| crate::tf::default_unit_distance(&g), |p| p.unit_distance);
+    let driver_job = driver::Job {
+        start: planned.as_ref().map(|p| driver::Start {
+            control_points: &p.control_points,
+            init: paper_init.as_ref(),
+        }),
+        ..driver_job
     };
     let models = Models {
         renderer: &renderer,
@@ -425,13 +526,15 @@ pub fn optimize(
         "level": options.level,
         "image_size": clip.image_size(),
         "render_size": renderer.render_size,
-        "lut_size": LUT_SIZE,
+        "lut_size": lut_size,
         "threads": rayon::current_num_threads(),
         // Which matrix kernel CLIP runs on this CPU (chosen at run time).
         "clip_engine": clip.compute().describe(),
         "clip_precision": clip.compute().precision.name(),
     });
     finished.fill_report(&mut report);
+    report.init = j.init.as_ref().map(InitTf::describe);
+    report.locks = j.locks.clone();
     let view = script_view(settings, &g, j.up)?;
     Ok(Optimized {
         report,
@@ -439,6 +542,7 @@ pub fn optimize(
         volume: volume.clone(),
         view,
         unit_distance,
+        lut_size,
         tf_curve: Curve::Opacity {
             unit_over_length: unit_distance / g.longest_side(),
         },

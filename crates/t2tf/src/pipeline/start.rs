@@ -1,0 +1,198 @@
+//! Where a run starts and what it keeps: `Job::init` (a TF file to refine) and `Job::locks`
+//! (data ranges whose TF does not change), checked and turned into the loop's start and
+//! parameterization (`optimize::start`).
+
+use std::path::{Path, PathBuf};
+
+use super::PipelineError;
+use crate::formats::Preset;
+use crate::optimize::start::{self, Lock, StartTf};
+use crate::tf::ControlPoints;
+use crate::volume::Volume;
+
+/// Entries of the LUT a run with a given start or locks samples at least: the width of the
+/// table ParaView 5.11's volume mapper samples a TF into (VTK takes more when points are
+/// closer than 1/1024 of the range). Every value ParaView samples is then a LUT entry, so
+/// the written preset is the TF the loop rendered at each of them.
+pub const PARAVIEW_TABLE: usize = 1024;
+
+/// A TF to start from: a preset of a TF file (ParaView JSON or XML, VisIt `.ct`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct InitTf {
+    /// The preset, in its own colour space.
+    pub preset: Preset,
+    /// The file it came from (named in errors and in report.json).
+    pub source: PathBuf,
+}
+
+impl InitTf {
+    /// Read preset `name` (the first when `None`) of the TF file `path`.
+    pub fn read(path: &Path, name: Option<&str>) -> Result<InitTf, PipelineError> {
+        let preset = crate::formats::read_preset(path, name)?;
+        preset.tf.validate(path)?;
+        Ok(InitTf {
+            preset,
+            source: path.to_path_buf(),
+        })
+    }
+
+    /// A colour map without opacity: the run takes its colours, spread over the data range
+    /// as ParaView applies a library preset, and the paper's densities.
+    pub fn colours_only(&self) -> bool {
+        self.preset.tf.opacity_points.is_empty()
+    }
+
+    /// "FILE (preset NAME)", for report.json.
+    pub fn describe(&self) -> String {
+        format!("{} (preset {})", self.source.display(), self.preset.tf.name)
+    }
+}
+
+/// The checks of `locks` that need no volume: finite, increasing, not overlapping.
+pub fn check_locks(locks: &[[f64; 2]]) -> Result<(), PipelineError> {
+    for &[lo, hi] in locks {
+        if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+            return Err(PipelineError::Job(format!(
+                "locked range {lo},{hi}: must be MIN,MAX with MIN < MAX"
+            )));
+        }
+    }
+    let mut sorted = locks.to_vec();
+    sorted.sort_by(|a, b| a[0].total_cmp(&b[0]));
+    if let Some(w) = sorted.windows(2).find(|w| w[1][0] < w[0][1]) {
+        return Err(PipelineError::Job(format!(
+            "locked ranges {},{} and {},{} overlap",
+            w[0][0], w[0][1], w[1][0], w[1][1]
+        )));
+    }
+    Ok(())
+}
+
+/// The checks that need the volume: every lock inside the data range, the init's range
+/// meeting it.
+pub fn check_against(
+    volume: &Volume,
+    init: Option<&InitTf>,
+    locks: &[[f64; 2]],
+) -> Result<(), PipelineError> {
+    let [lo, hi] = volume.norm_range;
+    for &[a, b] in locks {
+        if a < lo || b > hi {
+            return Err(PipelineError::Job(format!(
+                "locked range {a},{b} is outside the data range {lo}..{hi}"
+            )));
+        }
+    }
+    if let Some(init) = init.filter(|i| !i.colours_only()) {
+        let [a, b] = init.preset.tf.data_range();
+        if b < lo || a > hi || (a == b && hi > lo) {
+            return Err(PipelineError::Job(format!(
+                "{}: preset \"{}\" covers {a}..{b}, which misses the data range {lo}..{hi}",
+                init.source.display(),
+                init.preset.tf.name
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// A run's start: the control points, the parameterization (with the LUT it samples) and the
+/// opacity unit distance of its exports.
+pub(crate) struct Planned {
+    pub control_points: ControlPoints,
+    pub tf: StartTf,
+    pub unit_distance: f64,
+    /// Highest opacity of the init that the density range cannot reach (at the init's unit
+    /// distance), with what it gets instead.
+    pub clipped_opacity: Option<(f64, f64)>,
+}
+
+/// ParaView's table width for a TF with points at data values `xs` over `range` (see
+/// [`PARAVIEW_TABLE`]): a power of two, at least 1024, at most 16384.
+fn table_width(xs: &[f64], [lo, hi]: [f64; 2]) -> usize {
+    let gap = xs
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    let ideal = ((hi - lo) / gap).ceil();
+    let ideal = if ideal.is_finite() {
+        ideal.min(16384.0) as usize
+    } else {
+        1
+    };
+    ideal.next_power_of_two().max(PARAVIEW_TABLE)
+}
+
+/// Plan a run that starts from `init`, or from `paper` (the paper's initialization, made by
+/// the caller) with `locks`; a colour-only `init` takes its densities from `paper`.
+/// `min_points`: the run's control points at least.
+pub(crate) fn plan(
+    volume: &Volume,
+    init: Option<&InitTf>,
+    paper: Option<&ControlPoints>,
+    locks: &[[f64; 2]],
+    min_points: usize,
+) -> Result<Planned, PipelineError> {
+    check_against(volume, init, locks)?;
+    let [lo, hi] = volume.norm_range;
+    let norm = |v: f64| ((v - lo) / (hi - lo)).clamp(0.0, 1.0);
+    let normalized: Vec<Lock> = locks
+        .iter()
+        .map(|&[a, b]| Lock {
+            lo: norm(a),
+            hi: norm(b),
+        })
+        .collect();
+    let default_u = crate::tf::default_unit_distance(&volume.geometry);
+    let (cp, lut_size, unit_distance, clipped_opacity) = match (init, paper) {
+        (Some(init), Some(paper)) if init.colours_only() => {
+            let tf = init.preset.rgb_linear();
+            let [a, b] = tf.data_range();
+            let spread = |x: f64| if b > a { (x - a) / (b - a) } else { 0.5 };
+            let rgb: Vec<(f64, [f64; 3])> =
+                tf.rgb_points.iter().map(|&(x, c)| (spread(x), c)).collect();
+            let mut x: Vec<f64> = paper.x.clone();
+            x.extend(rgb.iter().map(|p| p.0).filter(|t| (0.0..=1.0).contains(t)));
+            x.sort_by(f64::total_cmp);
+            x.dedup();
+            let cp = ControlPoints {
+                sigma: x.iter().map(|&t| paper.eval(t)[0]).collect(),
+                rgb: x.iter().map(|&t| crate::tf::interpolate(&rgb, t)).collect(),
+                x,
+            };
+            let xs: Vec<f64> = init.preset.tf.rgb_points.iter().map(|p| p.0).collect();
+            (cp, table_width(&xs, [a, b]), default_u, None)
+        }
+        (Some(init), _) => {
+            let tf = init.preset.rgb_linear();
+            let cp = tf.to_control_points(&init.source, volume, None)?;
+            let u = tf.unit_distance.unwrap_or(default_u);
+            let mut xs: Vec<f64> = init.preset.tf.rgb_points.iter().map(|p| p.0).collect();
+            xs.extend(tf.opacity_points.iter().map(|p| p.0));
+            xs.sort_by(f64::total_cmp);
+            let o_max = crate::tf::sigma_to_opacity(
+                crate::tf::SIGMA_MAX,
+                u,
+                volume.geometry.longest_side(),
+            );
+            let highest = tf.opacity_points.iter().map(|p| p.1).fold(0.0, f64::max);
+            let clipped = (highest > o_max + 1e-3).then_some((highest, o_max));
+            (cp, table_width(&xs, [lo, hi]), u, clipped)
+        }
+        (None, Some(paper)) => (paper.clone(), PARAVIEW_TABLE, default_u, None),
+        (None, None) => {
+            return Err(PipelineError::Job(
+                "a start needs a TF to start from".into(),
+            ))
+        }
+    };
+    let (control_points, tf) = start::prepare(&cp, &normalized, min_points, lut_size)
+        .map_err(|e| PipelineError::Job(e.to_string()))?;
+    Ok(Planned {
+        control_points,
+        tf,
+        unit_distance,
+        clipped_opacity,
+    })
+}
