@@ -174,8 +174,9 @@ class Run:
 
 def optimize(volume, out, prompt, negatives=(), steps=300, views=3, seed=0, model=None,
              tokenizer=None, array=None, reference_image=None, extra=(), progress=None,
-             aborted=None, timeout=None):
-    """Run t2tf on a volume file; returns the result (see read_result)."""
+             aborted=None, timeout=None, init=None, locks=()):
+    """Run t2tf on a volume file; returns the result (see read_result). `init`: a TF file
+    to start from; `locks`: (min, max) data ranges kept as they start."""
     if not (prompt or "").strip() and not reference_image:
         raise T2tfError("the prompt is empty: type what the rendering should show (Prompt)")
     args = [find_binary(), "optimize", volume, "--out", out, "--progress", "json"]
@@ -193,6 +194,10 @@ def optimize(volume, out, prompt, negatives=(), steps=300, views=3, seed=0, mode
         args += ["--array", array]
     if reference_image:
         args += ["--reference-image", reference_image]
+    if init:
+        args += ["--init", init]
+    for lo, hi in locks or ():
+        args += ["--lock=%r,%r" % (float(lo), float(hi))]
     args += list(extra)
     done = Run(args, out).run(progress, aborted, timeout)
     return read_result(done)
@@ -200,7 +205,7 @@ def optimize(volume, out, prompt, negatives=(), steps=300, views=3, seed=0, mode
 
 def optimize_in_process(t2tf, image, array, out, prompt, negatives=(), steps=300, views=3,
                         seed=0, model=None, tokenizer=None, reference_image=None,
-                        progress=None, aborted=None):
+                        progress=None, aborted=None, init=None, locks=()):
     """Run t2tf in this process on `image`'s point array `array` (read in place, no file
     written) and save its files into `out`; returns the result as read_result gives it.
     `progress(fraction, text)` per step; `aborted()` is asked after each step and stops the
@@ -222,7 +227,7 @@ def optimize_in_process(t2tf, image, array, out, prompt, negatives=(), steps=300
             volume, (prompt or "").strip() or None, negatives=[n for n in negatives if n.strip()],
             steps=int(steps), views=int(views), seed=int(seed), model=model or None,
             tokenizer=tokenizer or None, reference_image=reference_image or None,
-            progress=on_event)
+            progress=on_event, init=init or None, lock=[tuple(l) for l in locks or ()])
         report = run.save(out)
     except (t2tf.Error, ValueError) as e:
         raise T2tfError(str(e))
@@ -230,6 +235,42 @@ def optimize_in_process(t2tf, image, array, out, prompt, negatives=(), steps=300
     # An array has no file to reopen, so no pvpython script holds the camera: the run has it.
     result["camera"] = run.camera
     return result
+
+
+def parse_locks(text):
+    """'MIN,MAX; MIN,MAX' (the Lock Ranges property) as [(min, max), ...]."""
+    locks = []
+    for part in (text or "").replace("\n", ";").split(";"):
+        if not part.strip():
+            continue
+        try:
+            lo, hi = (float(v) for v in part.split(","))
+        except ValueError:
+            raise T2tfError("Lock Ranges: %r is not MIN,MAX (e.g. 120,400; 800,1200)" % part.strip())
+        locks.append((lo, hi))
+    return locks
+
+
+def write_current_tf(array, path, source=None):
+    """Write the colour and opacity functions ParaView now uses for `array` (and the unit
+    distance of `source`'s display) as a preset file: the start of a Refine."""
+    import paraview.simple as pvs
+
+    lut = pvs.GetColorTransferFunction(array)
+    pwf = pvs.GetOpacityTransferFunction(array)
+    rgb, points = list(lut.RGBPoints), list(pwf.Points)
+    if len(rgb) < 8 or len(points) < 8:
+        raise T2tfError("Refine: %s has no colour and opacity function to start from" % array)
+    space = _text(lut.ColorSpace)
+    preset = {"Name": "current", "ColorSpace": space, "RGBPoints": rgb, "Points": points}
+    if space == "HSV":
+        preset["HSVWrap"] = int(lut.HSVWrap)
+    if source is not None:
+        disp = pvs.GetDisplayProperties(source)
+        preset[UNIT_DISTANCE_KEY] = float(disp.ScalarOpacityUnitDistance)
+    with open(path, "w") as f:
+        json.dump([preset], f)
+    return path
 
 
 def _script_list(text, name):
@@ -480,6 +521,8 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self._tokenizer = ""
         self._reference = ""
         self._camera = 1
+        self._refine = 0
+        self._locks = ""
         self.result = None
 
     def FillInputPortInformation(self, port, info):
@@ -554,6 +597,28 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self._reference = value or ""
         self.Modified()
 
+    @smproperty.xml("""
+        <IntVectorProperty name="Refine" command="SetRefine" number_of_elements="1"
+            default_values="0">
+          <BooleanDomain name="bool" />
+          <Documentation>Start from the colour and opacity functions the array has now (the
+          last result, or a preset you chose) instead of t2tf's initialization. Refining needs
+          far fewer steps than a fresh run.</Documentation>
+        </IntVectorProperty>""")
+    def SetRefine(self, value):
+        self._refine = int(value)
+        self.Modified()
+
+    @smproperty.xml("""
+        <StringVectorProperty name="LockRanges" label="Lock Ranges" command="SetLockRanges"
+            number_of_elements="1" default_values="">
+          <Documentation>Data ranges whose transfer function stays as it starts, e.g.
+          "120,400; 800,1200": the rest is optimized around them.</Documentation>
+        </StringVectorProperty>""")
+    def SetLockRanges(self, value):
+        self._locks = value or ""
+        self.Modified()
+
     @smproperty.intvector(name="ApplyCamera", default_values=1)
     @smdomain.xml('<BooleanDomain name="bool" />')
     def SetApplyCamera(self, value):
@@ -613,7 +678,13 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         binary = None if module else find_binary()  # fail early, before writing anything
         if not self._prompt.strip() and not self._reference:
             raise T2tfError("the prompt is empty: type what the rendering should show (Prompt)")
+        locks = parse_locks(self._locks)
         out = tempfile.mkdtemp(prefix="t2tf-plugin-")
+        init = None
+        if self._refine:
+            proxy = _proxy_of(self)
+            source = proxy.Input if proxy is not None else None
+            init = write_current_tf(array, os.path.join(out, "start.json"), source)
         self.UpdateProgress(0.0)
         if module:
             message("running t2tf %s in-process (%s)" % (module.__version__, module.__file__),
@@ -622,11 +693,12 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
                 module, image, array, os.path.join(out, "tf"), self._prompt, self._negatives,
                 self._steps, self._views, self._seed, self._model or None,
                 self._tokenizer or None, self._reference or None,
-                progress=lambda f, text: self.UpdateProgress(f), aborted=self.GetAbortExecute)
+                progress=lambda f, text: self.UpdateProgress(f), aborted=self.GetAbortExecute,
+                init=init, locks=locks)
             volume = None
         else:
             message("running the t2tf binary %s" % binary, False)
-            result, volume = self._run_binary(image, array, out)
+            result, volume = self._run_binary(image, array, out, init, locks)
         self.UpdateProgress(1.0)
         result["array"] = array
         result["volume"] = volume
@@ -634,7 +706,7 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
             message("cancelled: kept the transfer function of the last finished step", False)
         return result
 
-    def _run_binary(self, image, array, out):
+    def _run_binary(self, image, array, out, init=None, locks=()):
         """`t2tf optimize` on the upstream file, else on the image written to a .vti."""
         proxy = _proxy_of(self)
         upstream = _upstream_file(proxy, array) if proxy is not None else None
@@ -651,7 +723,7 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
             self._views, self._seed, self._model or None, self._tokenizer or None,
             reference_image=self._reference or None, extra=extra,
             progress=lambda f, text: self.UpdateProgress(f),
-            aborted=self.GetAbortExecute)
+            aborted=self.GetAbortExecute, init=init, locks=locks)
         return result, volume
 
     def _annotate(self, out, result):
@@ -678,8 +750,11 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
 
 def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, views=3, seed=0,
                               model=None, tokenizer=None, array=None, reference_image=None,
-                              proxy_size=None, view=None, camera=True, timeout=None, extra=()):
+                              proxy_size=None, view=None, camera=True, timeout=None, extra=(),
+                              refine=False, locks=()):
     """Optimize a TF for `source` (default: the active source) and show it with it.
+    `refine` starts from the array's current colour and opacity functions; `locks` are
+    (min, max) data ranges kept as they start.
 
     In a builtin session this creates the TextToTransferFunction filter. Connected to a
     remote server it asks the server for a ResampleToImage proxy of at most `proxy_size`
@@ -708,7 +783,10 @@ def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, v
         f = pvs.TexttoTransferFunction(Input=source, Prompt=prompt, Negatives=list(negatives),
                                        Steps=steps, Views=views, Seed=seed,
                                        Model=model or "openai/clip-vit-base-patch32",
-                                       Tokenizer=tokenizer or "", ReferenceImage=reference_image or "")
+                                       Tokenizer=tokenizer or "", ReferenceImage=reference_image or "",
+                                       Refine=int(bool(refine)),
+                                       LockRanges="; ".join("%r,%r" % (float(a), float(b))
+                                                            for a, b in locks))
         f.Array = ["POINTS", array]
         pvs.Show(f, view)
         algo = f.GetClientSideObject()
@@ -721,9 +799,10 @@ def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, v
     out = tempfile.mkdtemp(prefix="t2tf-plugin-")
     volume = os.path.join(out, "proxy.vti")
     write_vti(local, array, volume)
+    init = write_current_tf(array, os.path.join(out, "start.json"), source) if refine else None
     result = optimize(volume, os.path.join(out, "tf"), prompt, negatives, steps, views, seed,
                       model, tokenizer, array=array, reference_image=reference_image,
-                      extra=extra, timeout=timeout)
+                      extra=extra, timeout=timeout, init=init, locks=locks)
     result.update(array=array, volume=volume, proxy_dims=dims, fetched_points=fetched)
     register_preset(result)
     view = view or pvs.GetActiveViewOrCreate("RenderView")

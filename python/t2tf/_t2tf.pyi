@@ -1,7 +1,7 @@
 """Type stubs of the compiled module `t2tf._t2tf` (crates/python)."""
 import os
 from pathlib import Path
-from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -192,6 +192,13 @@ class Result:
 
 Progress = Callable[[Dict[str, Any]], Optional[bool]]
 
+@overload
+def optimize(
+    volume: Volume,
+    prompt: Sequence[str],
+    **kwargs: Any,
+) -> List[Result]: ...
+@overload
 def optimize(
     volume: Volume,
     prompt: Optional[str] = None,
@@ -223,9 +230,18 @@ def optimize(
     level: Optional[int] = None,
     render_size: Optional[int] = None,
     caption_cache: Optional[_Path] = ...,
+    init: Union[None, _Path, TransferFunction] = None,
+    preset: Optional[str] = None,
+    lock: Sequence[Tuple[float, float]] = (),
 ) -> Result:
     """Optimize a transfer function so renderings of `volume` match `prompt` (Algorithm 1
     with the paper's defaults; every keyword is the `t2tf optimize` flag of that name).
+
+    A list of prompts runs one optimization per prompt with the model and volume loaded
+    once and returns a list of results (the same seed gives each prompt the TF of its own
+    run). `init` starts from a TF (a file, `preset` naming one of several in it, or a
+    `TransferFunction` such as an earlier result's) instead of the paper's initialization;
+    `lock=[(min, max), ...]` keeps the TF over those data ranges as it starts.
 
     `model` is a Hub id, a folder or a loaded `Model` (None: DEFAULT_MODEL). `threads`
     runs it in a pool of that many threads (None: one per CPU); the same volume,

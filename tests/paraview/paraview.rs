@@ -7,8 +7,8 @@
 use crate::paraview_util;
 
 use paraview_util::{
-    assert_volume_only_inside, floats, neghip, projected_box, pvpython, repo, require_paraview,
-    test_tf,
+    assert_volume_only_inside, floats, neghip, neghip_path, projected_box, pvpython, repo,
+    require_paraview, test_tf,
 };
 use std::path::Path;
 
@@ -336,4 +336,200 @@ fn generated_script_opens_vti_and_legacy_vtk() {
         differs > 1000,
         "helper screenshot shows {differs} non-background pixels"
     );
+}
+
+/// Imports a preset library into ParaView and reports what its preset manager then holds
+/// for each given name: the points, and 1024 samples of the colour and opacity functions
+/// after applying it (vtkColorTransferFunction's and vtkPiecewiseFunction's own evaluation).
+const LIBRARY_CHECK: &str = r#"
+import json, sys
+import paraview.simple as pvs
+from paraview import servermanager
+from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
+library, out = sys.argv[1], sys.argv[2]
+names = sys.argv[3:]
+presets = servermanager.vtkSMTransferFunctionPresets.GetInstance()
+before = presets.GetNumberOfPresets()
+pvs.ImportPresets(library)
+res = {"added": presets.GetNumberOfPresets() - before, "presets": {}}
+for i, name in enumerate(names):
+    if not presets.HasPreset(name):
+        res["presets"][name] = None
+        continue
+    lut = pvs.GetColorTransferFunction("a%d" % i)
+    pwf = pvs.GetOpacityTransferFunction("a%d" % i)
+    lut.ApplyPreset(name, False)
+    pwf.ApplyPreset(name, False)
+    lo, hi = lut.RGBPoints[0], lut.RGBPoints[-4]
+    xs = [lo + (hi - lo) * k / 1023 for k in range(1024)]
+    c_lut, c_pwf = lut.GetClientSideObject(), pwf.GetClientSideObject()
+    rgb = []
+    for x in xs:
+        c = [0.0, 0.0, 0.0]
+        vtkColorTransferFunction.GetColor(c_lut, x, c)
+        rgb.append(c)
+    res["presets"][name] = {"x": xs, "rgb": rgb, "opacity": [c_pwf.GetValue(x) for x in xs]}
+with open(out, "w") as f:
+    json.dump(res, f)
+"#;
+
+/// `t2tf optimize` with the tiny test CLIP, quick settings: panics with its stderr on failure.
+fn quick_optimize(volume: &Path, args: &[&str], cache: &Path) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_t2tf"))
+        .current_dir(repo())
+        .arg("optimize")
+        .arg(volume)
+        .args(["--model", "tests/fixtures/clip/quick_gelu"])
+        .args(["--tokenizer", "../shared/data/clip/tokenizer.json"])
+        .args([
+            "--threads",
+            "2",
+            "--views",
+            "1",
+            "--negatives-per-step",
+            "8",
+        ])
+        .args(args)
+        .env("XDG_CACHE_HOME", cache)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn a_batchs_library_imports_as_one_preset_per_prompt() {
+    require_paraview("a_batchs_library_imports_as_one_preset_per_prompt");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("batch");
+    let prompts = ["bone", "skin", "vessels"];
+    let mut args = vec!["--steps", "2", "--out", out.to_str().unwrap()];
+    for p in prompts {
+        args.extend(["--prompt", p]);
+    }
+    quick_optimize(&neghip_path(), &args, dir.path());
+    let library = out.join("presets.json");
+    let names: Vec<String> = t2tf::formats::list_presets(&library)
+        .unwrap()
+        .into_iter()
+        .map(|p| p.name)
+        .collect();
+    assert_eq!(names.len(), 3);
+    let script = dir.path().join("library.py");
+    std::fs::write(&script, LIBRARY_CHECK).unwrap();
+    let json = dir.path().join("library.json");
+    let mut a = vec![library.to_str().unwrap(), json.to_str().unwrap()];
+    a.extend(names.iter().map(String::as_str));
+    pvpython(&script, &a);
+    let res: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(res["added"], 3, "{res}");
+    for (name, prompt) in names.iter().zip(prompts) {
+        assert!(name.starts_with(&format!("{prompt}-")), "{name}");
+        let sampled = &res["presets"][name];
+        assert!(!sampled.is_null(), "{name} not in ParaView's presets");
+        // ParaView's samples of the imported preset = the prompt's own TF file.
+        let own = t2tf::formats::read_tf(&out.join(prompt).join(format!("{prompt}.json"))).unwrap();
+        let o: Vec<(f64, [f64; 1])> = own.opacity_points.iter().map(|&(x, o)| (x, [o])).collect();
+        for (i, x) in floats(&sampled["x"]).iter().enumerate() {
+            let c = t2tf::tf::interpolate(&own.rgb_points, *x);
+            let pv = floats(&sampled["rgb"][i]);
+            for k in 0..3 {
+                assert!((c[k] - pv[k]).abs() < 1e-6, "{name} colour at {x}");
+            }
+            let po = sampled["opacity"][i].as_f64().unwrap();
+            assert!(
+                (t2tf::tf::interpolate(&o, *x)[0] - po).abs() < 1e-6,
+                "{name} opacity at {x}"
+            );
+        }
+    }
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn a_start_written_with_steps_0_is_the_init_as_paraview_samples_it() {
+    // ParaView itself samples what `--init X --steps 0` wrote, against its own samples of X
+    // (colorspace_samples.json): the check the optimize tests make with our interpolation,
+    // made here by VTK.
+    require_paraview("a_start_written_with_steps_0_is_the_init_as_paraview_samples_it");
+    let dir = tempfile::tempdir().unwrap();
+    // A 24³ float volume spanning the fixtures' -10..60.
+    let n = 24usize;
+    let mut bytes = Vec::new();
+    for i in 0..n * n * n {
+        let t = if i == 0 {
+            0.0
+        } else if i == n * n * n - 1 {
+            1.0
+        } else {
+            ((i * 7919) % 1000) as f32 / 1000.0
+        };
+        bytes.extend_from_slice(&(-10.0 + 70.0 * t).to_le_bytes());
+    }
+    let vol = dir.path().join(format!("v_{n}x{n}x{n}_float32.raw"));
+    std::fs::write(&vol, bytes).unwrap();
+    let fixtures = repo().join("tests/fixtures/paraview");
+    let goldens: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(fixtures.join("colorspace_samples.json")).unwrap(),
+    )
+    .unwrap();
+    let script = dir.path().join("library.py");
+    std::fs::write(&script, LIBRARY_CHECK).unwrap();
+    for (file, golden) in goldens.as_object().unwrap() {
+        let out = dir.path().join(file.trim_end_matches(".json"));
+        let init = fixtures.join(file);
+        quick_optimize(
+            &vol,
+            &[
+                "--prompt",
+                "x",
+                "--steps",
+                "0",
+                "--init",
+                init.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--name",
+                "start",
+            ],
+            dir.path(),
+        );
+        let written = out.join("start.json");
+        let name = t2tf::formats::read_tf(&written).unwrap().name;
+        let json = dir.path().join(format!("{file}.samples.json"));
+        pvpython(
+            &script,
+            &[written.to_str().unwrap(), json.to_str().unwrap(), &name],
+        );
+        let res: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        let s = &res["presets"][&name];
+        let (xs, gx) = (floats(&s["x"]), floats(&golden["x"]));
+        assert_eq!(xs.len(), gx.len());
+        let (mut ec, mut eo) = (0.0f64, 0.0f64);
+        for i in 0..xs.len() {
+            assert!(
+                (xs[i] - gx[i]).abs() < 1e-9,
+                "{file}: sampled at other values"
+            );
+            let (c, g) = (floats(&s["rgb"][i]), floats(&golden["rgb"][i]));
+            (0..3).for_each(|k| ec = ec.max((c[k] - g[k]).abs()));
+            eo = eo.max(
+                (s["opacity"][i].as_f64().unwrap() - golden["opacity"][i].as_f64().unwrap()).abs(),
+            );
+        }
+        eprintln!(
+            "{file:32} ParaView: colour {:.2}/255, opacity {eo:.1e}",
+            ec * 255.0
+        );
+        assert!(
+            ec <= 1.0 / 255.0 && eo <= 2e-3,
+            "{file}: colour {ec}, opacity {eo}"
+        );
+    }
 }

@@ -178,6 +178,49 @@ fn plugin_applies_the_tf_of_a_source_without_a_file() {
 
 #[test]
 #[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn refine_starts_from_the_display_and_keeps_the_locked_range() {
+    require_paraview("refine_starts_from_the_display_and_keeps_the_locked_range");
+    let dir = tempfile::tempdir().unwrap();
+    let (out, res) = driver("refine", dir.path());
+    assert!(out.status.success(), "{}", text(&out));
+    let res = res.expect("driver wrote no JSON");
+    check_display(&res, "ImageFile");
+    // ParaView's own sampling of the array's functions before and after the refine.
+    let (before, after) = (&res["before"], &res["after"]);
+    let xs = floats(&before["x"]);
+    let (mut inside, mut outside) = (0.0f64, 0.0f64);
+    for (i, x) in xs.iter().enumerate() {
+        let (cb, ca) = (floats(&before["rgb"][i]), floats(&after["rgb"][i]));
+        let dc = (0..3).map(|k| (cb[k] - ca[k]).abs()).fold(0.0, f64::max);
+        let ob = before["opacity"][i].as_f64().unwrap();
+        let oa = after["opacity"][i].as_f64().unwrap();
+        let d = dc.max((ob - oa).abs());
+        if (40.0..=120.0).contains(x) {
+            assert!(
+                dc <= 1.0 / 255.0 && (ob - oa).abs() <= 2e-3,
+                "locked value {x} moved: colour {cb:?} -> {ca:?}, opacity {ob} -> {oa}"
+            );
+            inside = inside.max(d);
+        } else {
+            outside = outside.max(d);
+        }
+    }
+    eprintln!("refine: largest change inside the lock {inside:.2e}, outside {outside:.2e}");
+    assert!(
+        outside > 1e-3,
+        "the refine changed nothing outside the lock"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(res["field"]["t2tf_report"].as_str().unwrap()).unwrap();
+    assert!(
+        report["init"].as_str().unwrap().contains("start.json"),
+        "{report}"
+    );
+    assert_eq!(report["locks"], serde_json::json!([[40.0, 120.0]]));
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
 fn cancelled_run_keeps_the_last_steps_tf() {
     require_paraview("cancelled_run_keeps_the_last_steps_tf");
     let dir = tempfile::tempdir().unwrap();

@@ -100,6 +100,35 @@ elif mode == "cancel":
     pvs.Render(view)
     res["after_cancel_seconds"] = time.time() - start
     res["progress_events"] = len(seen)
+elif mode == "refine":
+    # A first run, then Refine from the display's functions with a range locked.
+    src = raw_reader(volume)
+    f = tf_filter(src, steps=3)
+    pvs.Show(f, view)
+
+    def samples():
+        lut = pvs.GetColorTransferFunction("ImageFile").GetClientSideObject()
+        pwf = pvs.GetOpacityTransferFunction("ImageFile").GetClientSideObject()
+        xs = [255.0 * i / 1023 for i in range(1024)]
+        # The function itself, as vtkColorTransferFunction evaluates it (ParaView's class
+        # would answer from its 256-colour discretization).
+        from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
+        rgb = []
+        for x in xs:
+            c = [0.0, 0.0, 0.0]
+            vtkColorTransferFunction.GetColor(lut, x, c)
+            rgb.append(c)
+        return {"x": xs, "rgb": rgb, "opacity": [pwf.GetValue(x) for x in xs]}
+
+    res["before"] = samples()
+    f.Prompt = "a blue cloud"
+    f.Steps = 4
+    f.Refine = 1
+    f.LockRanges = "40,120"
+    f.UpdatePipeline()  # Apply: Show alone does not re-execute a shown filter
+    pvs.Render(view)
+    res["after"] = samples()
+    record(f, "ImageFile")
 elif mode == "errors":
     # Each ends in one message in the output window (stderr here), never a traceback.
     ok = pvs.Wavelet(WholeExtent=[-4, 4, -4, 4, -4, 4])

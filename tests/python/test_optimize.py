@@ -161,3 +161,44 @@ def test_names_follow_the_clis_rule_for_any_prompt(volume, tmp_path):
     r = t2tf.optimize(volume, "-x ray of a head", **dict(QUICK, steps=0))
     assert r.transfer_function.name.startswith("x-ray-of-a-head-")
     assert r.save(tmp_path / "-out")["outputs"][0] == "out.json"
+
+
+def test_a_list_of_prompts_gives_each_the_tf_of_its_own_run(volume):
+    prompts = ["a red molecule", "a blue cloud"]
+    batch = t2tf.optimize(volume, prompts, **QUICK)
+    assert isinstance(batch, list) and len(batch) == 2
+    for prompt, result in zip(prompts, batch):
+        alone = t2tf.optimize(volume, prompt, **QUICK)
+        assert result.report["prompt"] == prompt
+        a = alone.transfer_function.sample(256)[1]
+        b = result.transfer_function.sample(256)[1]
+        assert np.array_equal(a, b)
+
+
+def test_init_and_lock_refine_a_tf_and_keep_the_locked_range(volume):
+    first = t2tf.optimize(volume, "a red molecule", **QUICK)
+    # steps=0 from a TransferFunction: the start itself comes back.
+    start = t2tf.optimize(volume, "a blue cloud", init=first.transfer_function,
+                          **dict(QUICK, steps=0))
+    values, want = first.transfer_function.sample(1024)
+    _, got = start.transfer_function.sample(1024)
+    assert np.abs(got - want).max() <= 2e-3
+    # A refine with a lock: the range stays, the rest moves.
+    refined = t2tf.optimize(volume, "a blue cloud", init=first.transfer_function,
+                            lock=[(40, 120)], **dict(QUICK, steps=6))
+    _, after = refined.transfer_function.sample(1024)
+    inside = (values >= 40) & (values <= 120)
+    assert np.abs(after[inside] - want[inside]).max() <= 2e-3
+    assert np.abs(after[~inside] - want[~inside]).max() > 1e-3
+    assert refined.report["locks"] == [[40.0, 120.0]]
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    (dict(lock=[(120, 40)]), "MIN < MAX"),
+    (dict(lock=[(0, 300)]), "outside the data range"),
+    (dict(init="no-such-preset.json"), "no-such-preset.json"),
+    (dict(preset="Cividis"), "give init too"),
+])
+def test_bad_starts_are_settings_or_format_errors(volume, kwargs, words):
+    with pytest.raises(t2tf.Error, match=words):
+        t2tf.optimize(volume, "x", **QUICK, **kwargs)

@@ -13,11 +13,12 @@ use pyo3::types::PyDict;
 use t2tf::clip::{Compute, Precision};
 use t2tf::memory::Budget;
 use t2tf::optimize::settings::{defaults, Settings};
-use t2tf::pipeline::{Job, Model, ModelOptions, Target};
+use t2tf::pipeline::{self, Job, Model, ModelOptions, Target};
 
 use crate::errors;
 use crate::events::run_with_events;
 use crate::result::OptimizeResult;
+use crate::tf::PyTransferFunction;
 use crate::volume::PyVolume;
 
 /// A CLIP model loaded once, to run several optimizations with.
@@ -180,12 +181,12 @@ pub fn default_name(target: &Target, out: Option<&Path>) -> PyResult<String> {
 /// Optimize a transfer function so renderings of `volume` match `prompt` (or, with
 /// `reference_image`, a picture). See the package docs for every keyword.
 #[pyfunction]
-#[pyo3(signature = (volume, prompt = None, *, negatives = Vec::new(), steps = defaults::STEPS, views = defaults::VIEWS, seed = defaults::SEED, model = None, tokenizer = None, revision = None, precision = "f32", threads = None, progress = None, reference_image = None, max_memory = None, **settings))]
+#[pyo3(signature = (volume, prompt = None, *, negatives = Vec::new(), steps = defaults::STEPS, views = defaults::VIEWS, seed = defaults::SEED, model = None, tokenizer = None, revision = None, precision = "f32", threads = None, progress = None, reference_image = None, max_memory = None, init = None, preset = None, lock = Vec::new(), **settings))]
 #[allow(clippy::too_many_arguments)] // each is one keyword of the Python function
-pub fn optimize(
-    py: Python<'_>,
+pub fn optimize<'py>(
+    py: Python<'py>,
     volume: Py<PyVolume>,
-    prompt: Option<String>,
+    prompt: Option<&Bound<'py, PyAny>>,
     negatives: Vec<String>,
     steps: usize,
     views: usize,
@@ -198,40 +199,107 @@ pub fn optimize(
     progress: Option<Py<PyAny>>,
     reference_image: Option<PathBuf>,
     max_memory: Option<&Bound<'_, PyAny>>,
+    init: Option<&Bound<'_, PyAny>>,
+    preset: Option<String>,
+    lock: Vec<(f64, f64)>,
     settings: Option<&Bound<'_, PyDict>>,
-) -> PyResult<OptimizeResult> {
-    let target = match (prompt, reference_image) {
-        (Some(p), None) => Target::Prompt(p),
-        (None, Some(r)) => Target::Image(r),
+) -> PyResult<Bound<'py, PyAny>> {
+    // Several prompts: one run each with the model and the volume shared, a list back.
+    let prompts: Option<Vec<String>> =
+        match prompt {
+            None => None,
+            Some(p) => match p.extract::<String>() {
+                Ok(one) => Some(vec![one]),
+                Err(_) => Some(p.extract::<Vec<String>>().map_err(|_| {
+                    errors::settings("prompt must be a string or a list of strings")
+                })?),
+            },
+        };
+    let many = prompt.is_some_and(|p| p.extract::<String>().is_err());
+    let targets: Vec<Target> = match (prompts, reference_image) {
+        (Some(ps), None) if !ps.is_empty() => ps.into_iter().map(Target::Prompt).collect(),
+        (None, Some(r)) => vec![Target::Image(r)],
         (Some(_), Some(_)) => {
             return Err(errors::settings(
                 "give a prompt or a reference_image, not both",
             ))
         }
-        (None, None) => {
+        _ => {
             return Err(errors::settings(
                 "say what the renderings should show: a prompt (or a reference_image)",
             ))
         }
     };
-    let mut job = Job::new(target.clone());
-    job.negatives = negatives;
-    job.settings.steps = steps;
-    job.settings.views = views;
-    job.settings.seed = seed;
-    job.budget = budget(max_memory)?;
-    apply_settings(&mut job, settings)?;
-    let job = job.validate().map_err(errors::pipeline)?;
+    let init = init_tf(init, preset)?;
+    let mut jobs = Vec::with_capacity(targets.len());
+    for target in &targets {
+        let mut job = Job::new(target.clone());
+        job.negatives = negatives.clone();
+        job.settings.steps = steps;
+        job.settings.views = views;
+        job.settings.seed = seed;
+        job.budget = budget(max_memory)?;
+        job.init = init.clone();
+        job.locks = lock.iter().map(|&(a, b)| [a, b]).collect();
+        apply_settings(&mut job, settings)?;
+        jobs.push(job.validate().map_err(errors::pipeline)?);
+    }
     if threads == Some(0) {
         return Err(errors::settings("threads must be at least 1"));
     }
     let pool = t2tf_cli::thread_pool(threads).map_err(|e| errors::settings(format!("{e:#}")))?;
+    let volume = &volume.get().volume;
+    if let Some(job) = jobs.first() {
+        job.check_volume(volume).map_err(errors::pipeline)?;
+    }
     let model = model_for(py, model, tokenizer, revision, precision, max_memory)?;
-    let name = default_name(&target, None)?;
-    let optimized = run_with_events(py, &pool, &volume.get().volume, &model, &job, progress)?;
-    Ok(OptimizeResult {
-        optimized,
-        target,
-        name,
-    })
+    let mut results = Vec::with_capacity(jobs.len());
+    for (job, target) in jobs.iter().zip(targets) {
+        let name = default_name(&target, None)?;
+        let optimized = run_with_events(
+            py,
+            &pool,
+            volume,
+            &model,
+            job,
+            progress.as_ref().map(|p| p.clone_ref(py)),
+        )?;
+        results.push(OptimizeResult {
+            optimized,
+            target,
+            name,
+        });
+    }
+    if many {
+        Ok(pyo3::types::PyList::new(py, results)?.into_any())
+    } else {
+        Ok(Bound::new(py, results.remove(0))?.into_any())
+    }
+}
+
+/// `init=`: a TF file's path (`preset` names one of several in it) or a `TransferFunction`.
+fn init_tf(
+    init: Option<&Bound<'_, PyAny>>,
+    preset: Option<String>,
+) -> PyResult<Option<pipeline::InitTf>> {
+    let Some(init) = init else {
+        if preset.is_some() {
+            return Err(errors::settings(
+                "preset names a preset of init's file: give init too",
+            ));
+        }
+        return Ok(None);
+    };
+    if let Ok(tf) = init.cast::<PyTransferFunction>() {
+        return Ok(Some(pipeline::InitTf {
+            preset: tf.get().preset.clone(),
+            source: PathBuf::from("(a TransferFunction)"),
+        }));
+    }
+    let path: PathBuf = init.extract().map_err(|_| {
+        errors::settings("init must be a TF file's path or a t2tf.TransferFunction")
+    })?;
+    pipeline::InitTf::read(&path, preset.as_deref())
+        .map(Some)
+        .map_err(errors::pipeline)
 }
