@@ -316,7 +316,10 @@ mod tests {
         let paraview = [0.7783606720329149, 0.4564742371221619, 0.41693334769779306];
         let ours = m.color_at(0.5474095796676441);
         for k in 0..3 {
-            assert!((ours[k] - paraview[k]).abs() < 1e-6, "{ours:?} vs {paraview:?}");
+            assert!(
+                (ours[k] - paraview[k]).abs() < 1e-6,
+                "{ours:?} vs {paraview:?}"
+            );
         }
     }
 
