@@ -69,6 +69,9 @@ pub const TARGETS: &[Target] = &[
             "tests/fixtures/volumes/binary_uint64_lz4.vti",
             "tests/fixtures/volumes/appended_base64_float32_lz4.vti",
             "tests/fixtures/volumes/bigendian_int64_zlib.vti",
+            "tests/fixtures/fuzz_seeds/hostile_uint64_overflow.vti",
+            "tests/fixtures/fuzz_seeds/hostile_int64_overflow.vti",
+            "tests/fixtures/fuzz_seeds/hostile_nul_in_header.vti",
         ],
         file_name: "fuzz.vti",
         run: volume,
@@ -80,6 +83,8 @@ pub const TARGETS: &[Target] = &[
             "tests/fixtures/volumes/legacy_binary_uint16.vtk",
             "tests/fixtures/volumes/legacy_sections_binary.vtk",
             "tests/fixtures/volumes/legacy_v42_ascii_int32.vtk",
+            "tests/fixtures/fuzz_seeds/hostile_uint64_overflow.vtk",
+            "tests/fixtures/fuzz_seeds/hostile_int64_overflow.vtk",
         ],
         file_name: "fuzz.vtk",
         run: volume,
@@ -92,13 +97,19 @@ pub const TARGETS: &[Target] = &[
     },
     Target {
         name: "json",
-        seeds: &["tests/fixtures/paraview/paraview_written_preset.json"],
+        seeds: &[
+            "tests/fixtures/paraview/paraview_written_preset.json",
+            "tests/fixtures/fuzz_seeds/hostile_preset.json",
+        ],
         file_name: "fuzz.json",
         run: transfer_function,
     },
     Target {
         name: "xml",
-        seeds: &["tests/fixtures/fuzz_seeds/preset.xml"],
+        seeds: &[
+            "tests/fixtures/fuzz_seeds/preset.xml",
+            "tests/fixtures/fuzz_seeds/hostile_preset.xml",
+        ],
         file_name: "fuzz.xml",
         run: transfer_function,
     },
@@ -110,7 +121,11 @@ pub const TARGETS: &[Target] = &[
     },
     Target {
         name: "png",
-        seeds: &["tests/fixtures/fuzz_seeds/small.png"],
+        seeds: &[
+            "tests/fixtures/fuzz_seeds/small.png",
+            "tests/fixtures/fuzz_seeds/hostile_1x1000000.png",
+            "tests/fixtures/fuzz_seeds/hostile_100000x1.png",
+        ],
         file_name: "fuzz.png",
         run: png,
     },

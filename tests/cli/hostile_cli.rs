@@ -1,5 +1,7 @@
 //! Hostile outputs, inputs and signals, through the binary: outputs that are not ours are refused
-//! (devices, FIFOs, folders) and symlinks are followed; sizes from headers and flags end in a clean
+//! (devices, FIFOs, folders); a symlink given as an output is followed only when it is the
+//! caller's, and one planted in an output folder or the caption cache is replaced, its target
+//! untouched; sizes from headers and flags end in a clean
 //! error under an address-space limit, never in an abort (exit 134); `optimize` writes its files as
 //! one set under a lock, stops on SIGTERM with exit 143 after writing, and a SIGKILL leaves the
 //! previous complete set, cleaned up by the next run. Every bad file is made by the test.
@@ -107,6 +109,108 @@ fn convert_refuses_devices_and_fifos_and_overflowing_rescale() {
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("too wide"), "{err}");
     assert!(!out.exists());
+}
+
+/// A file outside every output, and what it holds.
+fn victim(dir: &Path) -> (PathBuf, &'static str) {
+    let v = dir.join("victim.txt");
+    let text = "the victim's own contents\n";
+    std::fs::write(&v, text).unwrap();
+    (v, text)
+}
+
+fn is_regular(p: &Path) -> bool {
+    std::fs::symlink_metadata(p)
+        .unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+        .file_type()
+        .is_file()
+}
+
+#[test]
+fn symlinks_planted_in_the_output_folder_and_the_cache_are_replaced_not_followed() {
+    let dir = tempfile::tempdir().unwrap();
+    let (victim, text) = victim(dir.path());
+    let cache = dir.path().join("cache");
+    // A first run fills the caption cache; its file is then swapped for a symlink.
+    let args = ["--steps", "1", "--prompt", "x", "--name", "t"];
+    let (code, err) = run(&mut optimize(&dir.path().join("first"), &cache, &args));
+    assert_eq!(code, 0, "{err}");
+    let embeddings = cache.join("t2tf/text-embeddings");
+    let cached: Vec<PathBuf> = std::fs::read_dir(&embeddings)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(cached.len(), 1, "{cached:?}");
+    let cache_file = &cached[0];
+    std::fs::remove_file(cache_file).unwrap();
+    std::os::unix::fs::symlink(&victim, cache_file).unwrap();
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    let planted = ["report.json", "preview.png", "t.json", ".t2tf.lock"];
+    for name in planted {
+        std::os::unix::fs::symlink(&victim, out.join(name)).unwrap();
+    }
+    let (code, err) = run(&mut optimize(&out, &cache, &args));
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), text);
+    let report = one_complete_set(&out);
+    assert!(report["outputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|n| n == "t.json"));
+    for name in ["report.json", "preview.png", "t.json"] {
+        assert!(is_regular(&out.join(name)), "{name} is still a symlink");
+    }
+    assert!(std::fs::read(out.join("preview.png"))
+        .unwrap()
+        .starts_with(b"\x89PNG"));
+    let preset: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("t.json")).unwrap()).unwrap();
+    assert!(preset[0]["RGBPoints"].is_array(), "{preset}");
+    // The lock file lived only while the run did; the cache holds embeddings again.
+    assert!(std::fs::symlink_metadata(out.join(".t2tf.lock")).is_err());
+    assert!(is_regular(cache_file));
+    assert!(std::fs::read(cache_file).unwrap().len() > text.len());
+}
+
+#[test]
+fn an_output_symlink_of_another_user_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (victim, text) = victim(dir.path());
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("skipped: giving a symlink to another user (lchown) needs root");
+        return;
+    }
+    let tf = preset(dir.path());
+    for (name, cmd) in [("view.png", "render"), ("tf.ct", "convert")] {
+        let link = dir.path().join(name);
+        std::os::unix::fs::symlink(&victim, &link).unwrap();
+        std::os::unix::fs::lchown(&link, Some(65534), Some(65534)).unwrap();
+        let (code, err) = if cmd == "render" {
+            render(&link, &[])
+        } else {
+            run(t2tf().arg("convert").arg(&tf).arg(&link))
+        };
+        assert_eq!(code, 1, "{cmd}: {err}");
+        assert!(
+            err.contains("symlink owned by another user (uid 65534)"),
+            "{cmd}: {err}"
+        );
+        assert_eq!(err.trim_end().lines().count(), 1, "{cmd}: {err}");
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), text);
+        assert!(std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+    }
+    // The same links, the caller's own, are followed.
+    let own = dir.path().join("own.ct");
+    std::os::unix::fs::symlink(&victim, &own).unwrap();
+    let (code, err) = run(t2tf().arg("convert").arg(&tf).arg(&own));
+    assert_eq!(code, 0, "{err}");
+    assert!(std::fs::read_to_string(&victim).unwrap() != text);
 }
 
 const AS_LIMIT: u64 = 2 << 30;

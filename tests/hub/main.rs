@@ -8,3 +8,4 @@ mod hub_server;
 
 mod clip_hub;
 mod hub;
+mod hub_hostile;

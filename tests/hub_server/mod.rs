@@ -26,6 +26,9 @@
 //!     unknown repo: `RepoNotFound`, 401 without a token, 404 with one; a gated repo: 401
 //!     `GatedRepo` without a token, 403 with a wrong one.
 //! - `Range: bytes=N-` (or `N-M`) → 206 with `Content-Range`; past the end → 416.
+//! - Faults injected per file name ([`Fault`]): cut bodies, wrong bytes, ignored ranges,
+//!   statuses, bodies without end, gzip bombs, bodies dripping a byte at a time, bodies longer
+//!   than the HEAD declared.
 //! - `GET /api/models/{repo}/revision/{revision}` → `{"sha": …, "siblings": [{"rfilename": …}]}`.
 //!
 //! Commits are 40 hex digits derived from the repo id and its files, so two revisions with the
@@ -172,6 +175,16 @@ pub enum Fault {
     IgnoreRange,
     /// Answer with this status (also the HEAD on `/resolve/`), no body.
     Status(u16),
+    /// Send the file, then filler bytes without end (no `Content-Length`, on a HEAD too; until
+    /// the client hangs up, or 8 GiB).
+    Endless,
+    /// Send this many zero bytes gzip-compressed, with `Content-Encoding: gzip`.
+    GzipBomb(u64),
+    /// Send the body one byte per this many milliseconds (for at most 60 s).
+    Drip(u64),
+    /// Append this many bytes to the body (its `Content-Length` counts them; the HEAD's
+    /// `X-Linked-Size` does not).
+    ExtraBytes(usize),
 }
 
 /// One request as the server saw it.
@@ -308,6 +321,10 @@ struct Reply {
     body: Vec<u8>,
     /// Send only this many body bytes, then close.
     cut_after: Option<usize>,
+    /// Follow the body with filler bytes without end, and send no `Content-Length`.
+    endless: bool,
+    /// Send the body one byte at a time with this pause before each.
+    drip: Option<Duration>,
 }
 
 impl Reply {
@@ -317,6 +334,8 @@ impl Reply {
             headers: Vec::new(),
             body: Vec::new(),
             cut_after: None,
+            endless: false,
+            drip: None,
         }
     }
 
@@ -379,17 +398,36 @@ fn write_reply(stream: &mut TcpStream, request: &Request, reply: Reply) -> std::
     for (n, v) in &reply.headers {
         head.push_str(&format!("{n}: {v}\r\n"));
     }
-    head.push_str(&format!(
-        "Content-Length: {}\r\nConnection: close\r\n\r\n",
-        reply.body.len()
-    ));
+    if !reply.endless {
+        head.push_str(&format!("Content-Length: {}\r\n", reply.body.len()));
+    }
+    head.push_str("Connection: close\r\n\r\n");
     stream.write_all(head.as_bytes())?;
     if request.method != "HEAD" {
         let n = reply
             .cut_after
             .unwrap_or(reply.body.len())
             .min(reply.body.len());
-        stream.write_all(&reply.body[..n])?;
+        match reply.drip {
+            Some(pause) => {
+                let start = std::time::Instant::now();
+                for b in &reply.body[..n] {
+                    if start.elapsed() > Duration::from_secs(60) {
+                        break;
+                    }
+                    std::thread::sleep(pause);
+                    stream.write_all(&[*b])?;
+                    stream.flush()?;
+                }
+            }
+            None => stream.write_all(&reply.body[..n])?,
+        }
+        if reply.endless {
+            let filler = vec![b' '; 1 << 20];
+            for _ in 0..8192 {
+                stream.write_all(&filler)?;
+            }
+        }
     }
     stream.flush()
 }
@@ -582,14 +620,45 @@ fn bytes_reply(state: &State, req: &Request, file: &str, bytes: &[u8]) -> Reply 
             r
         }
     };
+    // Without end: no Content-Length, for the HEAD too.
+    if take_fault(state, file, |f| f == Fault::Endless).is_some() {
+        reply.endless = true;
+    }
     if get {
         if let Some(Fault::CutAfter(n)) =
             take_fault(state, file, |f| matches!(f, Fault::CutAfter(_)))
         {
             reply.cut_after = Some(n);
         }
+        if let Some(Fault::Drip(ms)) = take_fault(state, file, |f| matches!(f, Fault::Drip(_))) {
+            reply.drip = Some(Duration::from_millis(ms));
+        }
+        if let Some(Fault::ExtraBytes(n)) =
+            take_fault(state, file, |f| matches!(f, Fault::ExtraBytes(_)))
+        {
+            reply.body.extend(std::iter::repeat_n(b'x', n));
+        }
+        if let Some(Fault::GzipBomb(n)) =
+            take_fault(state, file, |f| matches!(f, Fault::GzipBomb(_)))
+        {
+            reply.body = gzip_zeros(n);
+            reply = reply.header("Content-Encoding", "gzip");
+        }
     }
     reply.header("Accept-Ranges", "bytes")
+}
+
+/// `n` zero bytes, gzip-compressed (about 1,000 times smaller).
+fn gzip_zeros(n: u64) -> Vec<u8> {
+    let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
+    let zeros = vec![0u8; 1 << 20];
+    let mut left = n;
+    while left > 0 {
+        let k = left.min(zeros.len() as u64) as usize;
+        gz.write_all(&zeros[..k]).expect("in memory");
+        left -= k as u64;
+    }
+    gz.finish().expect("in memory")
 }
 
 /// `bytes=N-` or `bytes=N-M`.

@@ -8,6 +8,7 @@ mod paraview_util;
 
 mod paraview;
 mod paraview_apply;
+mod paraview_library;
 mod paraview_match;
 mod paraview_parity;
 mod paraview_plugin;

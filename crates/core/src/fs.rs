@@ -1,8 +1,17 @@
 //! Output files: every file goes to a temporary beside its target and is renamed over it, so
 //! an interrupted run never leaves a partial file under the final name; only regular files are
-//! written (a symlink is followed and its target replaced); a run's files go out as one set
-//! (staged in a hidden folder, then moved in with `report.json` last); a lock keeps two runs
-//! out of one folder; files left by killed runs are removed by the next one.
+//! written; a run's files go out as one set (staged in a hidden folder, then moved in with
+//! `report.json` last); a lock keeps two runs out of one folder; files left by killed runs are
+//! removed by the next one.
+//!
+//! Symlinks: a path the user names (`render --out FILE`, `convert IN OUT`) that is a symlink is
+//! followed only when every link on the way belongs to the caller (the effective uid), as
+//! Linux's `protected_symlinks` reasons: a link someone else planted is refused, never written
+//! through. Inside a folder t2tf owns the names of (an output folder, the caption cache) no
+//! symlink is ever followed: a finished file is renamed over the name, so a link there is
+//! replaced, not its target; the lock file is opened with `O_NOFOLLOW`; temporaries are created
+//! with `O_CREAT|O_EXCL|O_NOFOLLOW` under random names; stale files are removed by name
+//! (`unlink` removes a link, never its target).
 
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -35,6 +44,16 @@ pub enum FsError {
     TooManyLinks {
         /// The name given.
         path: PathBuf,
+    },
+    /// A symlink on the way to an output belongs to another user: not followed.
+    #[error("{}: {} is a symlink owned by another user (uid {owner}); t2tf follows only the caller's own symlinks: remove it or choose another name", path.display(), if link == path { "this".to_string() } else { link.display().to_string() })]
+    ForeignLink {
+        /// The name given.
+        path: PathBuf,
+        /// The link that is not the caller's (`path` itself, or a link it leads to).
+        link: PathBuf,
+        /// The link's owner.
+        owner: u32,
     },
     /// A temporary (or the lock file, or the staging folder) cannot be created in `dir`.
     #[error("{}: cannot create a file in {}: {why}", path.display(), dir.display())]
@@ -101,26 +120,36 @@ pub const MANIFEST: &str = "report.json";
 /// Symlinks followed before giving up (Linux's own limit).
 const MAX_LINKS: usize = 40;
 
-/// The file that writing `path` replaces: `path` itself, or the end of its chain of symlinks.
-/// Refuses anything that exists and is not a regular file: a device, a FIFO, a socket or a
-/// folder is not ours to replace with a file.
-pub fn output_target(path: &Path) -> Result<PathBuf> {
+/// The effective uid of this process: the owner a followed symlink must have.
+#[cfg(unix)]
+fn euid() -> u32 {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    unsafe { libc::geteuid() }
+}
+
+/// The end of `path`'s chain of symlinks, following only links owned by the caller, and what
+/// is there (`None`: nothing). A link of another user is `FsError::ForeignLink`.
+fn resolve_own_links(path: &Path) -> Result<(PathBuf, Option<std::fs::Metadata>)> {
     let mut target = path.to_path_buf();
     for _ in 0..MAX_LINKS {
         let meta = match std::fs::symlink_metadata(&target) {
             Ok(m) => m,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(target),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((target, None)),
             Err(e) => return Err(FsError::io(path, "cannot inspect the output")(e)),
         };
-        let kind = meta.file_type();
-        if kind.is_file() {
-            return Ok(target);
+        if !meta.file_type().is_symlink() {
+            return Ok((target, Some(meta)));
         }
-        if !kind.is_symlink() {
-            return Err(FsError::NotRegular {
-                path: path.to_path_buf(),
-                kind: kind_name(&kind),
-            });
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            if meta.uid() != euid() {
+                return Err(FsError::ForeignLink {
+                    path: path.to_path_buf(),
+                    link: target,
+                    owner: meta.uid(),
+                });
+            }
         }
         let link =
             std::fs::read_link(&target).map_err(FsError::io(path, "cannot read the symlink"))?;
@@ -132,6 +161,37 @@ pub fn output_target(path: &Path) -> Result<PathBuf> {
     Err(FsError::TooManyLinks {
         path: path.to_path_buf(),
     })
+}
+
+/// The file that writing the user-named `path` replaces: `path` itself, or the end of its
+/// chain of symlinks when every link in it is the caller's (another user's link is refused).
+/// Refuses anything that exists and is not a regular file: a device, a FIFO, a socket or a
+/// folder is not ours to replace with a file.
+pub fn output_target(path: &Path) -> Result<PathBuf> {
+    let (target, meta) = resolve_own_links(path)?;
+    match meta {
+        Some(m) if !m.file_type().is_file() => Err(FsError::NotRegular {
+            path: path.to_path_buf(),
+            kind: kind_name(&m.file_type()),
+        }),
+        _ => Ok(target),
+    }
+}
+
+/// Check that the name `path` in a folder t2tf owns may be replaced by a file: free, a regular
+/// file or a symlink (the link itself is replaced, never followed).
+fn replaceable(path: &Path) -> Result<()> {
+    match std::fs::symlink_metadata(path) {
+        Ok(m) if !(m.file_type().is_file() || m.file_type().is_symlink()) => {
+            Err(FsError::NotRegular {
+                path: path.to_path_buf(),
+                kind: kind_name(&m.file_type()),
+            })
+        }
+        Ok(_) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(FsError::io(path, "cannot inspect the output")(e)),
+    }
 }
 
 fn kind_name(kind: &std::fs::FileType) -> &'static str {
@@ -162,28 +222,35 @@ fn parent_of(path: &Path) -> &Path {
     }
 }
 
-/// Write `path` through `fill`; the file appears under its name only if `fill` succeeds.
+/// Write the user-named `path` through `fill`; the file appears under its name only if
+/// `fill` succeeds. A symlink at `path` is followed when it is the caller's (`output_target`).
 pub fn atomic_write(
     path: &Path,
     fill: impl FnOnce(&mut BufWriter<&mut std::fs::File>) -> std::io::Result<()>,
 ) -> Result<()> {
     let target = output_target(path)?;
-    let dir = parent_of(&target);
-    let mut builder = tempfile::Builder::new();
-    // The PID in the name lets a later run tell a dead run's temporary from a live one's.
-    let prefix = format!("{PARTIAL_PREFIX}{}-", std::process::id());
-    builder.prefix(&prefix).suffix(PARTIAL_SUFFIX);
-    // tempfile creates 0600 files; outputs are ordinary user files (0644 before the umask).
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        builder.permissions(std::fs::Permissions::from_mode(0o644));
-    }
-    // tempfile's error names its own temporary file, which the user never asked for: say
-    // what went wrong with the folder instead.
-    let mut tmp = builder
-        .tempfile_in(dir)
-        .map_err(|e| folder_error(path, dir, &e))?;
+    write_then_rename(path, &target, fill)
+}
+
+/// Write `path`, a name in a folder t2tf owns (a cache), through `fill`: the finished file is
+/// renamed over the name itself, so a symlink there is replaced and its target never touched.
+pub fn atomic_replace(
+    path: &Path,
+    fill: impl FnOnce(&mut BufWriter<&mut std::fs::File>) -> std::io::Result<()>,
+) -> Result<()> {
+    replaceable(path)?;
+    write_then_rename(path, path, fill)
+}
+
+/// `fill` a temporary beside `target`, then rename it over `target` (rename(2) replaces the
+/// name: a symlink there is replaced, not followed). `path` names the file in messages.
+fn write_then_rename(
+    path: &Path,
+    target: &Path,
+    fill: impl FnOnce(&mut BufWriter<&mut std::fs::File>) -> std::io::Result<()>,
+) -> Result<()> {
+    let dir = parent_of(target);
+    let mut tmp = temporary(path, dir)?;
     {
         let mut w = BufWriter::new(tmp.as_file_mut());
         fill(&mut w)
@@ -193,9 +260,34 @@ pub fn atomic_write(
     tmp.as_file()
         .sync_all()
         .map_err(FsError::io(path, "writing failed"))?;
-    tmp.persist(&target)
+    tmp.persist(target)
         .map_err(|e| FsError::io(path, "cannot rename the finished file into place")(e.error))?;
     Ok(())
+}
+
+/// A new temporary in `dir` for the output `path`: a random name, created with
+/// `O_CREAT|O_EXCL|O_NOFOLLOW` (a name that exists, a symlink included, is never opened; another
+/// random name is tried), mode 0644 before the umask (outputs are ordinary user files). Removed
+/// when dropped unless persisted.
+fn temporary(path: &Path, dir: &Path) -> Result<tempfile::NamedTempFile> {
+    // The PID in the name lets a later run tell a dead run's temporary from a live one's.
+    let prefix = format!("{PARTIAL_PREFIX}{}-", std::process::id());
+    tempfile::Builder::new()
+        .prefix(&prefix)
+        .suffix(PARTIAL_SUFFIX)
+        .make_in(dir, |name| {
+            let mut o = std::fs::OpenOptions::new();
+            o.read(true).write(true).create_new(true);
+            #[cfg(unix)]
+            {
+                use std::os::unix::fs::OpenOptionsExt;
+                o.mode(0o644).custom_flags(libc::O_NOFOLLOW);
+            }
+            o.open(name)
+        })
+        // tempfile's error names its own temporary file, which the user never asked for: say
+        // what went wrong with the folder instead.
+        .map_err(|e| folder_error(path, dir, &e))
 }
 
 fn folder_error(path: &Path, dir: &Path, e: &std::io::Error) -> FsError {
@@ -210,21 +302,21 @@ fn folder_error(path: &Path, dir: &Path, e: &std::io::Error) -> FsError {
     }
 }
 
-/// Atomically write a byte string (text formats build their content in memory).
+/// Atomically write a byte string to a user-named path (`atomic_write`).
 pub fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
     atomic_write(path, |w| w.write_all(bytes))
 }
 
-/// Check before any work that a file can be written at `path`: the name is free or a regular
-/// file (or a symlink to one), and its folder accepts new files.
+/// Atomically write a byte string to a name in a folder t2tf owns (`atomic_replace`).
+pub fn atomic_replace_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
+    atomic_replace(path, |w| w.write_all(bytes))
+}
+
+/// Check before any work that a file can be written at the user-named `path`: the name is
+/// free or a regular file (or the caller's symlink to one), and its folder accepts new files.
 pub fn check_writable(path: &Path) -> Result<()> {
     let target = output_target(path)?;
-    let dir = parent_of(&target);
-    tempfile::Builder::new()
-        .prefix(&format!("{PARTIAL_PREFIX}{}-", std::process::id()))
-        .suffix(PARTIAL_SUFFIX)
-        .tempfile_in(dir)
-        .map_err(|e| folder_error(path, dir, &e))?;
+    temporary(path, parent_of(&target))?;
     Ok(())
 }
 
@@ -257,13 +349,16 @@ pub fn clean_stale(dir: &Path) -> Result<Vec<String>> {
     };
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
+        // The entry's own type: a symlink named like a staging folder is not ours to follow.
+        let is_dir = entry.file_type().is_ok_and(|t| t.is_dir());
         if let Some(pid) = pid_after(&name, SET_PREFIX) {
-            if !alive(pid) {
+            if is_dir && !alive(pid) {
                 finish_or_drop_set(dir, &entry.path())?;
                 done.push(name);
             }
         } else if name.ends_with(PARTIAL_SUFFIX) {
             let dead = pid_after(&name, PARTIAL_PREFIX).is_none_or(|pid| !alive(pid));
+            // unlink removes the name (a symlink itself, never its target).
             if dead && std::fs::remove_file(entry.path()).is_ok() {
                 done.push(name);
             }
@@ -273,7 +368,8 @@ pub fn clean_stale(dir: &Path) -> Result<Vec<String>> {
 }
 
 fn finish_or_drop_set(dir: &Path, staged: &Path) -> Result<()> {
-    if staged.join(MANIFEST).is_file() {
+    let manifest = std::fs::symlink_metadata(staged.join(MANIFEST));
+    if manifest.is_ok_and(|m| m.file_type().is_file()) {
         let set = OutputSet {
             out: dir.to_path_buf(),
             staging: staged.to_path_buf(),
@@ -322,6 +418,8 @@ const LOCK_ATTEMPTS: usize = 100;
 impl OutputLock {
     /// Lock `dir` (created if missing) or fail naming the process that holds it.
     pub fn acquire(dir: &Path) -> Result<OutputLock> {
+        // `--out` itself is a name the user gave: a symlink there is followed only if theirs.
+        resolve_own_links(dir)?;
         let created = (!dir.exists()).then(|| dir.to_path_buf());
         std::fs::create_dir_all(dir)
             .map_err(FsError::io(dir, "cannot create the output folder"))?;
@@ -332,14 +430,12 @@ impl OutputLock {
         }
         let path = dir.join(LOCK_NAME);
         for _ in 0..LOCK_ATTEMPTS {
-            let mut file = std::fs::OpenOptions::new()
-                .read(true)
-                .write(true)
-                .create(true)
-                .truncate(false)
-                .open(&path)
-                .map_err(|e| folder_error(&path, dir, &e))?;
-            lock_file(&file).map_err(|_| busy(dir, &path))?;
+            let Some(mut file) = open_lock_file(&path, dir)? else {
+                continue;
+            };
+            if lock_file(&file).is_err() {
+                return Err(busy(dir, &mut file));
+            }
             // The previous holder removes the file as it ends: a lock on a removed file locks
             // nothing another run can see, so open the name again.
             if !is_current(&file, &path) {
@@ -354,7 +450,65 @@ impl OutputLock {
                 created,
             });
         }
-        Err(busy(dir, &path))
+        Err(FsError::Busy {
+            dir: dir.to_path_buf(),
+            who: "another process".to_string(),
+        })
+    }
+}
+
+/// Open (or create) the lock file without following a symlink: `O_NOFOLLOW`, and `O_NONBLOCK`
+/// so a FIFO in its place cannot hang the open. A symlink or a hard link to some other file in
+/// its place is not ours: the name is removed (never what it leads to) and `None` asks the
+/// caller to try again. Anything else that is not a regular file is refused.
+fn open_lock_file(path: &Path, dir: &Path) -> Result<Option<std::fs::File>> {
+    let mut o = std::fs::OpenOptions::new();
+    o.read(true).write(true).create(true).truncate(false);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        o.mode(0o644)
+            .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
+    }
+    let file = match o.open(path) {
+        Ok(f) => f,
+        Err(e) => {
+            let is_link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
+            if !is_link {
+                return Err(folder_error(path, dir, &e));
+            }
+            remove_name(path)?;
+            return Ok(None);
+        }
+    };
+    let meta = file
+        .metadata()
+        .map_err(FsError::io(path, "cannot inspect the lock file"))?;
+    if !meta.file_type().is_file() {
+        return Err(FsError::NotRegular {
+            path: path.to_path_buf(),
+            kind: kind_name(&meta.file_type()),
+        });
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        // A lock file t2tf made has one name; another is a hard link to someone's file.
+        if meta.nlink() > 1 {
+            drop(file);
+            remove_name(path)?;
+            return Ok(None);
+        }
+    }
+    Ok(Some(file))
+}
+
+/// Remove the name `path` (for a symlink, the link; for a hard link, this one name).
+fn remove_name(path: &Path) -> Result<()> {
+    match std::fs::remove_file(path) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(FsError::io(path, "cannot replace")(e)),
     }
 }
 
@@ -362,7 +516,7 @@ impl OutputLock {
 #[cfg(unix)]
 fn is_current(file: &std::fs::File, path: &Path) -> bool {
     use std::os::unix::fs::MetadataExt;
-    match (file.metadata(), std::fs::metadata(path)) {
+    match (file.metadata(), std::fs::symlink_metadata(path)) {
         (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
         _ => false,
     }
@@ -390,10 +544,14 @@ fn lock_file(_file: &std::fs::File) -> std::io::Result<()> {
     Ok(())
 }
 
-fn busy(dir: &Path, lock: &Path) -> FsError {
-    let owner = std::fs::read_to_string(lock)
-        .ok()
-        .and_then(|s| s.trim().parse::<u32>().ok());
+/// The error for a lock held by another run, naming it by the PID in the open lock file.
+fn busy(dir: &Path, lock: &mut std::fs::File) -> FsError {
+    use std::io::{Read, Seek};
+    let mut text = String::new();
+    let read = lock
+        .rewind()
+        .and_then(|()| lock.take(32).read_to_string(&mut text));
+    let owner = read.ok().and_then(|_| text.trim().parse::<u32>().ok());
     let who = owner.map_or("another process".to_string(), |p| format!("process {p}"));
     FsError::Busy {
         dir: dir.to_path_buf(),
@@ -443,21 +601,23 @@ impl OutputSet {
 
     /// Move `names` (all staged) into the output folder, `report.json` last. Every target is
     /// checked first, so a refused one leaves the previous set untouched and this one staged.
+    /// Each file is renamed over its name in the folder: a symlink there is replaced, never
+    /// followed.
     pub fn commit(self, names: &[String]) -> Result<()> {
         let mut moves = Vec::with_capacity(names.len());
         for n in names.iter().filter(|n| n.as_str() != MANIFEST) {
-            moves.push((self.staging.join(n), output_target(&self.out.join(n))?));
+            let to = self.out.join(n);
+            replaceable(&to)?;
+            moves.push((self.staging.join(n), to));
         }
         let manifest = self.staging.join(MANIFEST);
-        let manifest_target = output_target(&self.out.join(MANIFEST))?;
-        if manifest_target.exists() {
-            std::fs::remove_file(&manifest_target)
-                .map_err(FsError::io(&manifest_target, "cannot replace"))?;
-        }
+        let manifest_target = self.out.join(MANIFEST);
+        replaceable(&manifest_target)?;
+        remove_name(&manifest_target)?;
         for (from, to) in &moves {
             rename(from, to)?;
         }
-        if manifest.exists() {
+        if std::fs::symlink_metadata(&manifest).is_ok() {
             rename(&manifest, &manifest_target)?;
         }
         sync_dir(&self.out);
@@ -536,7 +696,7 @@ mod tests {
 
     #[cfg(unix)]
     #[test]
-    fn symlinks_are_followed_and_their_target_replaced() {
+    fn the_callers_own_symlinks_are_followed_and_their_target_replaced() {
         let dir = tempfile::tempdir().unwrap();
         let real = dir.path().join("real.txt");
         std::fs::write(&real, "old").unwrap();
@@ -553,6 +713,131 @@ mod tests {
         std::os::unix::fs::symlink("made.txt", &dangling).unwrap();
         atomic_write_bytes(&dangling, b"x").unwrap();
         assert_eq!(std::fs::read(dir.path().join("made.txt")).unwrap(), b"x");
+    }
+
+    /// A victim file outside the output folder, and its content.
+    #[cfg(unix)]
+    fn victim(dir: &Path) -> PathBuf {
+        let v = dir.join("victim.txt");
+        std::fs::write(&v, "victim").unwrap();
+        v
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn another_users_symlink_is_not_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let victim = victim(dir.path());
+        let link = dir.path().join("out.json");
+        std::os::unix::fs::symlink(&victim, &link).unwrap();
+        if euid() != 0 {
+            eprintln!("skipped: giving a symlink to another user needs root");
+            return;
+        }
+        std::os::unix::fs::lchown(&link, Some(65534), Some(65534)).unwrap();
+        for e in [
+            atomic_write_bytes(&link, b"new").unwrap_err(),
+            check_writable(&link).unwrap_err(),
+        ] {
+            let m = e.to_string();
+            assert!(m.contains("owned by another user (uid 65534)"), "{m}");
+            assert!(!m.contains('\n'), "{m}");
+        }
+        // A chain: our own link to the foreign one is refused too, naming the foreign link.
+        let ours = dir.path().join("ours.json");
+        std::os::unix::fs::symlink("out.json", &ours).unwrap();
+        let m = atomic_write_bytes(&ours, b"new").unwrap_err().to_string();
+        assert!(
+            m.contains(&format!("{} is a symlink", link.display())),
+            "{m}"
+        );
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "victim");
+        // An output folder given through another user's link is refused as well.
+        let folder = dir.path().join("folder");
+        std::fs::create_dir(&folder).unwrap();
+        let folder_link = dir.path().join("folder-link");
+        std::os::unix::fs::symlink(&folder, &folder_link).unwrap();
+        std::os::unix::fs::lchown(&folder_link, Some(65534), Some(65534)).unwrap();
+        let m = OutputLock::acquire(&folder_link).unwrap_err().to_string();
+        assert!(m.contains("owned by another user"), "{m}");
+        assert_eq!(std::fs::read_dir(&folder).unwrap().count(), 0);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_replaced_name_replaces_the_symlink_not_its_target() {
+        let dir = tempfile::tempdir().unwrap();
+        let victim = victim(dir.path());
+        let link = dir.path().join("cache.bin");
+        std::os::unix::fs::symlink(&victim, &link).unwrap();
+        atomic_replace_bytes(&link, b"ours").unwrap();
+        assert!(std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_file());
+        assert_eq!(std::fs::read_to_string(&link).unwrap(), "ours");
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "victim");
+        // A dangling link creates nothing at its target.
+        let made = dir.path().join("made.txt");
+        std::fs::remove_file(&link).unwrap();
+        std::os::unix::fs::symlink(&made, &link).unwrap();
+        atomic_replace_bytes(&link, b"ours").unwrap();
+        assert!(!made.exists());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn links_planted_in_an_output_folder_are_replaced_not_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let victim = victim(dir.path());
+        let out = dir.path().join("out");
+        std::fs::create_dir(&out).unwrap();
+        for n in ["a.json", MANIFEST] {
+            std::os::unix::fs::symlink(&victim, out.join(n)).unwrap();
+        }
+        // The lock: a symlink, then a hard link, in its place.
+        std::os::unix::fs::symlink(&victim, out.join(LOCK_NAME)).unwrap();
+        let lock = OutputLock::acquire(&out).unwrap();
+        drop(lock);
+        std::fs::hard_link(&victim, out.join(LOCK_NAME)).unwrap();
+        let lock = OutputLock::acquire(&out).unwrap();
+        let set = OutputSet::begin(&out).unwrap();
+        atomic_write_bytes(&set.dir().join("a.json"), b"new").unwrap();
+        atomic_write_bytes(&set.dir().join(MANIFEST), b"new").unwrap();
+        set.commit(&["a.json".into(), MANIFEST.into()]).unwrap();
+        drop(lock);
+        for n in ["a.json", MANIFEST] {
+            let p = out.join(n);
+            assert!(std::fs::symlink_metadata(&p).unwrap().file_type().is_file());
+            assert_eq!(std::fs::read_to_string(&p).unwrap(), "new");
+        }
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "victim");
+        use std::os::unix::fs::MetadataExt;
+        assert_eq!(std::fs::metadata(&victim).unwrap().nlink(), 1);
+        assert!(std::fs::symlink_metadata(out.join(LOCK_NAME)).is_err());
+        // A FIFO in the lock's place is refused at once, not waited on.
+        let fifo = std::ffi::CString::new(out.join(LOCK_NAME).to_str().unwrap()).unwrap();
+        // SAFETY: mkfifo reads a NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(fifo.as_ptr(), 0o644) }, 0);
+        let m = OutputLock::acquire(&out).unwrap_err().to_string();
+        assert!(m.contains("a FIFO"), "{m}");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_symlink_named_like_a_dead_runs_staging_folder_is_not_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let elsewhere = dir.path().join("elsewhere");
+        std::fs::create_dir(&elsewhere).unwrap();
+        std::fs::write(elsewhere.join("a.json"), "theirs").unwrap();
+        std::fs::write(elsewhere.join(MANIFEST), "theirs").unwrap();
+        let out = dir.path().join("out");
+        std::fs::create_dir(&out).unwrap();
+        std::os::unix::fs::symlink(&elsewhere, out.join(".t2tf-set-2147483632")).unwrap();
+        assert!(clean_stale(&out).unwrap().is_empty());
+        assert!(!out.join("a.json").exists());
+        assert_eq!(std::fs::read_dir(&elsewhere).unwrap().count(), 2);
     }
 
     #[test]

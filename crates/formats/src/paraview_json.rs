@@ -252,9 +252,16 @@ fn read_one(preset: &Value, path: &Path) -> Result<Preset, FormatError> {
             let s = v
                 .as_str()
                 .ok_or_else(|| err(format!("\"ColorSpace\" is not a string: {v}")))?;
-            ColorSpace::parse(s).ok_or_else(|| err(format!(
-                "colour space \"{s}\" is not one ParaView writes (RGB, HSV, Lab, CIELAB, Diverging, Lab/CIEDE2000, Step)"
-            )))?
+            // ParaView's JSON presets name Lab "Lab"; the one library preset spelled "CIELAB"
+            // (Blue - Green - Orange) is applied by ParaView in RGB, as its ColorSpace
+            // property knows no such value: read it as ParaView shows it.
+            if s == "CIELAB" {
+                ColorSpace::Rgb
+            } else {
+                ColorSpace::parse(s).ok_or_else(|| err(format!(
+                    "colour space \"{s}\" is not one ParaView writes (RGB, HSV, Lab, CIELAB, Diverging, Lab/CIEDE2000, Step)"
+                )))?
+            }
         }
     };
     let hsv_wrap = match preset.get("HSVWrap") {

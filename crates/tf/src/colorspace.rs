@@ -181,8 +181,11 @@ impl ColorMap {
     }
 }
 
-/// Moreland's diverging interpolation in Msh (polar Lab), with VTK's white midpoint for
-/// distinct saturated ends and its hue choice for an unsaturated end.
+/// Moreland's diverging interpolation in Msh (polar Lab) as `vtkColorTransferFunction` has it:
+/// ends both saturated (s > 0.05) with hues more than 0.33π apart get a white midpoint
+/// (M = max(M1, M2, 88), s = 0) that each half runs to; an unsaturated end (s < 0.05) next to a
+/// saturated one takes the saturated end's hue, spun for a near-constant perceptual change
+/// when its M is larger; then M, s and h are interpolated linearly.
 fn diverging(c1: [f64; 3], c2: [f64; 3], s: f64) -> [f64; 3] {
     let (mut m1, mut m2) = (lab_to_msh(rgb_to_lab(c1)), lab_to_msh(rgb_to_lab(c2)));
     let mut s = s;
@@ -201,10 +204,12 @@ fn diverging(c1: [f64; 3], c2: [f64; 3], s: f64) -> [f64; 3] {
     } else if m2[1] < 0.05 && m1[1] > 0.05 {
         m2[2] = adjust_hue(m1, m2[0]);
     }
+    // Every component linearly, hue included: VTK does not take the short way round, so
+    // ends whose hues straddle ±π sweep through the hues between (as ParaView shows them).
     let msh = [
         (1.0 - s) * m1[0] + s * m2[0],
         (1.0 - s) * m1[1] + s * m2[1],
-        m1[2] + s * angle_diff(m2[2], m1[2]),
+        (1.0 - s) * m1[2] + s * m2[2],
     ];
     lab_to_rgb(msh_to_lab(msh))
 }
@@ -293,6 +298,29 @@ mod tests {
         }
         assert_eq!(ColorSpace::parse("CIELAB"), Some(ColorSpace::Lab));
         assert_eq!(ColorSpace::parse("XYZ"), None);
+    }
+
+    #[test]
+    fn diverging_interpolates_hue_linearly_as_vtk_does() {
+        // Two neighbouring points of ParaView's "Viridis (matplotlib)" (kept in Diverging):
+        // their hues straddle ±π, and VTK sweeps through the hues between rather than taking
+        // the short way. ParaView 5.11's own GetColor at x = 0.5474095796676441.
+        let m = ColorMap {
+            points: vec![
+                (0.545098, [0.119512, 0.607464, 0.540218]),
+                (0.54902, [0.119423, 0.611141, 0.538982]),
+            ],
+            space: ColorSpace::Diverging,
+            hsv_wrap: false,
+        };
+        let paraview = [0.7783606720329149, 0.4564742371221619, 0.41693334769779306];
+        let ours = m.color_at(0.5474095796676441);
+        for k in 0..3 {
+            assert!(
+                (ours[k] - paraview[k]).abs() < 1e-6,
+                "{ours:?} vs {paraview:?}"
+            );
+        }
     }
 
     #[test]

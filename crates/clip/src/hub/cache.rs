@@ -9,8 +9,16 @@
 //!     refs/{revision}                   the commit a branch or tag pointed at (refs/pr/15 → refs/refs/pr/15)
 //!     .no_exist/{commit}/{filename}     empty: the Hub said 404 EntryNotFound for it at that commit
 //! ```
+//!
+//! What the cache holds is read with care, as someone else may have planted it: a snapshot
+//! entry counts as cached only when it leads to a file inside the repo's cache folder (a
+//! symlink out of it is never read, so no message can quote another file); a ref is read
+//! without following a symlink, at most a few bytes, and used only when it is a commit id.
+//! Refs and markers are written through `t2tf_core::fs::atomic_replace_bytes` (a random
+//! temporary renamed over the name: a symlink there is replaced, its target untouched).
 
 use std::fs;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use super::HubError;
@@ -109,19 +117,26 @@ impl RepoCache {
             return Ok(Some(revision.to_string()));
         }
         let path = self.ref_file(revision);
-        match fs::read_to_string(&path) {
-            // Python writes the bare commit; tolerate a trailing newline from hand edits.
-            Ok(text) => Ok(Some(text.trim().to_string()).filter(|c| !c.is_empty())),
+        match read_ref(&path) {
+            Ok(commit) => Ok(commit),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
             Err(e) => Err(HubError::io(path, e)),
         }
     }
 
+    /// Whether `path` leads (through any symlinks) to a regular file inside the repo's folder.
+    fn holds(&self, path: &Path) -> bool {
+        let (Ok(real), Ok(root)) = (fs::canonicalize(path), fs::canonicalize(&self.root)) else {
+            return false;
+        };
+        real.starts_with(root) && real.is_file()
+    }
+
     /// What the cache holds for `filename` at `commit`.
     pub(crate) fn lookup(&self, commit: &str, filename: &str) -> Cached {
         let pointer = self.snapshot_file(commit, filename);
-        // `is_file` follows the symlink: a link whose blob was deleted counts as not cached.
-        if pointer.is_file() {
+        // A link whose blob was deleted, or one that leads out of the cache, is not cached.
+        if self.holds(&pointer) {
             Cached::File(pointer)
         } else if self.no_exist(commit, filename).is_file() {
             Cached::Absent
@@ -137,29 +152,21 @@ impl RepoCache {
             return Ok(());
         }
         let path = self.ref_file(revision);
-        if fs::read_to_string(&path).is_ok_and(|old| old.trim() == commit) {
+        if read_ref(&path).is_ok_and(|old| old.as_deref() == Some(commit)) {
             return Ok(());
         }
         create_parent(&path)?;
-        let tmp = path.with_file_name(format!(
-            "{}.{}.tmp",
-            path.file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            std::process::id()
-        ));
-        fs::write(&tmp, commit).map_err(|e| HubError::io(&tmp, e))?;
-        fs::rename(&tmp, &path).map_err(|e| {
-            let _ = fs::remove_file(&tmp);
-            HubError::io(&path, e)
-        })
+        Ok(t2tf_core::fs::atomic_replace_bytes(
+            &path,
+            commit.as_bytes(),
+        )?)
     }
 
     /// Leave a `.no_exist` marker for `filename` at `commit`.
     pub(crate) fn mark_absent(&self, commit: &str, filename: &str) -> Result<(), HubError> {
         let path = self.no_exist(commit, filename);
         create_parent(&path)?;
-        fs::write(&path, b"").map_err(|e| HubError::io(path, e))
+        Ok(t2tf_core::fs::atomic_replace_bytes(&path, b"")?)
     }
 
     /// Point `snapshots/{commit}/{filename}` at `blobs/{etag}` and return the snapshot path.
@@ -170,17 +177,51 @@ impl RepoCache {
         filename: &str,
     ) -> Result<PathBuf, HubError> {
         let pointer = self.snapshot_file(commit, filename);
-        if pointer.is_file() {
+        if self.holds(&pointer) {
             return Ok(pointer);
         }
         create_parent(&pointer)?;
-        // A dangling link (its blob was deleted) is replaced.
+        // A dangling link (its blob was deleted), or one leading out of the cache, is replaced.
         if pointer.symlink_metadata().is_ok() {
             fs::remove_file(&pointer).map_err(|e| HubError::io(&pointer, e))?;
         }
-        place_link(&self.blob(etag), &link_target(etag, filename), &pointer)?;
+        let blob = self.blob(etag);
+        place_link(&blob, &link_target(etag, filename), &pointer)?;
+        // The blob itself may be a symlink someone left there: never hand out what it leads to.
+        if !self.holds(&pointer) {
+            return Err(HubError::OutsideCache {
+                path: blob,
+                root: self.root.clone(),
+            });
+        }
         Ok(pointer)
     }
+}
+
+/// The commit a ref file records: read without following a symlink or waiting on a FIFO, at
+/// most 128 bytes, and `None` unless it is a commit id (Python writes the bare commit; a
+/// trailing newline from hand edits is tolerated).
+fn read_ref(path: &Path) -> std::io::Result<Option<String>> {
+    let mut options = fs::OpenOptions::new();
+    options.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
+    }
+    let file = match options.open(path) {
+        Ok(file) => file,
+        // A symlink in a ref's place is not a ref Python or t2tf wrote.
+        Err(_) if fs::symlink_metadata(path).is_ok_and(|m| m.is_symlink()) => return Ok(None),
+        Err(e) => return Err(e),
+    };
+    if !file.metadata()?.is_file() {
+        return Ok(None);
+    }
+    let mut text = Vec::new();
+    file.take(128).read_to_end(&mut text)?;
+    let commit = String::from_utf8_lossy(&text).trim().to_string();
+    Ok(is_commit(&commit).then_some(commit))
 }
 
 /// The relative target Python writes: one `..` per directory between the link and the repo

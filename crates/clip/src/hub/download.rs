@@ -2,6 +2,14 @@
 //! `Range: bytes=N-` when that file exists, size-checked, sha256-checked for LFS files (64-hex
 //! etag), and only then renamed to `blobs/{etag}`. A cut transfer leaves only the `.incomplete`
 //! file; a sha mismatch deletes it.
+//!
+//! Sizes are bounded before and while bytes arrive: a file that is not weights (configs,
+//! tokenizers, index files) may have at most [`SMALL_FILE_CAP`] bytes; weights exactly the size
+//! the Hub declared (the HEAD's `X-Linked-Size` / `Content-Length`, else the GET's), and a
+//! weights file of undeclared size is refused; a body longer than declared is an error. A
+//! transfer that gets less than [`STALL_BYTES`] within the stall timeout is retried once from
+//! where it stopped, then reported as stalled. The `.incomplete` file is opened without
+//! following a symlink (one planted there is replaced, its target untouched).
 
 use std::fs::{self, File, OpenOptions};
 use std::io::{IsTerminal, Read, Write};
@@ -20,6 +28,30 @@ const RETRIES: u32 = 2;
 const QUIET_BELOW: u64 = 10 << 20;
 /// Seconds between plain progress lines when stderr is not a terminal.
 const LINE_EVERY: Duration = Duration::from_secs(5);
+/// The most bytes a file that is not weights may have. Tokenizers are the largest such files
+/// (`tokenizer.json` of an XLM-RoBERTa text tower is 17 MB); configs and index files are KBs.
+pub(crate) const SMALL_FILE_CAP: u64 = 32 << 20;
+/// Bytes a transfer must receive within the stall timeout.
+pub(crate) const STALL_BYTES: u64 = 1024;
+/// Extensions of weights files, whose size only the Hub's metadata bounds.
+const WEIGHTS: [&str; 10] = [
+    "safetensors",
+    "bin",
+    "pt",
+    "pth",
+    "ckpt",
+    "msgpack",
+    "h5",
+    "onnx",
+    "gguf",
+    "npz",
+];
+
+/// Whether `file` (a name in the repo) holds weights, by its extension.
+fn is_weights(file: &str) -> bool {
+    file.rsplit_once('.')
+        .is_some_and(|(_, ext)| WEIGHTS.iter().any(|w| ext.eq_ignore_ascii_case(w)))
+}
 
 /// One blob to fetch.
 pub(crate) struct Download<'a> {
@@ -44,13 +76,16 @@ impl Download<'_> {
         if let Some(dir) = blob.parent() {
             fs::create_dir_all(dir).map_err(|e| HubError::io(dir, e))?;
         }
+        if let Some(size) = self.size {
+            self.check_size(size)?;
+        }
         let mut part = Partial::open(incomplete, is_sha256(self.etag))?;
         let mut expected = self.size;
-        if expected.is_some_and(|n| part.len > n) {
+        if part.len > expected.unwrap_or(self.cap()) {
             part.restart()?;
         }
         let mut progress = Progress::new(self.progress, self.target.file, expected);
-        let mut tries = 0;
+        let (mut tries, mut stalls) = (0, 0);
         while expected != Some(part.len) {
             match self.fetch(&mut part, &mut expected, &mut progress) {
                 Ok(()) => break,
@@ -58,6 +93,8 @@ impl Download<'_> {
                     tries += 1;
                     std::thread::sleep(Duration::from_millis(300 * u64::from(tries)));
                 }
+                // One more try from where it stopped: a stall can be one bad connection.
+                Err(HubError::Stalled { .. }) if stalls == 0 => stalls += 1,
                 Err(e) => {
                     progress.finish(false);
                     return Err(e);
@@ -108,31 +145,62 @@ impl Download<'_> {
                 return Err(self.cut("the server refused to resume; starting over".into()));
             }
         };
+        match (*expected, total) {
+            (Some(want), Some(total)) if total != want => {
+                part.restart()?;
+                return Err(self.too_large(format!(
+                    "the Hub declared {want} bytes, the download announces {total}"
+                )));
+            }
+            (None, Some(total)) => self.check_size(total)?,
+            (None, None) if is_weights(self.target.file) => {
+                return Err(self.too_large(
+                    "the Hub declared no size for this weights file, so it cannot be bounded"
+                        .into(),
+                ))
+            }
+            _ => {}
+        }
         if expected.is_none() {
             *expected = total;
         }
+        let limit = expected.unwrap_or(self.cap());
         progress.set(part.len, *expected);
         let mut body = response.into_body().into_reader();
         let mut buf = vec![0u8; 256 << 10];
+        // Progress is measured over windows of the stall timeout: each must bring STALL_BYTES.
+        let (mut window, mut window_bytes) = (Instant::now(), 0u64);
         loop {
             let n = match body.read(&mut buf) {
                 Ok(0) => break,
                 Ok(n) => n,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) if window.elapsed() >= self.client.stall || is_timeout(&e) => {
+                    return Err(self.stalled())
+                }
                 Err(e) => {
                     return Err(
                         self.cut(format!("{e} after {} bytes; run again to resume", part.len))
                     )
                 }
             };
+            if part.len + n as u64 > limit {
+                part.restart()?;
+                return Err(self.too_large(match *expected {
+                    Some(want) => format!("the body is longer than the {want} bytes declared"),
+                    None => format!(
+                        "more than {} arrived, the most a file that is not weights may have",
+                        HumanBytes(limit)
+                    ),
+                }));
+            }
             part.append(&buf[..n])?;
             progress.set(part.len, *expected);
-            if expected.is_some_and(|want| part.len > want) {
-                part.restart()?;
-                return Err(HubError::BadResponse {
-                    url: self.url.to_string(),
-                    reason: format!("more bytes than the {} announced", expected.unwrap_or(0)),
-                });
+            window_bytes += n as u64;
+            if window_bytes >= STALL_BYTES {
+                (window, window_bytes) = (Instant::now(), 0);
+            } else if window.elapsed() >= self.client.stall {
+                return Err(self.stalled());
             }
         }
         match *expected {
@@ -141,6 +209,45 @@ impl Download<'_> {
                 part.len
             ))),
             _ => Ok(()),
+        }
+    }
+
+    /// The most bytes this file may have when the Hub declared no size.
+    fn cap(&self) -> u64 {
+        if is_weights(self.target.file) {
+            u64::MAX
+        } else {
+            SMALL_FILE_CAP
+        }
+    }
+
+    /// Refuse a declared size beyond what a file of this kind may have.
+    fn check_size(&self, size: u64) -> Result<(), HubError> {
+        if size > self.cap() {
+            return Err(self.too_large(format!(
+                "the Hub declares {}, more than the {} a file that is not weights may have",
+                HumanBytes(size),
+                HumanBytes(self.cap())
+            )));
+        }
+        Ok(())
+    }
+
+    fn too_large(&self, reason: String) -> HubError {
+        HubError::TooLarge {
+            repo: self.target.repo.to_string(),
+            file: self.target.file.to_string(),
+            url: self.url.to_string(),
+            reason,
+        }
+    }
+
+    fn stalled(&self) -> HubError {
+        HubError::Stalled {
+            repo: self.target.repo.to_string(),
+            file: self.target.file.to_string(),
+            url: self.url.to_string(),
+            seconds: self.client.stall.as_secs_f64(),
         }
     }
 
@@ -153,6 +260,14 @@ impl Download<'_> {
             reason,
         }
     }
+}
+
+/// Whether a read failed for want of bytes within its timeout.
+fn is_timeout(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock
+    )
 }
 
 /// `bytes START-END/TOTAL` → (START, TOTAL if known).
@@ -172,15 +287,28 @@ struct Partial {
 }
 
 impl Partial {
-    /// Open (or create) the partial file; when hashing, hash what an earlier run left.
+    /// Open (or create) the partial file; when hashing, hash what an earlier run left. A
+    /// symlink, a hard link to another file, or anything not a regular file in its place is
+    /// not an earlier run's download: the name is removed (never what it leads to) and the
+    /// file made anew.
     fn open(path: &Path, hash: bool) -> Result<Partial, HubError> {
         let io = |e| HubError::io(path, e);
-        let mut file = OpenOptions::new()
-            .read(true)
-            .append(true)
-            .create(true)
-            .open(path)
-            .map_err(io)?;
+        let mut file = match open_own(path) {
+            Ok(Some(file)) => file,
+            Ok(None) => {
+                remove_name(path)?;
+                open_own(path)
+                    .map_err(io)?
+                    .ok_or_else(|| io(std::io::Error::other("replaced while being opened")))?
+            }
+            Err(_) if fs::symlink_metadata(path).is_ok_and(|m| m.is_symlink()) => {
+                remove_name(path)?;
+                open_own(path)
+                    .map_err(io)?
+                    .ok_or_else(|| io(std::io::Error::other("replaced while being opened")))?
+            }
+            Err(e) => return Err(io(e)),
+        };
         let mut hasher = hash.then(Sha256::new);
         let len = match hasher.as_mut() {
             Some(h) => std::io::copy(&mut file, h).map_err(io)?,
@@ -224,6 +352,38 @@ impl Partial {
         Ok(self
             .hasher
             .map(|h| h.finalize().iter().map(|b| format!("{b:02x}")).collect()))
+    }
+}
+
+/// Open (or create) `path` for appending without following a symlink or waiting on a FIFO;
+/// `None` when what is there is not a regular file with this one name.
+fn open_own(path: &Path) -> std::io::Result<Option<File>> {
+    let mut options = OpenOptions::new();
+    options.read(true).append(true).create(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options
+            .mode(0o644)
+            .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
+    }
+    let file = options.open(path)?;
+    let meta = file.metadata()?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        if meta.nlink() > 1 {
+            return Ok(None);
+        }
+    }
+    Ok(meta.is_file().then_some(file))
+}
+
+/// Remove the name `path` (a symlink itself, or one name of a hard-linked file).
+fn remove_name(path: &Path) -> Result<(), HubError> {
+    match fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(HubError::io(path, e)),
+        _ => Ok(()),
     }
 }
 
@@ -310,6 +470,22 @@ mod tests {
         assert_eq!(parse_content_range("items 1-2/3"), None);
         assert!(is_sha256(&"a".repeat(64)));
         assert!(!is_sha256(&"a".repeat(40)));
+        for w in [
+            "model.safetensors",
+            "pytorch_model.bin",
+            "open_clip_model.PT",
+            "sub/x.pth",
+        ] {
+            assert!(is_weights(w), "{w}");
+        }
+        for other in [
+            "config.json",
+            "tokenizer.json",
+            "merges.txt",
+            "model.safetensors.index.json",
+        ] {
+            assert!(!is_weights(other), "{other}");
+        }
     }
 
     #[test]

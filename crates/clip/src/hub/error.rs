@@ -140,6 +140,51 @@ pub enum HubError {
         /// What went wrong, in words.
         reason: &'static str,
     },
+    /// A download made no progress: less than 1 KiB within the stall timeout, on two tries.
+    #[error(
+        "downloading {file} of {repo} from {url} stalled: less than 1 KiB arrived in {seconds} s, \
+         twice; check the network and run again (the download resumes), or allow more time with \
+         T2TF_HUB_STALL_TIMEOUT=SECONDS"
+    )]
+    Stalled {
+        /// The repository id (`owner/name`).
+        repo: String,
+        /// The file within the repository.
+        file: String,
+        /// The URL requested.
+        url: String,
+        /// The stall timeout in seconds.
+        seconds: f64,
+    },
+    /// A file larger than t2tf accepts for its kind, or longer than the Hub declared.
+    #[error("{file} of {repo} from {url}: {reason}; nothing was kept")]
+    TooLarge {
+        /// The repository id (`owner/name`).
+        repo: String,
+        /// The file within the repository.
+        file: String,
+        /// The URL requested.
+        url: String,
+        /// How large, and what the limit is.
+        reason: String,
+    },
+    /// A cache entry leads outside the repo's cache folder (a symlink someone planted): it is
+    /// not read.
+    #[error(
+        "{}: leads outside the Hugging Face cache folder {}; t2tf does not read it: remove it \
+         and run again",
+        path.display(),
+        root.display()
+    )]
+    OutsideCache {
+        /// The entry.
+        path: PathBuf,
+        /// The repo's cache folder.
+        root: PathBuf,
+    },
+    /// Writing a ref or marker into the cache failed (the message names the file).
+    #[error(transparent)]
+    Write(#[from] t2tf_core::fs::FsError),
     /// Reading or writing the cache failed.
     #[error("{}: {source}", path.display())]
     Io {
@@ -177,6 +222,9 @@ impl HubError {
                 | HubError::Integrity { .. }
                 | HubError::InvalidName { .. }
                 | HubError::Io { .. }
+                | HubError::Write(_)
+                | HubError::OutsideCache { .. }
+                | HubError::TooLarge { .. }
                 | HubError::NotCached { .. }
         )
     }

@@ -1,6 +1,12 @@
 //! Requests to the Hub, as `huggingface_hub` makes them: a HEAD on `/resolve/` that follows the
 //! Hub's own redirects (relative, or to a Hub origin) and stops at the first redirect elsewhere
 //! (the CDN), whose `Location` is where the bytes are fetched from, without the token.
+//!
+//! Bodies come as they are stored: `Accept-Encoding: identity` is asked for and a body with any
+//! other `Content-Encoding` is refused, so a small compressed answer can never inflate past the
+//! sizes `download` checks. A read of a body waits at most the stall timeout
+//! (`T2TF_HUB_STALL_TIMEOUT` seconds, default 30), which `download` also holds the whole
+//! transfer's progress to; an answer's headers must come within 30 s.
 
 use std::time::Duration;
 
@@ -13,12 +19,27 @@ use super::HubError;
 const MAX_REDIRECTS: usize = 5;
 /// Origins that always get the token, besides the endpoint's own (as `huggingface_hub`).
 const HUB_ORIGINS: [&str; 2] = ["https://huggingface.co", "https://hf.co"];
+/// The stall timeout unless `T2TF_HUB_STALL_TIMEOUT` says otherwise.
+const DEFAULT_STALL: Duration = Duration::from_secs(30);
+/// The variable that sets the stall timeout, in seconds (a decimal number above 0).
+pub(crate) const STALL_VAR: &str = "T2TF_HUB_STALL_TIMEOUT";
 
 /// An HTTP client bound to one endpoint and token.
 pub(crate) struct Client {
     agent: Agent,
     endpoint: String,
     token: Option<String>,
+    /// The longest a read may wait, and the time a download must get 1 KiB within.
+    pub(crate) stall: Duration,
+}
+
+/// The stall timeout from `T2TF_HUB_STALL_TIMEOUT`; the default when unset or not a positive
+/// number of seconds (up to a day).
+fn stall_timeout(value: Option<String>) -> Duration {
+    value
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .filter(|s| s.is_finite() && *s > 0.0 && *s <= 86_400.0)
+        .map_or(DEFAULT_STALL, Duration::from_secs_f64)
 }
 
 /// The file a request is about, for error messages.
@@ -54,13 +75,14 @@ pub(crate) enum Head {
 impl Client {
     /// A client with bounded timeouts; redirects and statuses are handled here, not by ureq.
     pub(crate) fn new(endpoint: &str, token: Option<String>) -> Client {
+        let stall = stall_timeout(std::env::var(STALL_VAR).ok());
         let agent = Agent::config_builder()
             .max_redirects(0)
             .http_status_as_error(false)
             .timeout_resolve(Some(Duration::from_secs(10)))
             .timeout_connect(Some(Duration::from_secs(10)))
             .timeout_recv_response(Some(Duration::from_secs(30)))
-            .timeout_per_read(Some(Duration::from_secs(30)))
+            .timeout_per_read(Some(stall))
             .user_agent(concat!("t2tf/", env!("CARGO_PKG_VERSION")))
             // Compression would make sizes and ranges those of the compressed stream.
             .accept_encoding("identity")
@@ -70,6 +92,7 @@ impl Client {
             agent,
             endpoint: endpoint.to_string(),
             token,
+            stall,
         }
     }
 
@@ -128,7 +151,7 @@ impl Client {
                 continue;
             }
             if matches!(status, 200 | 206 | 416) {
-                return Ok(response);
+                return identity(response, &url);
             }
             return Err(self.status_error(&response, &url, target));
         }
@@ -223,6 +246,24 @@ impl Client {
                 },
             },
         }
+    }
+}
+
+/// `response` when its body is not compressed; a `Content-Encoding` other than `identity` (we
+/// asked for identity) is refused before a byte is read, so no compressed bomb is inflated.
+fn identity(response: Response<Body>, url: &str) -> Result<Response<Body>, HubError> {
+    match header(&response, "content-encoding") {
+        Some(e) if !e.trim().is_empty() && !e.trim().eq_ignore_ascii_case("identity") => {
+            Err(HubError::BadResponse {
+                url: url.to_string(),
+                reason: format!(
+                    "the body is compressed (Content-Encoding: {}) though identity was asked for; \
+                     t2tf does not inflate downloads",
+                    one_line(&e)
+                ),
+            })
+        }
+        _ => Ok(response),
     }
 }
 
@@ -395,6 +436,18 @@ mod tests {
         assert!(c.token_for("http://127.0.0.1:9/x").is_none());
         assert!(c.token_for("https://huggingface.co/x").is_some());
         assert!(c.token_for("https://huggingface.co:444/x").is_none());
+    }
+
+    #[test]
+    fn the_stall_timeout_comes_from_the_environment_or_defaults() {
+        assert_eq!(stall_timeout(None), DEFAULT_STALL);
+        assert_eq!(
+            stall_timeout(Some("0.5".into())),
+            Duration::from_millis(500)
+        );
+        for bad in ["", "0", "-1", "nan", "inf", "1e9", "soon"] {
+            assert_eq!(stall_timeout(Some(bad.into())), DEFAULT_STALL, "{bad}");
+        }
     }
 
     #[test]

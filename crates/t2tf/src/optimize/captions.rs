@@ -386,7 +386,7 @@ enum StoreError {
         path: PathBuf,
         source: std::io::Error,
     },
-    /// `crate::fs::atomic_write_bytes`'s error (it names the file).
+    /// `crate::fs::atomic_replace_bytes`'s error (it names the file).
     #[error(transparent)]
     Write(#[from] crate::fs::FsError),
 }
@@ -402,7 +402,8 @@ fn store(path: &Path, key: &[u8; 32], emb: &[Vec<f32>]) -> Result<(), StoreError
             source,
         })?;
     }
-    Ok(crate::fs::atomic_write_bytes(path, &encode(key, emb))?)
+    // The cache folder is t2tf's own: a symlink planted at the name is replaced, not followed.
+    Ok(crate::fs::atomic_replace_bytes(path, &encode(key, emb))?)
 }
 
 #[cfg(test)]
