@@ -127,7 +127,7 @@ fn main() -> anyhow::Result<()> {
         let n: usize = args.get(i + 1).and_then(|v| v.parse().ok()).unwrap_or(0);
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
     }
-    let scale = |n: usize| if quick { (n / 10).max(1) } else { n };
+    let scale = |n: usize| if quick { n.div_ceil(10) } else { n };
     let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
     let volume_path = shared.join("data/volumes/aneurism_256x256x256_uint8.raw");
     let tmp = tempfile::tempdir()?;
@@ -161,15 +161,32 @@ fn main() -> anyhow::Result<()> {
     };
     let (reference, ref_s) = run(&volume, &model, PROMPT_B, scale(300), Some(&start), &cache)?;
     let reference_img = held_out(&volume, &reference)?;
-    let (_, fresh_b_s) = run(&volume, &model, PROMPT_B, scale(300), None, &cache)?;
-    println!("\n| run for prompt B | steps | wall (s) | held-out PSNR vs the 300-step refine (dB) |");
-    println!("|---|---|---|---|");
-    println!("| fresh | {} | {fresh_b_s:.1} | — |", scale(300));
-    println!("| refine (reference) | {} | {ref_s:.1} | reference |", scale(300));
+    let (fresh_b, fresh_b_s) = run(&volume, &model, PROMPT_B, scale(300), None, &cache)?;
+    println!(
+        "\n| run for prompt B | steps | wall (s) | render fwd+bwd per step (s) | CLIP per step (s) | held-out PSNR vs the 300-step refine (dB) |"
+    );
+    println!("|---|---|---|---|---|---|");
+    let phases = |r: &Optimized| {
+        let t = &r.report.timings;
+        let n = r.steps_run().max(1) as f64;
+        (
+            (t.render + t.render_backward) / n,
+            (t.clip_forward + t.clip_backward) / n,
+        )
+    };
+    let row = |what: &str, r: &Optimized, s: f64, psnr: &str| {
+        let (render, clip) = phases(r);
+        println!(
+            "| {what} | {} | {s:.1} | {render:.3} | {clip:.3} | {psnr} |",
+            r.steps_run()
+        );
+    };
+    row("fresh", &fresh_b, fresh_b_s, "—");
+    row("refine (reference)", &reference, ref_s, "reference");
     for n in [0, 10, 25, 50, 100] {
         let (r, s) = run(&volume, &model, PROMPT_B, scale(n), Some(&start), &cache)?;
         let p = t2tf::image::psnr(&held_out(&volume, &r)?, &reference_img);
-        println!("| refine | {} | {s:.1} | {p:.1} |", scale(n));
+        row("refine", &r, s, &format!("{p:.1}"));
     }
 
     // Batches: one model and volume for 5 prompts, against 5 separate runs.
