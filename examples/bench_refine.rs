@@ -31,7 +31,13 @@ use t2tf::volume::Volume;
 const HELD_OUT: usize = 4;
 const PROMPT_A: &str = "a CT angiography of blood vessels";
 const PROMPT_B: &str = "an aneurism in red, the vessels faint";
-const BATCH: [&str; 5] = ["bone", "skin", "blood vessels", "an aneurism", "soft tissue"];
+const BATCH: [&str; 5] = [
+    "bone",
+    "skin",
+    "blood vessels",
+    "an aneurism",
+    "soft tissue",
+];
 
 /// Records the tensors a model asks for (names and shapes), handing out zeros.
 struct Recorder(std::cell::RefCell<Vec<(String, Vec<usize>)>>);
@@ -55,7 +61,11 @@ fn write_model(dir: &Path, shared: &Path) -> anyhow::Result<()> {
         .iter()
         .map(|(n, s)| {
             let v = random.tensor(n, s)?;
-            Ok((n.clone(), s.clone(), v.iter().flat_map(|x| x.to_le_bytes()).collect()))
+            Ok((
+                n.clone(),
+                s.clone(),
+                v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            ))
         })
         .collect::<anyhow::Result<_>>()?;
     let views: Vec<(String, TensorView)> = data
@@ -125,7 +135,9 @@ fn main() -> anyhow::Result<()> {
     let quick = args.iter().any(|a| a == "--quick");
     if let Some(i) = args.iter().position(|a| a == "--threads") {
         let n: usize = args.get(i + 1).and_then(|v| v.parse().ok()).unwrap_or(0);
-        rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()?;
     }
     let scale = |n: usize| if quick { n.div_ceil(10) } else { n };
     let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
@@ -143,13 +155,18 @@ fn main() -> anyhow::Result<()> {
     println!(
         "threads {}; CPU: {}; ViT-B/32 shapes, random weights; 256³ aneurism",
         rayon::current_num_threads(),
-        t2tf::optimize::report::MachineInfo::detect().cpu_model.unwrap_or_default()
+        t2tf::optimize::report::MachineInfo::detect()
+            .cpu_model
+            .unwrap_or_default()
     );
     let (volume, model) = load()?;
 
     // Refining.
     let (fresh, fresh_s) = run(&volume, &model, PROMPT_A, scale(300), None, &cache)?;
-    println!("fresh run, {} steps: {fresh_s:.1} s (caption pool embedded in it)", scale(300));
+    println!(
+        "fresh run, {} steps: {fresh_s:.1} s (caption pool embedded in it)",
+        scale(300)
+    );
     let start = InitTf {
         preset: t2tf::formats::Preset {
             tf: fresh.transfer_function("start"),
@@ -205,6 +222,9 @@ fn main() -> anyhow::Result<()> {
     println!("\n| 5 prompts × {steps} steps | wall (s) | per prompt (s) |");
     println!("|---|---|---|");
     println!("| one batch | {batch_s:.1} | {:.1} |", batch_s / 5.0);
-    println!("| 5 separate runs | {separate_s:.1} | {:.1} |", separate_s / 5.0);
+    println!(
+        "| 5 separate runs | {separate_s:.1} | {:.1} |",
+        separate_s / 5.0
+    );
     Ok(())
 }

@@ -450,3 +450,47 @@ fn a_colour_map_without_opacity_starts_with_its_colours_over_the_data_range() {
         assert!(o_max > 0.0, "{name}: no opacity");
     }
 }
+
+#[test]
+fn an_opaque_start_is_kept_beyond_the_papers_densities() {
+    // Opacity 0.9 to 1 per voxel on a 64-voxel box: far denser than σ = 255 reaches there
+    // (0.98 per voxel). The start is kept as it is (an opacity of 1 as 1 − 1e-3).
+    let dir = tempfile::tempdir().unwrap();
+    let vol = repo().join(NEGHIP);
+    let init = dir.path().join("opaque.json");
+    std::fs::write(
+        &init,
+        r#"[{"Name":"opaque","ColorSpace":"RGB","RGBPoints":[0,0,0,1, 255,1,0,0],
+            "Points":[0,0,0.5,0, 60,0.9,0.5,0, 100,1,0.5,0, 255,1,0.5,0],
+            "t2tfScalarOpacityUnitDistance":1.0}]"#,
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    for steps in ["0", "3"] {
+        let (ok, err) = optimize(
+            &vol,
+            &[
+                "--prompt",
+                "x",
+                "--steps",
+                steps,
+                "--init",
+                init.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--name",
+                "tf",
+            ],
+            dir.path(),
+        );
+        assert!(ok, "{err}");
+        assert!(!err.contains("warning"), "{err}");
+        let tf = read_tf(&out.join("tf.json")).unwrap();
+        assert_eq!(tf.unit_distance, Some(1.0));
+        if steps == "0" {
+            let want = read_tf(&init).unwrap();
+            let (c, o) = difference(&want, &tf, (0..1024).map(|i| i as f64 * 255.0 / 1023.0));
+            assert!(c <= 1.0 / 255.0 && o <= 2e-3, "colour {c}, opacity {o}");
+        }
+    }
+}

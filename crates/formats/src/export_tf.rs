@@ -7,8 +7,8 @@ use sha2::{Digest, Sha256};
 
 use super::FormatError;
 use t2tf_tf::{
-    default_unit_distance, interpolate, opacity_to_sigma, sigma_to_opacity, simplified_curves,
-    ControlPoints, EXPORT_TOLERANCE, MIN_GAP, SIGMA_MAX,
+    default_unit_distance, interpolate, opacity_to_sigma_within, sigma_to_opacity,
+    simplified_curves, ControlPoints, EXPORT_TOLERANCE, MIN_GAP, SIGMA_MAX,
 };
 use t2tf_volume::Volume;
 
@@ -214,6 +214,18 @@ impl ExportTf {
         volume: &Volume,
         unit_distance: Option<f64>,
     ) -> Result<ControlPoints, FormatError> {
+        self.to_control_points_within(path, volume, unit_distance, SIGMA_MAX)
+    }
+
+    /// [`ExportTf::to_control_points`] with densities up to `sigma_max` instead of the
+    /// paper's 255 (a refine that starts from a denser TF).
+    pub fn to_control_points_within(
+        &self,
+        path: &Path,
+        volume: &Volume,
+        unit_distance: Option<f64>,
+        sigma_max: f64,
+    ) -> Result<ControlPoints, FormatError> {
         self.validate(path)?;
         if self.opacity_points.is_empty() {
             return Err(FormatError::file(
@@ -252,7 +264,8 @@ impl ExportTf {
         xs.sort_by(f64::total_cmp);
         xs.dedup();
 
-        let sigma_at = |t: f64| opacity_to_sigma(interpolate(&opacity, t)[0], ratio, 1.0);
+        let sigma_at =
+            |t: f64| opacity_to_sigma_within(interpolate(&opacity, t)[0], ratio, 1.0, sigma_max);
         let mut refined = vec![xs[0]];
         for w in xs.windows(2) {
             refine(
@@ -260,7 +273,7 @@ impl ExportTf {
                 w[1],
                 &sigma_at,
                 &|t| interpolate(&opacity, t)[0],
-                ratio,
+                (ratio, sigma_max),
                 0,
                 &mut refined,
             );
@@ -285,7 +298,7 @@ fn refine(
     b: f64,
     sigma_at: &dyn Fn(f64) -> f64,
     o_at: &dyn Fn(f64) -> f64,
-    ratio: f64,
+    (ratio, sigma_max): (f64, f64),
     depth: u32,
     out: &mut Vec<f64>,
 ) {
@@ -295,7 +308,7 @@ fn refine(
     let (sa, sb) = (sigma_at(a), sigma_at(b));
     // σ is capped at 255, so opacities above o_max cannot be matched by any refinement:
     // compare with what is reachable, or a saturated segment would always split to depth 12.
-    let o_max = sigma_to_opacity(SIGMA_MAX, ratio, 1.0);
+    let o_max = sigma_to_opacity(sigma_max, ratio, 1.0);
     let bad = [0.25, 0.5, 0.75].iter().any(|&w| {
         let t = a + w * (b - a);
         let ours = sigma_to_opacity(sa + w * (sb - sa), ratio, 1.0);
@@ -306,9 +319,9 @@ fn refine(
         if m <= a || m >= b {
             return;
         }
-        refine(a, m, sigma_at, o_at, ratio, depth + 1, out);
+        refine(a, m, sigma_at, o_at, (ratio, sigma_max), depth + 1, out);
         out.push(m);
-        refine(m, b, sigma_at, o_at, ratio, depth + 1, out);
+        refine(m, b, sigma_at, o_at, (ratio, sigma_max), depth + 1, out);
     }
 }
 

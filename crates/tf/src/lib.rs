@@ -17,13 +17,17 @@ mod simplify;
 
 pub use colorspace::{ColorMap, ColorSpace};
 pub use lut::ControlPointsGrad;
-pub use opacity::{default_unit_distance, opacity_to_sigma, sigma_to_opacity};
+pub use opacity::{
+    default_unit_distance, opacity_to_sigma, opacity_to_sigma_within, sigma_to_opacity,
+};
 pub use params::{Anchors, TfParams, TfParamsGrad};
 pub use simplify::MIN_GAP;
 pub use simplify::{interpolate, EXPORT_TOLERANCE};
 pub use simplify::{simplified_curves, simplify_polyline};
 
-/// Largest density: σ = 255 · (tanh(p) + 1) / 2 (paper, Appendix A).
+/// Largest density of the paper's parameterization: σ = 255 · (tanh(p) + 1) / 2 (Appendix A).
+/// A run that starts from a denser TF scales it (`t2tf::optimize::start`); a TF itself only
+/// needs σ ≥ 0.
 pub const SIGMA_MAX: f64 = 255.0;
 
 /// Why a TF could not be built.
@@ -121,7 +125,7 @@ impl ControlPoints {
     }
 
     /// Check the invariants the renderer and exporters rely on: ≥ 2 points, equal lengths,
-    /// finite ascending x from 0 to 1, σ in [0, 255], colours in [0, 1].
+    /// finite ascending x from 0 to 1, finite σ ≥ 0, colours in [0, 1].
     pub fn validate(&self) -> Result<(), TfError> {
         let k = self.x.len();
         if self.sigma.len() != k || self.rgb.len() != k {
@@ -144,8 +148,8 @@ impl ControlPoints {
                 return bad(i, format!("position {x} is below the previous one"));
             }
             let s = self.sigma[i];
-            if !(0.0..=SIGMA_MAX).contains(&s) {
-                return bad(i, format!("density {s} is not in [0, {SIGMA_MAX}]"));
+            if !(s.is_finite() && s >= 0.0) {
+                return bad(i, format!("density {s} is not a finite number ≥ 0"));
             }
             if self.rgb[i].iter().any(|c| !(0.0..=1.0).contains(c)) {
                 return bad(i, format!("colour {:?} is not in [0, 1]", self.rgb[i]));

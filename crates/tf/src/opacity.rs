@@ -11,16 +11,21 @@ pub fn sigma_to_opacity(sigma: f64, u: f64, l: f64) -> f64 {
     -(-sigma * u / l).exp_m1()
 }
 
-/// Inverse of [`sigma_to_opacity`], clamped to the TF's density range [0, 255]: o = 1 (or a
-/// σ beyond 255, possible in a foreign preset) reads as 255; o ≤ 0 or NaN as 0.
+/// Inverse of [`sigma_to_opacity`], clamped to the paper's density range [0, 255]: o = 1 (or
+/// a σ beyond 255, possible in a foreign preset) reads as 255; o ≤ 0 or NaN as 0.
 pub fn opacity_to_sigma(o: f64, u: f64, l: f64) -> f64 {
+    opacity_to_sigma_within(o, u, l, SIGMA_MAX)
+}
+
+/// [`opacity_to_sigma`] clamped to [0, `sigma_max`] instead.
+pub fn opacity_to_sigma_within(o: f64, u: f64, l: f64, sigma_max: f64) -> f64 {
     if o.is_nan() || o <= 0.0 {
         return 0.0;
     }
     if o >= 1.0 {
-        return SIGMA_MAX;
+        return sigma_max;
     }
-    (-(-o).ln_1p() * l / u).clamp(0.0, SIGMA_MAX)
+    (-(-o).ln_1p() * l / u).clamp(0.0, sigma_max)
 }
 
 /// The unit distance written into every export unless the user picks one: the mean voxel

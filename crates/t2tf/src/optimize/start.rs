@@ -11,6 +11,9 @@
 //!   spacings between them, get a zero gradient. The loss still sees the locked part (it is
 //!   rendered with the rest); only its parameters do not move. With momentum SGD a parameter
 //!   whose gradient is always zero keeps its value exactly.
+//! - **a density scale**: a start denser than the paper's σ ≤ 255 (a preset opaque at a short
+//!   unit distance) scales every density by `sigma_max / 255`, so the start is represented as
+//!   it is and the optimizer keeps the headroom.
 
 use super::{BoxError, Parameterization, PointGrad};
 use crate::tf::{ControlPoints, LutGrad, TfParams};
@@ -29,6 +32,8 @@ pub struct Lock {
 pub struct StartTf {
     k: usize,
     lut_size: usize,
+    /// σ = scale · the paper's σ ∈ [0, 255].
+    scale: f64,
     anchors: Vec<(usize, f64)>,
     /// Per point: σ and colour frozen.
     frozen_point: Vec<bool>,
@@ -66,7 +71,9 @@ impl StartTf {
 
 impl Parameterization for StartTf {
     fn control_points(&self, flat: &[f64]) -> Result<ControlPoints, BoxError> {
-        Ok(self.params(flat)?.anchored_points(&self.anchors))
+        let mut cp = self.params(flat)?.anchored_points(&self.anchors);
+        cp.sigma.iter_mut().for_each(|s| *s *= self.scale);
+        Ok(cp)
     }
 
     fn lut_size(&self) -> usize {
@@ -77,7 +84,9 @@ impl Parameterization for StartTf {
         if cp.len() != self.k {
             return Err(format!("{} control points given for a TF of {}", cp.len(), self.k).into());
         }
-        Ok(TfParams::from_anchored_points(cp, &self.anchors).to_flat())
+        let mut paper = cp.clone();
+        paper.sigma.iter_mut().for_each(|s| *s /= self.scale);
+        Ok(TfParams::from_anchored_points(&paper, &self.anchors).to_flat())
     }
 
     fn backward(
@@ -87,10 +96,12 @@ impl Parameterization for StartTf {
         direct: &PointGrad,
     ) -> Result<Vec<f64>, BoxError> {
         let p = self.params(flat)?;
-        let cp = p.anchored_points(&self.anchors);
+        let mut cp = p.anchored_points(&self.anchors);
+        cp.sigma.iter_mut().for_each(|s| *s *= self.scale);
         let mut g = cp.lut_backward(self.lut_size, lut);
         for (a, b) in g.sigma.iter_mut().zip(&direct.sigma) {
-            *a += b;
+            // d/dσ_paper = scale · d/dσ.
+            *a = (*a + b) * self.scale;
         }
         for (a, b) in g.rgb.iter_mut().zip(&direct.rgb) {
             for c in 0..3 {
@@ -168,12 +179,13 @@ fn locked(locks: &[Lock], x: f64) -> bool {
 /// The TF a run starts from and its parameterization: `cp` with a point at every lock bound,
 /// and (when it has fewer than `min_points`) points added at the middle of the widest free
 /// segments, which changes no value (the curves are linear there). `lut_size`: entries the
-/// renderer samples.
+/// renderer samples; `sigma_max`: the densest σ the run represents (at least 255).
 pub fn prepare(
     cp: &ControlPoints,
     locks: &[Lock],
     min_points: usize,
     lut_size: usize,
+    sigma_max: f64,
 ) -> Result<(ControlPoints, StartTf), StartError> {
     let locks = sorted_locks(locks)?;
     let mut cp = cp.clone();
@@ -209,6 +221,7 @@ pub fn prepare(
     let tf = StartTf {
         k,
         lut_size,
+        scale: sigma_max.max(crate::tf::SIGMA_MAX) / crate::tf::SIGMA_MAX,
         anchors,
         frozen_point,
         frozen_segment,
@@ -232,7 +245,7 @@ mod tests {
     fn prepare_adds_bounds_and_points_without_changing_the_curves() {
         let cp = ramp();
         let locks = [Lock { lo: 0.6, hi: 0.8 }];
-        let (out, tf) = prepare(&cp, &locks, 16, 1024).unwrap();
+        let (out, tf) = prepare(&cp, &locks, 16, 1024, 255.0).unwrap();
         assert!(out.len() >= 16);
         out.validate().unwrap();
         assert_eq!(cp.to_lut(1024), out.to_lut(1024));
@@ -252,7 +265,7 @@ mod tests {
 
     #[test]
     fn locked_points_get_no_gradient_and_the_free_ones_do() {
-        let (cp, tf) = prepare(&ramp(), &[Lock { lo: 0.0, hi: 0.3 }], 12, 64).unwrap();
+        let (cp, tf) = prepare(&ramp(), &[Lock { lo: 0.0, hi: 0.3 }], 12, 64, 255.0).unwrap();
         let flat = tf.params_for(&cp).unwrap();
         let lut = LutGrad {
             entries: vec![[1.0, 0.5, -0.5, 0.25]; 64],
@@ -272,6 +285,61 @@ mod tests {
             if cp.x[i + 1] <= 0.3 {
                 assert_eq!(*gs, 0.0, "segment {i}");
             }
+        }
+    }
+
+    #[test]
+    fn a_dense_start_keeps_its_densities_and_its_gradient_is_exact() {
+        let mut cp = ramp();
+        cp.sigma = vec![0.0, 600.0, 1000.0];
+        let (cp, tf) = prepare(&cp, &[], 6, 64, 1000.0).unwrap();
+        let flat = tf.params_for(&cp).unwrap();
+        let back = tf.control_points(&flat).unwrap();
+        for i in 0..cp.len() {
+            assert!(
+                (back.sigma[i] - cp.sigma[i]).abs() < 1e-3,
+                "σ{i}: {}",
+                back.sigma[i]
+            );
+        }
+        // A loss linear in the LUT: its gradient through positions, densities (scaled) and
+        // colours against central differences.
+        let w: Vec<[f64; 4]> = (0..64)
+            .map(|j| {
+                let t = j as f64 / 63.0;
+                [(3.0 * t).sin(), t, 1.0 - t, (5.0 * t).cos()]
+            })
+            .collect();
+        let loss = |flat: &[f64]| -> f64 {
+            let lut = tf.control_points(flat).unwrap().to_lut(64);
+            lut.entries
+                .iter()
+                .zip(&w)
+                .map(|(e, w)| (0..4).map(|c| e[c] as f64 * w[c]).sum::<f64>())
+                .sum()
+        };
+        let g = tf
+            .backward(
+                &flat,
+                &LutGrad { entries: w.clone() },
+                &PointGrad {
+                    sigma: vec![0.0; cp.len()],
+                    rgb: vec![[0.0; 3]; cp.len()],
+                },
+            )
+            .unwrap();
+        let h = 1e-4;
+        for i in 0..flat.len() {
+            let (mut a, mut b) = (flat.clone(), flat.clone());
+            a[i] += h;
+            b[i] -= h;
+            let fd = (loss(&a) - loss(&b)) / (2.0 * h);
+            // The LUT is f32: differences carry its rounding (≈ 1e-7 · 1000 / h).
+            assert!(
+                (fd - g[i]).abs() < 2e-2 * (1.0 + fd.abs()),
+                "param {i}: fd {fd}, analytic {}",
+                g[i]
+            );
         }
     }
 

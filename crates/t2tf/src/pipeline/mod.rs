@@ -455,11 +455,6 @@ pub fn optimize(
             &j.locks,
             settings.control_points,
         )?;
-        if let Some((want, got)) = p.clipped_opacity {
-            emit(Event::Warning(&format!(
-                "the start's opacity reaches {want:.3}, more than the densest TF the optimizer represents at its unit distance ({got:.3}); it starts there"
-            )));
-        }
         (RunTf::Start(p.tf.clone()), Some(p), paper_init)
     };
     let lut_size = tf.lut_size();

@@ -102,10 +102,11 @@ pub(crate) struct Planned {
     pub control_points: ControlPoints,
     pub tf: StartTf,
     pub unit_distance: f64,
-    /// Highest opacity of the init that the density range cannot reach (at the init's unit
-    /// distance), with what it gets instead.
-    pub clipped_opacity: Option<(f64, f64)>,
 }
+
+/// The densest opacity a start is represented up to: 1 − 1e-3 (σ is finite; an opacity of 1
+/// reads as this, 1e-3 below).
+const OPAQUE: f64 = 1.0 - 1e-3;
 
 /// ParaView's table width for a TF with points at data values `xs` over `range` (see
 /// [`PARAVIEW_TABLE`]): a power of two, at least 1024, at most 16384.
@@ -145,7 +146,7 @@ pub(crate) fn plan(
         })
         .collect();
     let default_u = crate::tf::default_unit_distance(&volume.geometry);
-    let (cp, lut_size, unit_distance, clipped_opacity) = match (init, paper) {
+    let (cp, lut_size, unit_distance) = match (init, paper) {
         (Some(init), Some(paper)) if init.colours_only() => {
             let tf = init.preset.rgb_linear();
             let [a, b] = tf.data_range();
@@ -162,37 +163,43 @@ pub(crate) fn plan(
                 x,
             };
             let xs: Vec<f64> = init.preset.tf.rgb_points.iter().map(|p| p.0).collect();
-            (cp, table_width(&xs, [a, b]), default_u, None)
+            (cp, table_width(&xs, [a, b]), default_u)
         }
         (Some(init), _) => {
             let tf = init.preset.rgb_linear();
-            let cp = tf.to_control_points(&init.source, volume, None)?;
             let u = tf.unit_distance.unwrap_or(default_u);
+            // Densities as dense as the start's opacity needs (the paper's 255 at least).
+            let highest = tf.opacity_points.iter().map(|p| p.1).fold(0.0, f64::max);
+            let sigma_max = crate::tf::opacity_to_sigma_within(
+                highest.min(OPAQUE),
+                u,
+                volume.geometry.longest_side(),
+                f64::INFINITY,
+            )
+            .max(crate::tf::SIGMA_MAX);
+            let cp = tf.to_control_points_within(&init.source, volume, None, sigma_max)?;
             let mut xs: Vec<f64> = init.preset.tf.rgb_points.iter().map(|p| p.0).collect();
             xs.extend(tf.opacity_points.iter().map(|p| p.0));
             xs.sort_by(f64::total_cmp);
-            let o_max = crate::tf::sigma_to_opacity(
-                crate::tf::SIGMA_MAX,
-                u,
-                volume.geometry.longest_side(),
-            );
-            let highest = tf.opacity_points.iter().map(|p| p.1).fold(0.0, f64::max);
-            let clipped = (highest > o_max + 1e-3).then_some((highest, o_max));
-            (cp, table_width(&xs, [lo, hi]), u, clipped)
+            (cp, table_width(&xs, [lo, hi]), u)
         }
-        (None, Some(paper)) => (paper.clone(), PARAVIEW_TABLE, default_u, None),
+        (None, Some(paper)) => (paper.clone(), PARAVIEW_TABLE, default_u),
         (None, None) => {
             return Err(PipelineError::Job(
                 "a start needs a TF to start from".into(),
             ))
         }
     };
-    let (control_points, tf) = start::prepare(&cp, &normalized, min_points, lut_size)
+    let sigma_max = cp
+        .sigma
+        .iter()
+        .cloned()
+        .fold(crate::tf::SIGMA_MAX, f64::max);
+    let (control_points, tf) = start::prepare(&cp, &normalized, min_points, lut_size, sigma_max)
         .map_err(|e| PipelineError::Job(e.to_string()))?;
     Ok(Planned {
         control_points,
         tf,
         unit_distance,
-        clipped_opacity,
     })
 }
