@@ -272,6 +272,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for s in &skipped {
         println!("skipped: {s}");
     }
+    // What `--precision auto` chooses here, by its own calibration (the setup as the tables
+    // name it).
+    let auto = Compute::new(Precision::auto())
+        .layer_kernel()
+        .map_or(Setup::Crate, Setup::Packed);
+    match t2tf::clip::bf16_speedup() {
+        Some(s) => println!(
+            "auto picks: {} (bf16 calibrated at {s:.2}× f32's speed; bf16 needs ≥ {:.2}×)",
+            auto.name(),
+            t2tf::clip::AUTO_BF16_MIN_SPEEDUP
+        ),
+        None => println!("auto picks: {} (no bf16 kernel on this CPU)", auto.name()),
+    }
     let cfg = ClipConfig::vit_b32();
     if pool_only {
         return pool_first_use(&run, &cfg);

@@ -24,17 +24,28 @@ pub struct ModelArgs {
     pub tokenizer: Option<PathBuf>,
 
     /// Number format of CLIP's weight products: f32, bf16 (weights and activations rounded to
-    /// bf16, f32 accumulation; needs AVX512_BF16) or auto (bf16 where the CPU has it). f32 is
-    /// the default because its runs are reproducible; a bf16 run took 0.67× the f32 time on
+    /// bf16, f32 accumulation; needs AVX512_BF16) or auto (bf16 where the CPU has it and a
+    /// few-millisecond calibration measures it at least 1.15× faster than f32, else f32). f32
+    /// is the default because its runs are reproducible; a bf16 run took 0.67× the f32 time on
     /// Zen 4, its TF rendering at 53.3 dB PSNR against f32's on held-out views (BENCHMARKS.md).
     #[arg(long, value_name = "f32|bf16|auto", default_value = "f32")]
     pub precision: String,
 }
 
 impl ModelArgs {
-    /// `--precision` for this CPU, or why it cannot be had.
+    /// `--precision` for this CPU, or why it cannot be had. An explicit bf16 that this CPU
+    /// runs slower than f32 is honoured with a warning.
     pub fn precision(&self) -> anyhow::Result<Precision> {
-        Precision::resolve(&self.precision).map_err(|e| anyhow::anyhow!("--precision: {e}"))
+        let p =
+            Precision::resolve(&self.precision).map_err(|e| anyhow::anyhow!("--precision: {e}"))?;
+        if self.precision == "bf16" {
+            if let Some(s) = crate::clip::bf16_speedup().filter(|s| *s < 1.0) {
+                errln!(
+                    "t2tf: warning: --precision bf16 measures {s:.2}× f32's speed on this CPU: f32 is faster here (and exact)"
+                );
+            }
+        }
+        Ok(p)
     }
 
     /// How the model's products run: `--precision` on the faster engine of this CPU.

@@ -1,7 +1,9 @@
 //! Every micro-kernel of `clip::packed` this CPU can run, against a scalar f64 reference of the
 //! values it multiplies (odd shapes, sub-ranges, accumulate, bias), against each other, through
 //! whole models (the transformers golden fixtures), and across thread counts. Kernels the CPU
-//! lacks are skipped and listed (run with `--nocapture` to see the list).
+//! lacks are skipped and listed (run with `--nocapture` to see the list), unless
+//! `T2TF_REQUIRE_KERNELS` names them (comma-separated: avx2, avx512f, avx512bf16): then a
+//! missing one fails. CI sets it to what its CPU's flags promise.
 
 use std::path::Path;
 
@@ -12,13 +14,43 @@ use t2tf::image::Image;
 // The golden-file format and parity measure are clip_golden's.
 use crate::clip_golden::{rel_err, to_image, Golden, TOKENIZER};
 
-/// The kernels to test here, printing the others with the reason.
+/// The short name `T2TF_REQUIRE_KERNELS` uses for a SIMD kernel.
+fn short(k: Kernel) -> Option<&'static str> {
+    match k {
+        Kernel::Avx2Fma => Some("avx2"),
+        Kernel::Avx512F => Some("avx512f"),
+        Kernel::Avx512Bf16 => Some("avx512bf16"),
+        Kernel::Portable | Kernel::PortableBf16 => None,
+    }
+}
+
+/// The kernels to test here, printing the others with the reason; a missing kernel that
+/// `T2TF_REQUIRE_KERNELS` names fails the test.
 fn available(test: &str) -> Vec<Kernel> {
+    let required = std::env::var("T2TF_REQUIRE_KERNELS").unwrap_or_default();
+    let required: Vec<&str> = required
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .collect();
+    for r in &required {
+        assert!(
+            Kernel::ALL.into_iter().any(|k| short(k) == Some(r)),
+            "T2TF_REQUIRE_KERNELS: unknown kernel {r:?} (avx2, avx512f, avx512bf16)"
+        );
+    }
     let mut run = Vec::new();
     for k in Kernel::ALL {
         match k.missing() {
             None => run.push(k),
-            Some(what) => eprintln!("{test}: skipped {}: this CPU lacks {what}", k.name()),
+            Some(what) => {
+                assert!(
+                    !short(k).is_some_and(|s| required.contains(&s)),
+                    "{test}: T2TF_REQUIRE_KERNELS requires {}, but this CPU lacks {what}",
+                    k.name()
+                );
+                eprintln!("{test}: skipped {}: this CPU lacks {what}", k.name())
+            }
         }
     }
     eprintln!(
@@ -383,10 +415,12 @@ fn missing_kernels_are_refused() {
             std::panic::catch_unwind(|| PackedB::from_rows_for(kernel, &[1.0], 1, 1)).is_err();
         assert_eq!(refused, !kernel.available(), "{}", kernel.name());
     }
-    // bf16 is native exactly where its kernel is, and `auto` never picks an emulated one.
+    // bf16 is native exactly where its kernel is, and `auto` never picks an emulated one, nor
+    // one its calibration measured too slow.
     assert_eq!(Precision::Bf16.native(), Kernel::Avx512Bf16.available());
     assert_eq!(
         Precision::auto() == Precision::Bf16,
         Kernel::Avx512Bf16.available()
+            && t2tf::clip::bf16_speedup().unwrap() >= t2tf::clip::AUTO_BF16_MIN_SPEEDUP
     );
 }

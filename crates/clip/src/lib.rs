@@ -67,7 +67,7 @@ use std::path::{Path, PathBuf};
 
 pub use config::{Activation, ClipConfig, ConfigError};
 pub use load::{ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
-pub use packed::{Compute, Engine, Kernel, Precision};
+pub use packed::{bf16_speedup, Compute, Engine, Kernel, Precision, AUTO_BF16_MIN_SPEEDUP};
 pub use preprocess::{preprocess, Preprocessing, MEAN, STD};
 pub use similarity::{
     cosine, cosine_checked, cosine_grad, softmax_scaled, unit, BadLogitScale, Head, Incomparable,

@@ -99,10 +99,12 @@ impl Precision {
         Kernel::best(self).is_some()
     }
 
-    /// bf16 where the CPU has `vdpbf16ps` (measured 1.9–2× the f32 kernel's speed on Zen 4,
-    /// BENCHMARKS.md), f32 elsewhere: never an emulated bf16.
+    /// bf16 where the CPU has `vdpbf16ps` *and* it is measured faster than f32 here
+    /// ([`bf16_speedup`] ≥ [`AUTO_BF16_MIN_SPEEDUP`]), f32 elsewhere: never an emulated bf16,
+    /// and never a bf16 slower than f32 (on one Intel Xeon with AVX512_BF16, `vdpbf16ps` ran
+    /// the image pass 1.34× slower than the f32 kernel; on Zen 4 1.9–2× faster).
     pub fn auto() -> Precision {
-        if Precision::Bf16.native() {
+        if bf16_speedup().is_some_and(|s| s >= AUTO_BF16_MIN_SPEEDUP) {
             Precision::Bf16
         } else {
             Precision::F32
@@ -130,6 +132,55 @@ impl Precision {
             Precision::Bf16 => "bf16",
         }
     }
+}
+
+/// How much faster bf16 must measure than f32 for `auto` to pick it: a margin over the
+/// calibration's noise, since bf16 also costs accuracy (BENCHMARKS.md, "Precision").
+pub const AUTO_BF16_MIN_SPEEDUP: f64 = 1.15;
+
+/// f32 time / bf16 time of the weight products on this CPU, measured once per process (a few
+/// milliseconds); `None` where the CPU has no bf16 kernel.
+///
+/// Why a measurement and not the flag or a table: CPUs with the same AVX512_BF16 flag differ
+/// by 2.6× in this ratio (Zen 4 against one Intel Xeon), and a table would miss every CPU the
+/// benchmarks never met. The product is one of ViT-B/32's MLP shapes (3 views × 50 tokens,
+/// 768 → 3072) on one thread (the kernels' speed ratio, without the scheduling noise of a
+/// shared machine), each kernel's best of 7 runs, the two taking turns so a load on the
+/// machine meets both alike: about 40 ms. Cheap enough not to cache: a disk cache keyed by the
+/// CPU model would also outlive a change of the machine's load or microcode.
+pub fn bf16_speedup() -> Option<f64> {
+    static SPEEDUP: std::sync::OnceLock<Option<f64>> = std::sync::OnceLock::new();
+    *SPEEDUP.get_or_init(|| {
+        let f32_kernel = Kernel::best(Precision::F32)?;
+        let bf16_kernel = Kernel::best(Precision::Bf16)?;
+        let (m, k, n) = (150, 768, 3072);
+        let b: Vec<f32> = (0..k * n)
+            .map(|i| ((i * 7919) % 997) as f32 / 997.0 - 0.5)
+            .collect();
+        let a: Vec<f32> = (0..m * k)
+            .map(|i| ((i * 104729) % 991) as f32 / 991.0 - 0.5)
+            .collect();
+        let packed = [
+            PackedB::from_rows_for(f32_kernel, &b, k, n),
+            PackedB::from_rows_for(bf16_kernel, &b, k, n),
+        ];
+        let mut c = vec![0.0f32; m * n];
+        let mut best = [f64::INFINITY; 2];
+        let mut time = || {
+            for _ in 0..7 {
+                for (i, p) in packed.iter().enumerate() {
+                    let t = std::time::Instant::now();
+                    gemm(&mut c, n, &a, k, m, p, 0..k, 0..n, None, false);
+                    best[i] = best[i].min(t.elapsed().as_secs_f64());
+                }
+            }
+        };
+        match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
+            Ok(one) => one.install(time),
+            Err(_) => time(),
+        }
+        Some(best[0] / best[1].max(1e-9))
+    })
 }
 
 /// Why a precision name cannot be had.
@@ -1382,7 +1433,16 @@ mod tests {
         assert_eq!(Precision::resolve("f32"), Ok(Precision::F32));
         assert_eq!(Precision::resolve("bf16").is_ok(), Precision::Bf16.native());
         let auto = Precision::resolve("auto").unwrap();
-        assert_eq!(auto == Precision::Bf16, Precision::Bf16.native());
+        // bf16 only where native and measured faster.
+        assert_eq!(
+            auto == Precision::Bf16,
+            Precision::Bf16.native() && bf16_speedup().unwrap() >= AUTO_BF16_MIN_SPEEDUP
+        );
+        assert_eq!(bf16_speedup().is_some(), Precision::Bf16.native());
+        if let Some(s) = bf16_speedup() {
+            eprintln!("bf16 measured {s:.2}× the f32 kernel's speed");
+            assert!(s.is_finite() && s > 0.0);
+        }
         assert!(Precision::resolve("fp8").is_err());
         let f32_layers = Compute::default().layer_kernel();
         // Native bf16, or f32 layers as before: never an emulated bf16.
