@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use paraview_util::{
-    floats, lost_display, repo, require_paraview, server, xvfb_pvpython, PVPYTHON,
+    floats, lost_display, repo, require_paraview, require_tools, server, xvfb_pvpython, PVPYTHON,
 };
 use t2tf::image::{psnr, Image};
 
@@ -593,6 +593,78 @@ fn a_saved_state_restores_the_result_without_running_t2tf() {
             key,
         );
     }
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn abort_from_the_gui_event_loop_stops_the_run() {
+    require_tools(
+        "abort_from_the_gui_event_loop_stops_the_run",
+        &["paraview", "xvfb-run"],
+    );
+    // The ParaView GUI itself (`paraview --script`): a Qt timer's handler sets the abort
+    // flag, so the run can only stop if the plugin lets Qt process events while t2tf runs.
+    let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("config/ParaView");
+    std::fs::create_dir_all(&config).unwrap();
+    // No welcome dialog: it is modal and would hold the script back.
+    std::fs::write(
+        config.join("ParaView5.11.0.ini"),
+        "[General]\nGeneralSettings.ShowWelcomeDialog=0\n",
+    )
+    .unwrap();
+    std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
+    let json = dir.path().join("gui.json");
+    let bin = counting_t2tf(dir.path());
+    let mut attempt = 0;
+    let out = loop {
+        attempt += 1;
+        let out = Command::new("timeout")
+            .args(["300", "xvfb-run", "-a", "paraview"])
+            .arg(format!(
+                "--script={}",
+                repo().join("tests/paraview_plugin/gui.py").display()
+            ))
+            .env("XDG_CONFIG_HOME", dir.path().join("config"))
+            .env("PYTHONPATH", repo().join("paraview/compat"))
+            .env("TMPDIR", dir.path().join("tmp"))
+            .env("T2TF_BIN", &bin)
+            .env("T2TF_PLUGIN", repo().join("paraview/t2tf_plugin.py"))
+            .env("T2TF_VOLUME", repo().join(NEGHIP))
+            .env("T2TF_MODEL", repo().join("tests/fixtures/clip/quick_gelu"))
+            .env(
+                "T2TF_TOKENIZER",
+                repo().join("../shared/data/clip/tokenizer.json"),
+            )
+            .env("T2TF_RESULT", &json)
+            .output()
+            .expect("run xvfb-run paraview");
+        if attempt < 3 && lost_display(&out, "") {
+            continue;
+        }
+        break out;
+    };
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    let res: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("no JSON ({e}):\n{all}")),
+    )
+    .unwrap();
+    assert!(res["exception"].is_null(), "{res}");
+    eprintln!(
+        "gui: {} timer events during a {:.1} s run, aborted at {}",
+        res["ticks_during_run"],
+        res["filter_seconds"].as_f64().unwrap(),
+        res["aborted_at"]
+    );
+    assert_eq!(res["interrupted"], true, "{res}\n{all}");
+    let report: serde_json::Value = serde_json::from_str(res["report"].as_str().unwrap()).unwrap();
+    let run = report["steps_run"].as_u64().unwrap();
+    assert!((1..2000).contains(&run), "steps_run {run}");
+    assert!(res["ticks_during_run"].as_u64().unwrap() >= 2, "{res}");
+    assert_eq!(runs(dir.path()), 1);
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
 }
 
 /// Points per axis the pvserver test allows the proxy (neghip has 64).
