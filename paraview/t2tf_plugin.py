@@ -4,21 +4,30 @@ Load it with Tools > Manage Plugins > Load New (this file), with PV_PLUGIN_PATH 
 folder, or from pvpython with LoadPlugin(path, ns=globals()). The filter takes image data
 and runs t2tf in this process when ParaView's Python can import the t2tf module (`pip install
 --user .` for the Python ParaView uses, or PYTHONPATH): the point array is handed over
-through vtk_to_numpy, no file is written, and ParaView's progress bar and abort button drive
-the run. Otherwise (or when T2TF_BIN names a binary) it runs the t2tf binary (T2TF_BIN, else
-PATH, else beside this file) with --progress json. The output window says which. Either way
-it applies the result to its own output display: colour, opacity, ScalarOpacityUnitDistance,
-range never rescaled, the preset registered in ParaView's preset manager, and optionally the
-camera of t2tf's view. The output is the input plus field data t2tf_report (report.json),
-t2tf_preset (the preset's name) and t2tf_out (the folder t2tf wrote).
+through vtk_to_numpy, no file is written. Otherwise (or when T2TF_BIN names a binary) it runs
+the t2tf binary (T2TF_BIN, else PATH, else beside this file) with --progress json. The output
+window says which. Either way the progress bar shows "Text to Transfer Function: step k/N,
+loss L, ETA s", the GUI keeps processing its events while t2tf runs, and the filter stops
+after the current step (keeping that step's TF) when its abort flag is set or
+t2tf_plugin.cancel() is called. The result is applied to the filter's own display: colour,
+opacity, ScalarOpacityUnitDistance, range never rescaled, a preset named after the prompt
+("t2tf: PROMPT") in ParaView's preset manager, and optionally the camera of t2tf's view. The
+output is the input plus field data t2tf_report (report.json) and t2tf_preset (the preset's
+name). t2tf's files are written to a temporary folder that is removed after the run; the
+result is kept in memory and in the hidden property Result, so a saved state restores it
+without running t2tf again while the input and settings are unchanged.
 
 Connected to a remote pvserver, use text_to_transfer_function(source, prompt, ...) (or the
 macro t2tf_macro.py): it fetches a bounded ResampleToImage proxy of the data, optimizes
-locally and applies the TF to the full data's display.
+locally and applies the TF to the full data's display. The filter itself does not run on a
+pvserver (it says so once and fails).
 
 Errors (no binary, empty prompt, input that is not image data, t2tf failing) are one
-message in ParaView's output window, never a Python traceback.
+message in ParaView's output window, never a Python traceback, and the filter fails
+(RequestData returns 0); text_to_transfer_function raises T2tfError with that message.
 """
+import ctypes
+import hashlib
 import json
 import os
 import queue
@@ -26,18 +35,23 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import threading
 import time
+import types
 
-from paraview.util.vtkAlgorithm import VTKPythonAlgorithmBase, smdomain, smhint, smproperty, smproxy
+from paraview.util.vtkAlgorithm import VTKPythonAlgorithmBase, smhint, smproperty, smproxy
 from vtkmodules.vtkCommonCore import vtkOutputWindow, vtkStringArray
 from vtkmodules.vtkCommonDataModel import vtkDataObject, vtkImageData
 
 TITLE = "Text to Transfer Function"
 UNIT_DISTANCE_KEY = "t2tfScalarOpacityUnitDistance"
+DEFAULT_MODEL = "openai/clip-vit-base-patch32"
 # Default bound of the proxy fetched from a remote server (points per axis).
 PROXY_SIZE = 256
+# Every preset this plugin registers starts with this, so remove_presets() finds them.
+PRESET_PREFIX = "t2tf: "
 
 
 class T2tfError(Exception):
@@ -52,6 +66,14 @@ def message(text, error=True):
         window.DisplayErrorText(line)
     else:
         window.DisplayText(line)
+
+
+def with_advice(text):
+    """`text` (a t2tf error) with what to do in ParaView when the model could not be had."""
+    if "Hugging Face cache" in text or "cannot download" in text:
+        # t2tf's own message says how to fetch the model; what ParaView adds is where.
+        text += "; in ParaView, set Model (an advanced property) to a local model folder"
+    return text
 
 
 def t2tf_module():
@@ -87,14 +109,112 @@ def find_binary():
     )
 
 
-# Runs in progress, so that cancel() (from a Python shell, a macro or a test) can stop them.
-_RUNS = []
+# ---- runs in progress: cancel, progress text, GUI events ------------------------------
+
+def _runs():
+    """The runs in progress, in one list every copy of this module shares.
+
+    LoadPlugin executes this file as a new module object, so a `t2tf_plugin` imported before
+    LoadPlugin and the one the filter runs from are two modules with their own globals. The
+    list lives on a module of its own in sys.modules, which both find."""
+    shared = sys.modules.get("_t2tf_plugin_runs")
+    if shared is None:
+        shared = types.ModuleType("_t2tf_plugin_runs")
+        shared.runs = []
+        sys.modules[shared.__name__] = shared
+    return shared.runs
 
 
 def cancel():
-    """Ask every running t2tf to stop after its current step (it keeps that step's TF)."""
-    for run in list(_RUNS):
+    """Ask every running t2tf to stop after its current step (it keeps that step's TF).
+    Works from any copy of this module (imported before or after LoadPlugin)."""
+    for run in list(_runs()):
         run.cancel()
+
+
+class _Qt:
+    """QCoreApplication::processEvents where this process has a QApplication (the ParaView
+    GUI; pvpython has none). ParaView's Python has no Qt bindings, so the static functions
+    are called through ctypes, looked up once."""
+    looked_up = False
+    instance = None  # QCoreApplication::self, a live view of the pointer
+    process = None
+
+    @classmethod
+    def process_events(cls):
+        if not cls.looked_up:
+            cls.looked_up = True
+            try:
+                lib = ctypes.CDLL(None)
+                cls.instance = ctypes.c_void_p.in_dll(lib, "_ZN16QCoreApplication4selfE")
+                # static void processEvents(QEventLoop::ProcessEventsFlags, int maxtime)
+                cls.process = getattr(
+                    lib, "_ZN16QCoreApplication13processEventsE6QFlagsIN10QEventLoop17"
+                         "ProcessEventsFlagEEi")
+                cls.process.argtypes = [ctypes.c_int, ctypes.c_int]
+                cls.process.restype = None
+            except (OSError, ValueError, AttributeError):
+                cls.process = None
+        if cls.process is None or not cls.instance.value:
+            return False
+        # All events, for at most 50 ms: while a pipeline updates, ParaView's progress
+        # manager drops mouse presses and key presses on everything but its Abort button,
+        # so this repaints and runs timers without letting the user start other work.
+        cls.process(0, 50)
+        return True
+
+
+class Progress:
+    """What ParaView shows of a run: the algorithm's progress text ("Text to Transfer
+    Function: step k/N, loss L, ETA s") and fraction, refreshed at least once a second,
+    with the GUI's events processed in between."""
+
+    def __init__(self, algorithm=None):
+        self.algorithm = algorithm
+        self.start = time.time()
+        self.step, self.steps, self.loss = 0, None, None
+        self.first_step = None  # when step 1 ended: the rate is measured after it
+        self.eta, self.eta_at = None, None
+        self.shown = 0.0
+
+    def on_step(self, step, steps, loss=None, eta=None):
+        now = time.time()
+        self.step, self.steps, self.loss = int(step), max(1, int(steps)), loss
+        if self.first_step is None:
+            self.first_step = now
+        if eta is None and self.step >= 3:
+            # The first step carries one-off work (caption embeddings), so the rate comes
+            # from the steps after it, as the CLI's estimate does.
+            eta = (now - self.first_step) / (self.step - 1) * (self.steps - self.step)
+        self.eta, self.eta_at = eta, now
+        self.show()
+
+    def text(self):
+        if not self.steps:
+            return "%s: starting (%.0f s)" % (TITLE, time.time() - self.start)
+        line = "%s: step %d/%d" % (TITLE, self.step, self.steps)
+        if self.loss is not None:
+            line += ", loss %.4f" % self.loss
+        if self.eta is None:
+            return line + ", ETA …"
+        return line + ", ETA %.0f s" % max(0.0, self.eta - (time.time() - self.eta_at))
+
+    def fraction(self):
+        return float(self.step) / self.steps if self.steps else 0.0
+
+    def show(self):
+        self.shown = time.time()
+        if self.algorithm is not None:
+            self.algorithm.SetProgressText(self.text())
+            self.algorithm.UpdateProgress(self.fraction())
+        _Qt.process_events()
+
+    def tick(self):
+        """Between steps: refresh the text once a second, process GUI events always."""
+        if time.time() - self.shown >= 0.5:
+            self.show()
+        else:
+            _Qt.process_events()
 
 
 class Run:
@@ -119,11 +239,13 @@ class Run:
         self.lines.put(None)
 
     def run(self, progress=None, aborted=None, timeout=None):
-        """Run to the end; `progress(fraction, text)` per step; `aborted()` polled to cancel."""
+        """Run to the end; `progress` (a Progress) per step and between steps; `aborted()`
+        polled to cancel."""
+        progress = progress or Progress()
         self.proc = subprocess.Popen(
             self.args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
         )
-        _RUNS.append(self)
+        _runs().append(self)
         try:
             reader = threading.Thread(target=self._read, daemon=True)
             reader.start()
@@ -134,23 +256,24 @@ class Run:
                 if timeout is not None and time.time() - start > timeout:
                     self.cancel()
                 try:
-                    line = self.lines.get(timeout=0.1)
+                    # Short waits, so the GUI's events are processed between them.
+                    line = self.lines.get(timeout=0.05)
                 except queue.Empty:
+                    progress.tick()
                     continue
                 if line is None:
                     break
                 self._line(line, progress)
             self.proc.wait()
         finally:
-            _RUNS.remove(self)
+            _runs().remove(self)
         # A run stopped by a signal (the cancel sends SIGINT) exits with 128 + the signal after
         # writing the last finished step's result; its done event says so.
         stopped = self.done is not None and self.done.get("interrupted")
         if self.done is None or (self.proc.returncode != 0 and not stopped):
-            raise T2tfError(
+            raise T2tfError(with_advice(
                 "t2tf failed (exit status %s): %s"
-                % (self.proc.returncode, " | ".join(self.tail[-3:]) or "no output")
-            )
+                % (self.proc.returncode, " | ".join(self.tail[-3:]) or "no output")))
         return self.done
 
     def _line(self, line, progress):
@@ -163,9 +286,9 @@ class Run:
                 self.tail.append(line)
             return
         kind = event.get("event")
-        if kind == "step" and progress is not None:
-            steps = max(1, int(event.get("steps", 1)))
-            progress(float(event["step"]) / steps, "step %s/%s" % (event["step"], steps))
+        if kind == "step":
+            progress.on_step(event["step"], event.get("steps", 1), event.get("loss"),
+                             event.get("eta_s"))
         elif kind == "done":
             self.done = event
         elif kind == "error" and "message" in event:
@@ -175,8 +298,9 @@ class Run:
 def optimize(volume, out, prompt, negatives=(), steps=300, views=3, seed=0, model=None,
              tokenizer=None, array=None, reference_image=None, extra=(), progress=None,
              aborted=None, timeout=None, init=None, locks=()):
-    """Run t2tf on a volume file; returns the result (see read_result). `init`: a TF file
-    to start from; `locks`: (min, max) data ranges kept as they start."""
+    """Run the t2tf binary on a volume file, writing into `out`; returns the result (see
+    read_result). `progress`: a Progress; `init`: a TF file to start from; `locks`: (min,
+    max) data ranges kept as they start."""
     if not (prompt or "").strip() and not reference_image:
         raise T2tfError("the prompt is empty: type what the rendering should show (Prompt)")
     args = [find_binary(), "optimize", volume, "--out", out, "--progress", "json"]
@@ -200,7 +324,18 @@ def optimize(volume, out, prompt, negatives=(), steps=300, views=3, seed=0, mode
         args += ["--lock=%r,%r" % (float(lo), float(hi))]
     args += list(extra)
     done = Run(args, out).run(progress, aborted, timeout)
-    return read_result(done)
+    return read_result(done, prompt, reference_image)
+
+
+class _InProcessRun:
+    """A run of the t2tf module in this process, as the run list holds it: cancel() is
+    answered at the end of the current step."""
+
+    def __init__(self):
+        self.cancelled = False
+
+    def cancel(self):
+        self.cancelled = True
 
 
 def optimize_in_process(t2tf, image, array, out, prompt, negatives=(), steps=300, views=3,
@@ -208,19 +343,21 @@ def optimize_in_process(t2tf, image, array, out, prompt, negatives=(), steps=300
                         progress=None, aborted=None, init=None, locks=()):
     """Run t2tf in this process on `image`'s point array `array` (read in place, no file
     written) and save its files into `out`; returns the result as read_result gives it.
-    `progress(fraction, text)` per step; `aborted()` is asked after each step and stops the
-    run there (keeping that step's TF)."""
+    `progress` (a Progress) per step; `aborted()` is asked after each step and stops the
+    run there (keeping that step's TF), as cancel() does."""
     if not (prompt or "").strip() and not reference_image:
         raise T2tfError("the prompt is empty: type what the rendering should show (Prompt)")
+    progress = progress or Progress()
+    handle = _InProcessRun()
 
     def on_event(event):
-        if event["event"] == "step" and progress is not None:
-            steps_ = max(1, int(event["steps"]))
-            progress(float(event["step"]) / steps_, "step %s/%s" % (event["step"], steps_))
+        if event["event"] == "step":
+            progress.on_step(event["step"], event["steps"], event.get("loss"))
         elif event["event"] == "warning":
             message("warning: " + event["message"], False)
-        return not (aborted is not None and aborted())
+        return not (handle.cancelled or (aborted is not None and aborted()))
 
+    _runs().append(handle)
     try:
         volume = t2tf.vtk.volume_from_vtk(image, array)
         run = t2tf.optimize(
@@ -230,8 +367,11 @@ def optimize_in_process(t2tf, image, array, out, prompt, negatives=(), steps=300
             progress=on_event, init=init or None, lock=[tuple(l) for l in locks or ()])
         report = run.save(out)
     except (t2tf.Error, ValueError) as e:
-        raise T2tfError(str(e))
-    result = read_result({"out": out, "files": report["outputs"], "interrupted": run.interrupted})
+        raise T2tfError(with_advice(str(e)))
+    finally:
+        _runs().remove(handle)
+    result = read_result({"out": out, "files": report["outputs"], "interrupted": run.interrupted},
+                         prompt, reference_image)
     # An array has no file to reopen, so no pvpython script holds the camera: the run has it.
     result["camera"] = run.camera
     return result
@@ -280,8 +420,20 @@ def _script_list(text, name):
     return None
 
 
-def read_result(done):
-    """The files named by t2tf's done event: preset, unit distance, camera, report."""
+def preset_name(prompt, reference_image=None):
+    """The preset's name in ParaView: "t2tf: " and the prompt (whitespace collapsed, cut at
+    60 characters), so Choose Preset shows what each result was made for."""
+    what = " ".join((prompt or "").split())
+    if not what and reference_image:
+        what = "like " + os.path.basename(reference_image)
+    if len(what) > 60:
+        what = what[:59] + "…"
+    return PRESET_PREFIX + (what or "transfer function")
+
+
+def read_result(done, prompt="", reference_image=None):
+    """What the display needs from the files named by t2tf's done event, in memory (the
+    folder is removed after the run): preset, points, unit distance, camera, report."""
     out = done["out"]
     files = done.get("files", [])
     preset_file = next(
@@ -292,10 +444,10 @@ def read_result(done):
     with open(preset_file) as f:
         data = json.load(f)
     preset = data[0] if isinstance(data, list) else data
+    preset["Name"] = preset_name(prompt, reference_image)
     result = {
-        "out": out,
-        "preset_file": preset_file,
         "name": preset["Name"],
+        "preset": preset,
         "rgb": [float(v) for v in preset["RGBPoints"]],
         "points": [float(v) for v in preset.get("Points", [])],
         "unit_distance": preset.get(UNIT_DISTANCE_KEY),
@@ -323,16 +475,40 @@ def read_result(done):
 
 # ---- client side: presets, displays, camera -------------------------------------------
 
-def register_preset(result):
-    """Import the preset into ParaView's preset manager (once per name: t2tf's names carry
-    a content hash, and re-importing an existing name is fragile)."""
-    import paraview.simple as pvs
+def _presets():
     from paraview import servermanager
 
-    presets = servermanager.vtkSMTransferFunctionPresets.GetInstance()
-    if not presets.HasPreset(result["name"]):
-        pvs.ImportPresets(result["preset_file"])
+    return servermanager.vtkSMTransferFunctionPresets.GetInstance()
+
+
+def _remove_preset(presets, name):
+    """Remove the user presets called `name` (never a built-in one)."""
+    removed = 0
+    for i in reversed(range(presets.GetNumberOfPresets())):
+        if presets.GetPresetName(i) == name and not presets.IsPresetBuiltin(i):
+            presets.RemovePreset(i)
+            removed += 1
+    return removed
+
+
+def register_preset(result, replaces=None):
+    """Add the result to ParaView's preset manager under its name, replacing a preset of
+    that name and `replaces` (the name the same filter's previous run registered), so a
+    re-run updates its preset instead of adding another. The old one is removed first:
+    adding a name that exists is fragile in ParaView 5.10 and later."""
+    presets = _presets()
+    for name in {result["name"], replaces} - {None}:
+        _remove_preset(presets, name)
+    presets.AddPreset(result["name"], json.dumps(result["preset"]))
     return bool(presets.HasPreset(result["name"]))
+
+
+def remove_presets():
+    """Remove every preset this plugin registered ("t2tf: ..."); returns how many."""
+    presets = _presets()
+    names = {presets.GetPresetName(i) for i in range(presets.GetNumberOfPresets())
+             if not presets.IsPresetBuiltin(i)}
+    return sum(_remove_preset(presets, n) for n in names if n.startswith(PRESET_PREFIX))
 
 
 def apply_transfer_function(result, array):
@@ -499,13 +675,149 @@ def write_vti(image, array, path):
         raise T2tfError("could not write the input to " + path)
 
 
-@smproxy.filter(name="TextToTransferFunction", label=TITLE)
+def _on_server():
+    """(whether this process is a pvserver, its MPI rank)."""
+    from paraview.modules.vtkRemotingCore import vtkProcessModule
+
+    pm = vtkProcessModule.GetProcessModule()
+    if pm is None:
+        return False, 0
+    server = pm.GetProcessType() in (vtkProcessModule.PROCESS_SERVER,
+                                     vtkProcessModule.PROCESS_DATA_SERVER,
+                                     vtkProcessModule.PROCESS_RENDER_SERVER)
+    return server, pm.GetPartitionId()
+
+
+def _input_key(image, array):
+    """A digest of what t2tf would read: geometry, array name and values."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    import numpy
+
+    h = hashlib.sha256()
+    h.update(repr((image.GetExtent(), image.GetSpacing(), image.GetOrigin(), array)).encode())
+    values = numpy.ascontiguousarray(vtk_to_numpy(image.GetPointData().GetArray(array)))
+    h.update(str(values.dtype).encode())
+    h.update(memoryview(values).cast("B"))
+    return h.hexdigest()
+
+
+# The panel lists properties in this order (ParaView keeps the XML's order); the advanced
+# ones show behind the panel's gear button. Every property says what it does in a tooltip.
+PROPERTIES_XML = """
+<Documentation short_help="Optimize a transfer function for a sentence with t2tf."
+    long_help="Optimizes a volume-rendering transfer function (colour and opacity) so that
+    renderings of the data match a sentence under CLIP, and shows the data with it.">
+  Text to Transfer Function runs t2tf on the input image data: it renders the volume from
+  random views, scores the renderings against the Prompt (and against the Negatives) with a
+  CLIP model, and optimizes the colour and opacity functions by gradient descent. The result
+  is applied to the output's display (colour, opacity, unit distance, no automatic
+  rescaling), registered as the preset "t2tf: PROMPT", and kept with a saved state. The run
+  time grows with Steps x Views; the progress bar shows the step, the loss and the time
+  left, and Abort (or t2tf_plugin.cancel() in Python) stops after the current step, keeping
+  that step's transfer function.
+</Documentation>
+<InputProperty name="Input" command="SetInputConnection">
+  <ProxyGroupDomain name="groups"><Group name="sources" /><Group name="filters" /></ProxyGroupDomain>
+  <DataTypeDomain name="input_type" composite_data_supported="0">
+    <DataType value="vtkImageData" />
+  </DataTypeDomain>
+  <InputArrayDomain name="input_array" attribute_type="point" number_of_components="1" />
+  <Documentation>Image data with a point array of one component.</Documentation>
+</InputProperty>
+<StringVectorProperty name="Prompt" command="SetPrompt" number_of_elements="1"
+    default_values="">
+  <Documentation>What the rendering should show, in plain words, e.g. "a potted tree" or
+  "the teeth of a CT head".</Documentation>
+</StringVectorProperty>
+<StringVectorProperty name="Negatives" label="Negatives" command="SetNegative"
+    clean_command="ClearNegatives" repeat_command="1" number_of_elements_per_command="1"
+    number_of_elements="1" default_values="a blank image">
+  <Documentation>What the rendering should not look like, one phrase per row (default: "a
+  blank image"); sampled captions are added to them at every step.</Documentation>
+</StringVectorProperty>
+<IntVectorProperty name="Steps" command="SetSteps" number_of_elements="1"
+    default_values="300">
+  <IntRangeDomain name="range" min="1" max="5000" />
+  <Documentation>Optimization steps. Each renders Views images and runs CLIP on each, so
+  the run time is about Steps x Views x the time of one rendering and CLIP pass (the
+  progress bar shows the time left). 300 is the paper's setting; a Refine needs far
+  fewer.</Documentation>
+</IntVectorProperty>
+<IntVectorProperty name="Views" command="SetViews" number_of_elements="1" default_values="3">
+  <IntRangeDomain name="range" min="1" max="16" />
+  <Documentation>Random views rendered per step (run time grows with them).</Documentation>
+</IntVectorProperty>
+<IntVectorProperty name="Refine" command="SetRefine" number_of_elements="1"
+    default_values="0">
+  <BooleanDomain name="bool" />
+  <Documentation>Start from the colour and opacity functions the array has now (the
+  last result, or a preset you chose) instead of t2tf's initialization. Refining needs
+  far fewer steps than a fresh run.</Documentation>
+</IntVectorProperty>
+<StringVectorProperty name="LockRanges" label="Lock Ranges" command="SetLockRanges"
+    number_of_elements="1" default_values="">
+  <Documentation>Data ranges whose transfer function stays as it starts, e.g.
+  "120,400; 800,1200": the rest is optimized around them.</Documentation>
+</StringVectorProperty>
+<StringVectorProperty name="Model" command="SetModel" number_of_elements="1"
+    default_values="openai/clip-vit-base-patch32" panel_visibility="advanced">
+  <FileListDomain name="files" />
+  <Hints><UseDirectoryName /></Hints>
+  <Documentation>The CLIP model: a local model folder (config.json, tokenizer.json and
+  weights; the button picks a folder), or a Hugging Face repository id, downloaded into
+  the Hugging Face cache on first use (`t2tf model list` shows the cached ones; without
+  network, `t2tf model fetch` elsewhere and copy the cache).</Documentation>
+</StringVectorProperty>
+<StringVectorProperty name="Tokenizer" command="SetTokenizer" number_of_elements="1"
+    default_values="" panel_visibility="advanced">
+  <FileListDomain name="files" />
+  <Hints><FileChooser extensions="json" file_description="tokenizer.json" /></Hints>
+  <Documentation>A tokenizer.json to use instead of the model's own (empty: the
+  model's).</Documentation>
+</StringVectorProperty>
+<IntVectorProperty name="Seed" command="SetSeed" number_of_elements="1" default_values="0"
+    panel_visibility="advanced">
+  <Documentation>Random seed of the views, backgrounds and negatives: the same seed and
+  settings give the same transfer function.</Documentation>
+</IntVectorProperty>
+<StringVectorProperty name="Array" command="SetInputArrayToProcess" number_of_elements="5"
+    element_types="0 0 0 0 2" animateable="0" panel_visibility="advanced">
+  <ArrayListDomain name="array_list" attribute_type="Scalars" input_domain_name="input_array">
+    <RequiredProperties><Property name="Input" function="Input" /></RequiredProperties>
+  </ArrayListDomain>
+  <Documentation>The point array the transfer function is for (default: the active
+  scalars).</Documentation>
+</StringVectorProperty>
+<StringVectorProperty name="ReferenceImage" label="Reference Image"
+    command="SetReferenceImage" number_of_elements="1" default_values=""
+    panel_visibility="advanced">
+  <FileListDomain name="files" />
+  <Hints><FileChooser extensions="png" file_description="PNG image" /></Hints>
+  <Documentation>A PNG picture the renderings should look like, instead of (or with) the
+  Prompt.</Documentation>
+</StringVectorProperty>
+<IntVectorProperty name="ApplyCamera" label="Apply Camera" command="SetApplyCamera"
+    number_of_elements="1" default_values="1" panel_visibility="advanced">
+  <BooleanDomain name="bool" />
+  <Documentation>Also set the view's camera to t2tf's reference view after a run (not
+  when a saved result is restored).</Documentation>
+</IntVectorProperty>
+<StringVectorProperty name="Result" command="SetResult" number_of_elements="1"
+    default_values="" panel_visibility="never">
+  <Documentation>The last result (transfer function, unit distance, report) with a digest
+  of the input and settings it was made from; saved with the state, so loading the state
+  shows it without running t2tf again.</Documentation>
+</StringVectorProperty>
+"""
+
+# Every setting that changes what t2tf computes: part of the key a stored result must match.
+_KEYED = ("_prompt", "_negatives", "_steps", "_views", "_seed", "_model", "_tokenizer",
+          "_reference", "_refine", "_locks")
+
+
+@smproxy.filter(name="TextToTransferFunction", label=TITLE, support_reload=False)
 @smhint.xml('<ShowInMenu category="t2tf" /><RepresentationType view="RenderView" type="Volume" />')
-@smproperty.input(name="Input", port_index=0)
-@smdomain.datatype(dataTypes=["vtkImageData"], composite_data_supported=False)
-# The domain the Array property's ArrayListDomain names: point arrays of one component.
-@smdomain.xml('<InputArrayDomain name="input_array" attribute_type="point" '
-              'number_of_components="1" />')
+@smproperty.xml(PROPERTIES_XML)
 class TextToTransferFunction(VTKPythonAlgorithmBase):
     """Optimizes a transfer function for a sentence with t2tf and shows the data with it."""
 
@@ -517,13 +829,16 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self._steps = 300
         self._views = 3
         self._seed = 0
-        self._model = "openai/clip-vit-base-patch32"
+        self._model = DEFAULT_MODEL
         self._tokenizer = ""
         self._reference = ""
         self._camera = 1
         self._refine = 0
         self._locks = ""
+        self._stored = None  # the Result property, parsed
         self.result = None
+        self.error = None
+        self.reused = False
 
     def FillInputPortInformation(self, port, info):
         # Any data object reaches RequestData, which names the problem in one line; the
@@ -531,16 +846,10 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         info.Set(self.INPUT_REQUIRED_DATA_TYPE(), "vtkDataObject")
         return 1
 
-    @smproperty.stringvector(name="Prompt", default_values="")
     def SetPrompt(self, value):
         self._prompt = value or ""
         self.Modified()
 
-    @smproperty.xml("""
-        <StringVectorProperty name="Negatives" command="SetNegative" clean_command="ClearNegatives"
-            repeat_command="1" number_of_elements_per_command="1" default_values="a blank image">
-          <Documentation>What to suppress (several strings).</Documentation>
-        </StringVectorProperty>""")
     def SetNegative(self, value):
         self._negatives.append(value)
         self.Modified()
@@ -549,81 +858,53 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self._negatives = []
         self.Modified()
 
-    @smproperty.intvector(name="Steps", default_values=300)
-    @smdomain.intrange(min=0, max=2000)
     def SetSteps(self, value):
         self._steps = int(value)
         self.Modified()
 
-    @smproperty.intvector(name="Views", default_values=3)
-    @smdomain.intrange(min=1, max=16)
     def SetViews(self, value):
         self._views = int(value)
         self.Modified()
 
-    @smproperty.intvector(name="Seed", default_values=0)
     def SetSeed(self, value):
         self._seed = int(value)
         self.Modified()
 
-    @smproperty.stringvector(name="Model", default_values="openai/clip-vit-base-patch32")
     def SetModel(self, value):
         self._model = value or ""
         self.Modified()
 
-    @smproperty.stringvector(name="Tokenizer", default_values="")
-    @smdomain.filelist()
-    @smhint.filechooser(extensions="json", file_description="tokenizer.json")
     def SetTokenizer(self, value):
         self._tokenizer = value or ""
         self.Modified()
 
-    @smproperty.xml("""
-        <StringVectorProperty name="Array" command="SetInputArrayToProcess"
-            number_of_elements="5" element_types="0 0 0 0 2" animateable="0">
-          <ArrayListDomain name="array_list" attribute_type="Scalars" input_domain_name="input_array">
-            <RequiredProperties><Property name="Input" function="Input" /></RequiredProperties>
-          </ArrayListDomain>
-          <Documentation>The point array (default: the active scalars).</Documentation>
-        </StringVectorProperty>""")
     def SetInputArrayToProcess(self, idx, port, connection, field, name):
         VTKPythonAlgorithmBase.SetInputArrayToProcess(self, idx, port, connection, field, name)
         self.Modified()
 
-    @smproperty.stringvector(name="ReferenceImage", default_values="")
-    @smdomain.filelist()
-    @smhint.filechooser(extensions="png", file_description="PNG image")
     def SetReferenceImage(self, value):
         self._reference = value or ""
         self.Modified()
 
-    @smproperty.xml("""
-        <IntVectorProperty name="Refine" command="SetRefine" number_of_elements="1"
-            default_values="0">
-          <BooleanDomain name="bool" />
-          <Documentation>Start from the colour and opacity functions the array has now (the
-          last result, or a preset you chose) instead of t2tf's initialization. Refining needs
-          far fewer steps than a fresh run.</Documentation>
-        </IntVectorProperty>""")
     def SetRefine(self, value):
         self._refine = int(value)
         self.Modified()
 
-    @smproperty.xml("""
-        <StringVectorProperty name="LockRanges" label="Lock Ranges" command="SetLockRanges"
-            number_of_elements="1" default_values="">
-          <Documentation>Data ranges whose transfer function stays as it starts, e.g.
-          "120,400; 800,1200": the rest is optimized around them.</Documentation>
-        </StringVectorProperty>""")
     def SetLockRanges(self, value):
         self._locks = value or ""
         self.Modified()
 
-    @smproperty.intvector(name="ApplyCamera", default_values=1)
-    @smdomain.xml('<BooleanDomain name="bool" />')
     def SetApplyCamera(self, value):
         self._camera = int(value)
         self.Modified()
+
+    def SetResult(self, value):
+        # Not Modified(): the stored result is a cache, not a setting. A state sets it before
+        # the first update; the filter itself sets it after each run.
+        try:
+            self._stored = json.loads(value) if value else None
+        except ValueError:
+            self._stored = None
 
     def RequestUpdateExtent(self, request, inInfo, outInfo):
         # t2tf needs the whole volume, not a piece.
@@ -646,21 +927,30 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         raise T2tfError("the input has no point array to optimize a transfer function for")
 
     def RequestData(self, request, inInfo, outInfo):
-        data = vtkDataObject.GetData(inInfo[0])
-        out = vtkImageData.GetData(outInfo)
-        if not isinstance(data, vtkImageData):
-            message("the input is a %s, not image data (vtkImageData): resample it first, "
-                    "e.g. with Resample To Image" % (data.GetClassName() if data else "nothing"))
-            return 1
-        out.ShallowCopy(data)
+        self.error = None
         try:
-            result = self._run(data)
+            server, rank = _on_server()
+            if server:
+                # A pvserver's ranks would each run t2tf, and no rank can reach the client's
+                # colour maps: refuse, once.
+                raise T2tfError(
+                    "the filter does not run on a pvserver (loaded there with remote=True): "
+                    "load t2tf_plugin.py on the client (LoadPlugin(path, remote=False)) and "
+                    "use t2tf_plugin.text_to_transfer_function(source, prompt) or the t2tf "
+                    "macro, which fetch a bounded proxy of the data and apply the transfer "
+                    "function to its full-resolution display" if rank == 0 else "")
+            data = vtkDataObject.GetData(inInfo[0])
+            if not isinstance(data, vtkImageData):
+                raise T2tfError(
+                    "the input is a %s, not image data (vtkImageData): resample it first, "
+                    "e.g. with Resample To Image" % (data.GetClassName() if data else "nothing"))
+            out = vtkImageData.GetData(outInfo)
+            out.ShallowCopy(data)
+            result = self._result_for(data)
         except T2tfError as e:
-            message(str(e))
-            return 1
+            return self._fail(str(e))
         except Exception as e:  # a bug of ours: still one line, not a traceback
-            message("internal error: %s: %s" % (type(e).__name__, e))
-            return 1
+            return self._fail("internal error: %s: %s" % (type(e).__name__, e))
         self.result = result
         # A cancelled run still produced a TF (the last finished step's): clear the abort
         # flag so the pipeline keeps this output instead of discarding it.
@@ -672,33 +962,74 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
             message("could not apply the result to the display: %s" % e)
         return 1
 
-    def _run(self, image):
+    def _fail(self, text):
+        """One message, and a failed filter (ParaView marks it; pvpython's API raises)."""
+        self.result = None
+        self.error = text
+        if text:
+            message(text)
+        self.SetAbortExecute(0)
+        return 0
+
+    def _result_for(self, image):
+        """The stored result when it was made from this input and these settings (a loaded
+        state), else a new run's, stored."""
         array = self._array(image)
+        settings = [getattr(self, k) for k in _KEYED] + [array, _input_key(image, array)]
+        key = hashlib.sha256(json.dumps(settings).encode()).hexdigest()
+        stored = self._stored
+        if stored and stored.get("key") == key and stored.get("result"):
+            self.reused = True
+            message("restored the saved result (input and settings unchanged): t2tf not run",
+                    False)
+            return stored["result"]
+        self.reused = False
+        previous = (stored or {}).get("result", {}).get("name")
+        result = self._run(image, array)
+        result["replaces"] = previous
+        self._store({"key": key, "result": result})
+        return result
+
+    def _store(self, stored):
+        """Keep the result in the hidden Result property, which a state saves. Set on the
+        server-manager property only (not pushed, not marked for Apply): the algorithm has
+        it already."""
+        self._stored = stored
+        proxy = _proxy_of(self)
+        if proxy is not None:
+            proxy.SMProxy.GetProperty("Result").SetElement(0, json.dumps(stored))
+
+    def _run(self, image, array):
         module = t2tf_module()
         binary = None if module else find_binary()  # fail early, before writing anything
         if not self._prompt.strip() and not self._reference:
             raise T2tfError("the prompt is empty: type what the rendering should show (Prompt)")
         locks = parse_locks(self._locks)
+        progress = Progress(self)
+        progress.show()
+        # t2tf's files are read into memory and the folder removed, whatever happens.
         out = tempfile.mkdtemp(prefix="t2tf-plugin-")
-        init = None
-        if self._refine:
-            proxy = _proxy_of(self)
-            source = proxy.Input if proxy is not None else None
-            init = write_current_tf(array, os.path.join(out, "start.json"), source)
-        self.UpdateProgress(0.0)
-        if module:
-            message("running t2tf %s in-process (%s)" % (module.__version__, module.__file__),
-                    False)
-            result = optimize_in_process(
-                module, image, array, os.path.join(out, "tf"), self._prompt, self._negatives,
-                self._steps, self._views, self._seed, self._model or None,
-                self._tokenizer or None, self._reference or None,
-                progress=lambda f, text: self.UpdateProgress(f), aborted=self.GetAbortExecute,
-                init=init, locks=locks)
-            volume = None
-        else:
-            message("running the t2tf binary %s" % binary, False)
-            result, volume = self._run_binary(image, array, out, init, locks)
+        try:
+            init = None
+            if self._refine:
+                proxy = _proxy_of(self)
+                source = proxy.Input if proxy is not None else None
+                init = write_current_tf(array, os.path.join(out, "start.json"), source)
+            if module:
+                message("running t2tf %s in-process (%s)" % (module.__version__,
+                                                             module.__file__), False)
+                result = optimize_in_process(
+                    module, image, array, os.path.join(out, "tf"), self._prompt,
+                    self._negatives, self._steps, self._views, self._seed,
+                    self._model or None, self._tokenizer or None, self._reference or None,
+                    progress=progress, aborted=self.GetAbortExecute, init=init, locks=locks)
+                volume = None
+            else:
+                message("running the t2tf binary %s" % binary, False)
+                result, volume = self._run_binary(image, array, out, progress, init, locks)
+        finally:
+            shutil.rmtree(out, ignore_errors=True)
+        self.SetProgressText(TITLE)
         self.UpdateProgress(1.0)
         result["array"] = array
         result["volume"] = volume
@@ -706,7 +1037,7 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
             message("cancelled: kept the transfer function of the last finished step", False)
         return result
 
-    def _run_binary(self, image, array, out, init=None, locks=()):
+    def _run_binary(self, image, array, out, progress, init=None, locks=()):
         """`t2tf optimize` on the upstream file, else on the image written to a .vti."""
         proxy = _proxy_of(self)
         upstream = _upstream_file(proxy, array) if proxy is not None else None
@@ -721,15 +1052,13 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         result = optimize(
             volume, os.path.join(out, "tf"), self._prompt, self._negatives, self._steps,
             self._views, self._seed, self._model or None, self._tokenizer or None,
-            reference_image=self._reference or None, extra=extra,
-            progress=lambda f, text: self.UpdateProgress(f),
+            reference_image=self._reference or None, extra=extra, progress=progress,
             aborted=self.GetAbortExecute, init=init, locks=locks)
         return result, volume
 
     def _annotate(self, out, result):
         fd = out.GetFieldData()
-        for key, value in (("t2tf_report", result["report"]), ("t2tf_preset", result["name"]),
-                           ("t2tf_out", result["out"])):
+        for key, value in (("t2tf_report", result["report"]), ("t2tf_preset", result["name"])):
             a = vtkStringArray()
             a.SetName(key)
             a.InsertNextValue(value)
@@ -738,10 +1067,12 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
     def _show(self, result):
         proxy = _proxy_of(self)
         if proxy is None:
-            return  # on a server: nothing to show here
-        register_preset(result)
+            return  # no client-side proxy (e.g. a plain VTK pipeline): nothing to show
+        register_preset(result, result.get("replaces"))
         apply_transfer_function(result, result["array"])
-        _PENDING[id(self)] = (proxy, result, bool(self._camera), set())
+        # A restored result keeps the state's own camera.
+        camera = bool(self._camera) and not self.reused
+        _PENDING[id(self)] = (proxy, result, camera, set())
         _watch_displays()
         _apply_pending()
 
@@ -779,31 +1110,34 @@ def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, v
         raise T2tfError("the input is a %s, not image data (vtkImageData)" % info.GetDataClassName())
     array = array or _active_array(source)
     if not servermanager.ActiveConnection.IsRemote():
-        # paraview.simple names the function after the label: TexttoTransferFunction.
-        f = pvs.TexttoTransferFunction(Input=source, Prompt=prompt, Negatives=list(negatives),
-                                       Steps=steps, Views=views, Seed=seed,
-                                       Model=model or "openai/clip-vit-base-patch32",
-                                       Tokenizer=tokenizer or "", ReferenceImage=reference_image or "",
-                                       Refine=int(bool(refine)),
-                                       LockRanges="; ".join("%r,%r" % (float(a), float(b))
-                                                            for a, b in locks))
+        f = _new_filter()(Input=source, Prompt=prompt, Negatives=list(negatives),
+                          Steps=steps, Views=views, Seed=seed, Model=model or DEFAULT_MODEL,
+                          Tokenizer=tokenizer or "", ReferenceImage=reference_image or "",
+                          Refine=int(bool(refine)), ApplyCamera=int(bool(camera)),
+                          LockRanges="; ".join("%r,%r" % (float(a), float(b))
+                                               for a, b in locks))
         f.Array = ["POINTS", array]
-        pvs.Show(f, view)
+        f.UpdatePipeline()
         algo = f.GetClientSideObject()
         if algo.result is None:
-            raise T2tfError("t2tf gave no result (see the messages above)")
+            raise T2tfError(algo.error or "t2tf gave no result (see the messages above)")
+        pvs.Show(f, view)
         return algo.result, f
     size = proxy_size_setting(proxy_size)
     dims = _proxy_dims(info.GetExtent(), size)
     local, fetched = fetch_proxy(source, dims)
     out = tempfile.mkdtemp(prefix="t2tf-plugin-")
-    volume = os.path.join(out, "proxy.vti")
-    write_vti(local, array, volume)
-    init = write_current_tf(array, os.path.join(out, "start.json"), source) if refine else None
-    result = optimize(volume, os.path.join(out, "tf"), prompt, negatives, steps, views, seed,
-                      model, tokenizer, array=array, reference_image=reference_image,
-                      extra=extra, timeout=timeout, init=init, locks=locks)
-    result.update(array=array, volume=volume, proxy_dims=dims, fetched_points=fetched)
+    try:
+        volume = os.path.join(out, "proxy.vti")
+        write_vti(local, array, volume)
+        init = (write_current_tf(array, os.path.join(out, "start.json"), source)
+                if refine else None)
+        result = optimize(volume, os.path.join(out, "tf"), prompt, negatives, steps, views, seed,
+                          model, tokenizer, array=array, reference_image=reference_image,
+                          extra=extra, timeout=timeout, init=init, locks=locks)
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    result.update(array=array, volume=None, proxy_dims=dims, fetched_points=fetched)
     register_preset(result)
     view = view or pvs.GetActiveViewOrCreate("RenderView")
     pvs.Show(source, view)
@@ -812,6 +1146,23 @@ def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, v
     # spans the same box (UseInputBounds).
     apply_to_display(result, source, view, array, camera)
     return result, local
+
+
+def _new_filter():
+    """paraview.simple's constructor of the filter (named after its label:
+    TexttoTransferFunction). LoadPlugin(path, ns=globals()) puts it into the caller's
+    namespace only, so it is made here from the proxy definitions when simple lacks it."""
+    import paraview.simple as pvs
+    from paraview import servermanager
+
+    make = getattr(pvs, "TexttoTransferFunction", None)
+    if make is None:
+        filters = servermanager.ActiveConnection.ProxiesNS.filters
+        if not hasattr(filters, "TexttoTransferFunction"):
+            raise T2tfError("the TextToTransferFunction filter is not loaded: "
+                            "LoadPlugin(path to t2tf_plugin.py) first")
+        make = pvs._create_func("TexttoTransferFunction", filters)
+    return make
 
 
 def proxy_size_setting(proxy_size=None):

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use paraview_util::{
-    floats, lost_display, repo, require_paraview, server, xvfb_pvpython, PVPYTHON,
+    floats, lost_display, repo, require_paraview, require_tools, server, xvfb_pvpython, PVPYTHON,
 };
 use t2tf::image::{psnr, Image};
 
@@ -30,9 +30,22 @@ const SIZE: usize = 160;
 /// Run the driver in `mode` under xvfb with the plugin's environment; returns its output and
 /// the JSON it wrote (if any).
 fn driver(mode: &str, dir: &Path) -> (Output, Option<serde_json::Value>) {
+    driver_with(mode, dir, &[])
+}
+
+/// [`driver`] with more environment. t2tf is run through a wrapper that counts its runs
+/// ([`runs`]) and waits `T2TF_TEST_DELAY` seconds first when that is set; temporary files go
+/// to `dir/tmp` ([`plugin_temporaries`]).
+fn driver_with(
+    mode: &str,
+    dir: &Path,
+    env: &[(&str, &str)],
+) -> (Output, Option<serde_json::Value>) {
     let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
     let json = dir.join(format!("{mode}.json"));
     let shot = dir.join(format!("{mode}.png"));
+    let bin = counting_t2tf(dir);
+    std::fs::create_dir_all(dir.join("tmp")).unwrap();
     let out = xvfb_pvpython(&repo().join("tests/paraview_plugin/driver.py"), |c| {
         c.arg(repo().join("paraview/t2tf_plugin.py"))
             .arg(mode)
@@ -43,12 +56,49 @@ fn driver(mode: &str, dir: &Path) -> (Output, Option<serde_json::Value>) {
             .arg(&shot)
             .arg(SIZE.to_string())
             .env("PYTHONPATH", repo().join("paraview/compat"))
-            .env("T2TF_BIN", env!("CARGO_BIN_EXE_t2tf"));
+            .env("TMPDIR", dir.join("tmp"))
+            .env("T2TF_BIN", &bin);
+        for (k, v) in env {
+            c.env(k, v);
+        }
     });
     let value = std::fs::read_to_string(&json)
         .ok()
         .map(|t| serde_json::from_str(&t).expect("driver JSON"));
     (out, value)
+}
+
+/// A `t2tf` in `dir` that logs each run to `dir/runs.log`, then runs the real binary.
+fn counting_t2tf(dir: &Path) -> PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let path = dir.join("t2tf");
+    let script = format!(
+        "#!/bin/sh\necho run >> '{}'\n[ -n \"$T2TF_TEST_DELAY\" ] && sleep \"$T2TF_TEST_DELAY\"\nexec '{}' \"$@\"\n",
+        dir.join("runs.log").display(),
+        env!("CARGO_BIN_EXE_t2tf")
+    );
+    std::fs::write(&path, script).unwrap();
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o755)).unwrap();
+    path
+}
+
+/// How many times t2tf ran (through [`counting_t2tf`]).
+fn runs(dir: &Path) -> usize {
+    std::fs::read_to_string(dir.join("runs.log"))
+        .map(|t| t.lines().count())
+        .unwrap_or(0)
+}
+
+/// The plugin's temporary folders (`t2tf-plugin-*`) left in the driver's TMPDIR.
+fn plugin_temporaries(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir.join("tmp"))
+        .map(|d| {
+            d.filter_map(|e| e.ok())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with("t2tf-plugin-"))
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 fn text(out: &Output) -> String {
@@ -69,12 +119,10 @@ fn assert_close(got: &[f64], want: &[f64], what: &str) {
     }
 }
 
-/// Check what ParaView holds against the files t2tf wrote; returns the preset file.
-fn check_display(res: &serde_json::Value, array: &str) -> PathBuf {
-    let preset_file = PathBuf::from(res["preset_file"].as_str().unwrap());
-    let preset: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&preset_file).unwrap()).unwrap();
-    let preset = &preset[0];
+/// Check what ParaView holds against the result the plugin kept (t2tf's preset, read before
+/// its folder was removed); returns that preset.
+fn check_display(res: &serde_json::Value, array: &str) -> serde_json::Value {
+    let preset = res["preset"].clone();
     assert_eq!(res["representation"], "Volume");
     assert_eq!(res["color_array"], array);
     assert_eq!(res["rescale"], "Never");
@@ -91,16 +139,22 @@ fn check_display(res: &serde_json::Value, array: &str) -> PathBuf {
     let u = preset["t2tfScalarOpacityUnitDistance"].as_f64().unwrap();
     assert_eq!(res["unit_distance"].as_f64().unwrap(), u, "unit distance");
     assert_eq!(res["has_preset"], true, "preset not in the preset manager");
+    assert!(
+        preset["Name"].as_str().unwrap().starts_with("t2tf: "),
+        "preset named {}",
+        preset["Name"]
+    );
     assert_eq!(
         res["camera"], res["result_camera"],
         "the view has t2tf's camera"
     );
-    // The report is field data of the filter's output, the same text as report.json.
-    let out = PathBuf::from(res["out"].as_str().unwrap());
-    let report = std::fs::read_to_string(out.join("report.json")).unwrap();
+    // The report is field data of the filter's output, the text of t2tf's report.json.
+    let report = res["report"].as_str().unwrap();
+    let parsed: serde_json::Value = serde_json::from_str(report).expect("report JSON");
+    assert!(parsed["steps_run"].as_u64().is_some(), "{parsed}");
     assert_eq!(res["field"]["t2tf_report"].as_str().unwrap(), report);
     assert_eq!(res["field"]["t2tf_preset"], preset["Name"]);
-    preset_file
+    preset
 }
 
 /// `t2tf render` of `volume` with `preset` from the camera the plugin applies (t2tf's script
@@ -139,6 +193,8 @@ fn applies_and_matches(mode: &str, array: &str, volume_is_temp: bool, min_db: f6
     let res = res.expect("driver wrote no JSON");
     let preset = check_display(&res, array);
     assert_eq!(res["interrupted"], false);
+    assert_eq!(runs(dir.path()), 1, "t2tf runs");
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
     let volume = PathBuf::from(res["volume"].as_str().unwrap());
     assert_eq!(
         volume.file_name().unwrap() == "input.vti",
@@ -146,8 +202,17 @@ fn applies_and_matches(mode: &str, array: &str, volume_is_temp: bool, min_db: f6
         "t2tf read {}",
         volume.display()
     );
+    // The plugin's temporary input is gone with its folder: the driver wrote a copy.
+    let volume = if volume_is_temp {
+        assert!(!volume.exists(), "{} left behind", volume.display());
+        PathBuf::from(res["volume_copy"].as_str().unwrap())
+    } else {
+        volume
+    };
+    let preset_file = dir.path().join("preset.json");
+    std::fs::write(&preset_file, serde_json::json!([preset]).to_string()).unwrap();
     let shot = Image::load_png(&dir.path().join(format!("{mode}.png"))).unwrap();
-    let ours = our_render(&volume, &preset, &dir.path().join("ours.png"));
+    let ours = our_render(&volume, &preset_file, &dir.path().join("ours.png"));
     let p = psnr(&shot, &ours);
     eprintln!("{mode}: ParaView screenshot vs t2tf render: {p:.1} dB");
     assert!(p >= min_db, "{mode}: PSNR {p:.1} dB < {min_db}");
@@ -219,12 +284,12 @@ fn refine_starts_from_the_display_and_keeps_the_locked_range() {
     assert_eq!(report["locks"], serde_json::json!([[40.0, 120.0]]));
 }
 
-#[test]
-#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
-fn cancelled_run_keeps_the_last_steps_tf() {
-    require_paraview("cancelled_run_keeps_the_last_steps_tf");
+/// A run of 2000 steps stopped after a few by `mode`'s way of cancelling (driver.py):
+/// the last finished step's TF is shown, t2tf ran once, nothing is left in the temporary
+/// folder, and ParaView answers at once afterwards. Returns the driver's JSON.
+fn cancels(mode: &str, env: &[(&str, &str)]) -> serde_json::Value {
     let dir = tempfile::tempdir().unwrap();
-    let (out, res) = driver("cancel", dir.path());
+    let (out, res) = driver_with(mode, dir.path(), env);
     assert!(out.status.success(), "{}", text(&out));
     let res = res.expect("driver wrote no JSON");
     assert_eq!(res["interrupted"], true, "{}", text(&out));
@@ -233,18 +298,87 @@ fn cancelled_run_keeps_the_last_steps_tf() {
         serde_json::from_str(res["field"]["t2tf_report"].as_str().unwrap()).unwrap();
     let run = report["steps_run"].as_u64().unwrap();
     eprintln!(
-        "cancel: {run} of 2000 steps ran, filter took {:.1} s, next source + render {:.1} s",
+        "{mode}: {run} of 2000 steps ran, filter took {:.1} s, next source + render {:.1} s",
         res["filter_seconds"].as_f64().unwrap(),
         res["after_cancel_seconds"].as_f64().unwrap()
     );
     assert!((1..2000).contains(&run), "steps_run {run}");
     assert!(res["after_cancel_seconds"].as_f64().unwrap() < 30.0);
     assert!(text(&out).contains("cancelled: kept the transfer function"));
+    assert_eq!(runs(dir.path()), 1, "t2tf runs");
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
     // The raw reader's file went to t2tf as it is (with its layout as flags).
     assert!(res["volume"]
         .as_str()
         .unwrap()
         .ends_with(NEGHIP.rsplit('/').next().unwrap()));
+    res
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn cancelled_run_keeps_the_last_steps_tf() {
+    require_paraview("cancelled_run_keeps_the_last_steps_tf");
+    // The algorithm's abort flag, as ParaView's Abort button sets it. t2tf starts 2.5 s
+    // late (the wrapper sleeps), so the progress text must be refreshed while no step comes.
+    let res = cancels("cancel", &[("T2TF_TEST_DELAY", "2.5")]);
+    let progress = res["progress"].as_array().unwrap();
+    let texts: Vec<(f64, &str)> = progress
+        .iter()
+        .filter_map(|p| Some((p[0].as_f64()?, p[2].as_str()?)))
+        .collect();
+    let waiting: Vec<f64> = texts
+        .iter()
+        .filter(|(_, t)| t.starts_with("Text to Transfer Function: starting ("))
+        .map(|(s, _)| *s)
+        .collect();
+    eprintln!(
+        "cancel: {} progress texts while t2tf started",
+        waiting.len()
+    );
+    assert!(waiting.len() >= 3, "{texts:?}");
+    let gap = waiting.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
+    assert!(
+        gap <= 1.0,
+        "progress text refreshed only every {gap:.2} s: {texts:?}"
+    );
+    // Steps show as "step k/N, loss L, ETA s" (the ETA from the third step on).
+    let step = regex_like_step(&texts);
+    assert!(step >= 6, "{texts:?}");
+}
+
+/// How many texts read "Text to Transfer Function: step K/2000, loss L, ETA …|N s".
+fn regex_like_step(texts: &[(f64, &str)]) -> usize {
+    texts
+        .iter()
+        .filter(|(_, t)| {
+            let Some(rest) = t.strip_prefix("Text to Transfer Function: step ") else {
+                return false;
+            };
+            let Some((k, rest)) = rest.split_once("/2000, loss ") else {
+                return false;
+            };
+            let Some((loss, eta)) = rest.split_once(", ETA ") else {
+                return false;
+            };
+            k.parse::<u32>().is_ok()
+                && loss.parse::<f64>().is_ok()
+                && (eta == "…"
+                    || eta
+                        .strip_suffix(" s")
+                        .is_some_and(|s| s.parse::<u32>().is_ok()))
+        })
+        .count()
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn cancel_from_python_works_whichever_module_was_imported() {
+    require_paraview("cancel_from_python_works_whichever_module_was_imported");
+    // t2tf_plugin.cancel() from the module imported after LoadPlugin (the one the filter
+    // runs from), and from one imported before (LoadPlugin then makes another).
+    cancels("cancel_by_function", &[]);
+    cancels("cancel_by_function_imported_first", &[]);
 }
 
 #[test]
@@ -252,7 +386,7 @@ fn cancelled_run_keeps_the_last_steps_tf() {
 fn problems_are_one_message_not_a_traceback() {
     require_paraview("problems_are_one_message_not_a_traceback");
     let dir = tempfile::tempdir().unwrap();
-    let (out, _) = driver("errors", dir.path());
+    let (out, res) = driver("errors", dir.path());
     let all = text(&out);
     assert!(out.status.success(), "{all}");
     assert!(all.contains("CASES DONE"), "{all}");
@@ -264,6 +398,273 @@ fn problems_are_one_message_not_a_traceback() {
     ] {
         assert_eq!(all.matches(needle).count(), 1, "'{needle}' once in:\n{all}");
     }
+    // Each failed the filter: RequestData returned 0 (VTK's executive says so) and the
+    // algorithm holds the message.
+    assert_eq!(
+        all.matches("returned failure for request").count(),
+        3,
+        "{all}"
+    );
+    let failed = &res.expect("driver wrote no JSON")["failed"];
+    for (case, start) in [
+        ("empty", "the prompt is empty"),
+        ("notimage", "the input is a vtkPolyData"),
+        ("nobinary", "T2TF_BIN="),
+    ] {
+        assert!(
+            failed[case].as_str().unwrap_or("").starts_with(start),
+            "{case}: {failed}"
+        );
+    }
+    assert_eq!(runs(dir.path()), 0);
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn offline_the_documented_api_raises_and_says_what_to_do() {
+    require_paraview("offline_the_documented_api_raises_and_says_what_to_do");
+    // The README's pvpython example with the default model, no network and an empty cache.
+    let dir = tempfile::tempdir().unwrap();
+    let hf = dir.path().join("hf");
+    std::fs::create_dir_all(&hf).unwrap();
+    let (out, res) = driver_with(
+        "offline",
+        dir.path(),
+        &[("HF_HUB_OFFLINE", "1"), ("HF_HOME", hf.to_str().unwrap())],
+    );
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    assert!(!all.contains("Traceback"), "{all}");
+    let raised = res.expect("driver wrote no JSON")["raised"]
+        .as_str()
+        .unwrap_or_else(|| panic!("no T2tfError:\n{all}"))
+        .to_string();
+    eprintln!("offline: {raised}");
+    assert!(!raised.contains('\n'), "{raised}");
+    for needle in [
+        "openai/clip-vit-base-patch32",
+        "t2tf model fetch",
+        "set Model (an advanced property) to a local model folder",
+    ] {
+        assert!(raised.contains(needle), "'{needle}' not in: {raised}");
+    }
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn the_panel_reads_in_order_with_a_tooltip_on_every_property() {
+    require_paraview("the_panel_reads_in_order_with_a_tooltip_on_every_property");
+    let dir = tempfile::tempdir().unwrap();
+    let (out, res) = driver("panel", dir.path());
+    assert!(out.status.success(), "{}", text(&out));
+    let res = res.expect("driver wrote no JSON");
+    let props = res["properties"].as_array().unwrap();
+    let names: Vec<&str> = props.iter().map(|p| p["name"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        [
+            "Input",
+            "Prompt",
+            "Negatives",
+            "Steps",
+            "Views",
+            "Refine",
+            "LockRanges",
+            "Model",
+            "Tokenizer",
+            "Seed",
+            "Array",
+            "ReferenceImage",
+            "ApplyCamera",
+            "Result"
+        ],
+        "no developer Reload button, the order a user reads"
+    );
+    for p in props {
+        let name = p["name"].as_str().unwrap();
+        let doc = p["doc"].as_str().unwrap_or("");
+        assert!(
+            doc.split_whitespace().count() >= 5,
+            "{name}: tooltip {doc:?}"
+        );
+        let advanced = [
+            "Model",
+            "Tokenizer",
+            "Seed",
+            "Array",
+            "ReferenceImage",
+            "ApplyCamera",
+        ]
+        .contains(&name);
+        let want = match name {
+            "Result" => "never",
+            _ if advanced => "advanced",
+            _ => "default",
+        };
+        assert_eq!(p["visibility"], want, "{name}");
+    }
+    let by = |n: &str| props.iter().find(|p| p["name"] == n).unwrap();
+    assert_eq!(by("Negatives")["label"], "Negatives");
+    assert_eq!(by("LockRanges")["label"], "Lock Ranges");
+    assert_eq!(by("Steps")["min"], 1);
+    assert_eq!(by("Views")["min"], 1);
+    assert!(by("Model")["hints"]
+        .as_array()
+        .unwrap()
+        .contains(&serde_json::json!("UseDirectoryName")));
+    assert!(by("Model")["domains"]
+        .as_array()
+        .unwrap()
+        .contains(&serde_json::json!("vtkSMFileListDomain")));
+    assert_eq!(
+        res["negatives_default"],
+        serde_json::json!(["a blank image"])
+    );
+    assert_eq!(res["steps_in_domain"], false, "Steps 0 accepted");
+    // The filter's description (ParaView's Help and the filter menu's tooltip).
+    assert!(res["short_help"]
+        .as_str()
+        .unwrap()
+        .contains("transfer function"));
+    assert!(res["long_help"].as_str().unwrap().contains("CLIP"));
+    assert!(res["description"].as_str().unwrap().contains("Abort"));
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn presets_are_named_after_the_prompt_and_replaced_by_a_rerun() {
+    require_paraview("presets_are_named_after_the_prompt_and_replaced_by_a_rerun");
+    let dir = tempfile::tempdir().unwrap();
+    let (out, res) = driver("presets", dir.path());
+    assert!(out.status.success(), "{}", text(&out));
+    let res = res.expect("driver wrote no JSON");
+    let names = |k: &str| -> Vec<String> {
+        res[k]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|n| n.as_str().unwrap().to_string())
+            .collect()
+    };
+    assert_eq!(names("before"), Vec::<String>::new());
+    assert_eq!(res["first_name"], "t2tf: a protein molecule");
+    assert_eq!(names("after_first"), ["t2tf: a protein molecule"]);
+    assert_eq!(names("after_rerun"), ["t2tf: a protein molecule"]);
+    // A new prompt (whitespace collapsed) replaces the filter's previous preset.
+    assert_eq!(names("after_new_prompt"), ["t2tf: a glowing cloud"]);
+    assert_eq!(res["removed"], 1);
+    assert_eq!(names("after_remove"), Vec::<String>::new());
+    assert_eq!(runs(dir.path()), 3, "one run per update");
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn a_saved_state_restores_the_result_without_running_t2tf() {
+    require_paraview("a_saved_state_restores_the_result_without_running_t2tf");
+    let dir = tempfile::tempdir().unwrap();
+    let (out, saved) = driver("state_save", dir.path());
+    assert!(out.status.success(), "{}", text(&out));
+    let saved = saved.expect("driver wrote no JSON");
+    assert_eq!(runs(dir.path()), 1);
+    std::fs::remove_file(dir.path().join("runs.log")).unwrap();
+    // A new pvpython session loads the state.
+    let (out, loaded) = driver("state_load", dir.path());
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    let loaded = loaded.expect("driver wrote no JSON");
+    assert_eq!(runs(dir.path()), 0, "t2tf ran again:\n{all}");
+    assert_eq!(loaded["reused"], true);
+    assert!(all.contains("restored the saved result"), "{all}");
+    for key in ["rgb", "points", "unit_distance", "preset"] {
+        assert_eq!(loaded[key], saved[key], "{key}");
+    }
+    assert_eq!(loaded["has_preset"], true);
+    assert_eq!(
+        loaded["field"]["t2tf_report"], saved["field"]["t2tf_report"],
+        "the report is restored"
+    );
+    // The user's camera, saved with the state, not t2tf's.
+    for key in ["position", "focal_point", "view_up"] {
+        assert_close(
+            &floats(&loaded["camera"][key]),
+            &floats(&loaded["saved_camera"][key]),
+            key,
+        );
+    }
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn abort_from_the_gui_event_loop_stops_the_run() {
+    require_tools(
+        "abort_from_the_gui_event_loop_stops_the_run",
+        &["paraview", "xvfb-run"],
+    );
+    // The ParaView GUI itself (`paraview --script`): a Qt timer's handler sets the abort
+    // flag, so the run can only stop if the plugin lets Qt process events while t2tf runs.
+    let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("config/ParaView");
+    std::fs::create_dir_all(&config).unwrap();
+    // No welcome dialog: it is modal and would hold the script back.
+    std::fs::write(
+        config.join("ParaView5.11.0.ini"),
+        "[General]\nGeneralSettings.ShowWelcomeDialog=0\n",
+    )
+    .unwrap();
+    std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
+    let json = dir.path().join("gui.json");
+    let bin = counting_t2tf(dir.path());
+    let mut attempt = 0;
+    let out = loop {
+        attempt += 1;
+        let out = Command::new("timeout")
+            .args(["300", "xvfb-run", "-a", "paraview"])
+            .arg(format!(
+                "--script={}",
+                repo().join("tests/paraview_plugin/gui.py").display()
+            ))
+            .env("XDG_CONFIG_HOME", dir.path().join("config"))
+            .env("PYTHONPATH", repo().join("paraview/compat"))
+            .env("TMPDIR", dir.path().join("tmp"))
+            .env("T2TF_BIN", &bin)
+            .env("T2TF_PLUGIN", repo().join("paraview/t2tf_plugin.py"))
+            .env("T2TF_VOLUME", repo().join(NEGHIP))
+            .env("T2TF_MODEL", repo().join("tests/fixtures/clip/quick_gelu"))
+            .env(
+                "T2TF_TOKENIZER",
+                repo().join("../shared/data/clip/tokenizer.json"),
+            )
+            .env("T2TF_RESULT", &json)
+            .output()
+            .expect("run xvfb-run paraview");
+        if attempt < 3 && lost_display(&out, "") {
+            continue;
+        }
+        break out;
+    };
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    let res: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("no JSON ({e}):\n{all}")),
+    )
+    .unwrap();
+    assert!(res["exception"].is_null(), "{res}");
+    eprintln!(
+        "gui: {} timer events during a {:.1} s run, aborted at {}",
+        res["ticks_during_run"],
+        res["filter_seconds"].as_f64().unwrap(),
+        res["aborted_at"]
+    );
+    assert_eq!(res["interrupted"], true, "{res}\n{all}");
+    let report: serde_json::Value = serde_json::from_str(res["report"].as_str().unwrap()).unwrap();
+    let run = report["steps_run"].as_u64().unwrap();
+    assert!((1..2000).contains(&run), "steps_run {run}");
+    assert!(res["ticks_during_run"].as_u64().unwrap() >= 2, "{res}");
+    assert_eq!(runs(dir.path()), 1);
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
 }
 
 /// Points per axis the pvserver test allows the proxy (neghip has 64).
@@ -282,9 +683,12 @@ fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("remote.json");
     let (full_png, proxy_png) = (dir.path().join("full.png"), dir.path().join("proxy.png"));
+    let bin = counting_t2tf(dir.path());
+    std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
     let mut attempt = 0;
-    loop {
+    let (client, all) = loop {
         attempt += 1;
+        let _ = std::fs::remove_file(dir.path().join("runs.log"));
         // Dropped at the end of each attempt, passed or panicked: stops xvfb-run, mpiexec and
         // the ranks.
         let server = server::PvServer::start(2, dir.path()).unwrap_or_else(|e| panic!("{e}"));
@@ -298,7 +702,8 @@ fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
                 .args([&json, &full_png, &proxy_png])
                 .arg(SIZE.to_string())
                 .env("PYTHONPATH", repo().join("paraview/compat"))
-                .env("T2TF_BIN", env!("CARGO_BIN_EXE_t2tf"));
+                .env("TMPDIR", dir.path().join("tmp"))
+                .env("T2TF_BIN", &bin);
         });
         let log = server.log_text();
         // Another `xvfb-run -a` on this machine (another test binary) can take the same
@@ -309,8 +714,20 @@ fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
             continue;
         }
         assert!(out.status.success(), "{}\nserver:\n{log}", text(&out));
-        break;
-    }
+        break (text(&out), format!("{}\nserver:\n{log}", text(&out)));
+    };
+    // One t2tf run (the client's, on the proxy); the filter loaded on the server with
+    // remote=True ran t2tf on no rank and said why once (rank 0; ParaView forwards a
+    // server's messages to the client).
+    assert_eq!(runs(dir.path()), 1, "{all}");
+    assert_eq!(
+        client
+            .matches("the filter does not run on a pvserver")
+            .count(),
+        1,
+        "{all}"
+    );
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
     let res: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).expect("driver JSON");
     assert_eq!(res["remote"], true);
@@ -356,11 +773,7 @@ fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
 
     // The full data's display holds t2tf's TF, computed on the proxy.
     assert_eq!(res["interrupted"], false);
-    let preset: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(res["preset_file"].as_str().unwrap()).unwrap(),
-    )
-    .unwrap();
-    let preset = &preset[0];
+    let preset = &res["preset"];
     assert_eq!(res["representation"], "Volume");
     assert_eq!(res["color_array"], "ImageFile");
     assert_eq!(res["rescale"], "Never");
@@ -488,10 +901,7 @@ fn macro_reads_the_prompt_from_the_environment_or_a_file() {
     }
     for (case, array) in [("env", "RTData"), ("file", "ImageFile")] {
         let r = &res[case];
-        let preset: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(r["preset_file"].as_str().unwrap()).unwrap(),
-        )
-        .unwrap();
+        let preset = serde_json::json!([r["preset"].clone()]);
         assert_eq!(r["representation"], "Volume", "{case}");
         assert_eq!(r["color_array"], array, "{case}");
         assert_eq!(r["has_preset"], true, "{case}");

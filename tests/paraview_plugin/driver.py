@@ -1,6 +1,9 @@
 """pvpython driver for tests/paraview/paraview_plugin.rs: loads the plugin, runs the filter on one
 kind of input and writes what ParaView holds afterwards as JSON (argv: plugin, mode, volume,
-model, tokenizer, result.json, screenshot.png, size)."""
+model, tokenizer, result.json, screenshot.png, size).
+
+Modes ending in "_imported_first" import t2tf_plugin before LoadPlugin (which then makes a
+second module object); the others import it after."""
 import json
 import os
 import sys
@@ -11,9 +14,12 @@ from paraview import servermanager
 
 plugin, mode, volume, model, tokenizer, out_json, shot, size = sys.argv[1:9]
 size = int(size)
-pvs.LoadPlugin(plugin, ns=globals())
 sys.path.insert(0, os.path.dirname(plugin))
-import t2tf_plugin  # the same module the plugin loader ran (for cancel and messages)
+if mode.endswith("_imported_first"):
+    import t2tf_plugin  # noqa: E402 (a module object of its own: LoadPlugin makes another)
+pvs.LoadPlugin(plugin, ns=globals())
+if not mode.endswith("_imported_first"):
+    import t2tf_plugin  # noqa: E402 (the module the plugin loader ran)
 
 pvs._DisableFirstRenderCameraReset()
 view = pvs.GetActiveViewOrCreate("RenderView")
@@ -56,7 +62,8 @@ def record(f, array):
         representation=text(disp.Representation), color_array=str(disp.ColorArrayName[1]),
         rgb=list(lut.RGBPoints), points=list(pwf.Points), rescale=text(lut.AutomaticRescaleRangeMode),
         unit_distance=disp.ScalarOpacityUnitDistance, has_preset=bool(presets.HasPreset(r["name"])),
-        preset_file=r["preset_file"], volume=r["volume"], out=r["out"], interrupted=r["interrupted"],
+        preset=r["preset"], name=r["name"], report=r["report"], volume=r["volume"],
+        interrupted=r["interrupted"],
         camera={"position": list(view.CameraPosition), "focal_point": list(view.CameraFocalPoint),
                 "view_up": list(view.CameraViewUp), "view_angle": view.CameraViewAngle},
         result_camera=r["camera"],
@@ -74,20 +81,29 @@ if mode == "vti":
     record(f, "ImageFile")
 elif mode == "nofile":
     # A source with no file behind it: the plugin writes the image to a temporary .vti.
-    f = tf_filter(pvs.Wavelet(WholeExtent=[-12, 12, -12, 12, -12, 12]), prompt="a glowing cloud")
+    wavelet = pvs.Wavelet(WholeExtent=[-12, 12, -12, 12, -12, 12])
+    f = tf_filter(wavelet, prompt="a glowing cloud")
     pvs.Show(f, view)
     record(f, "RTData")
-elif mode == "cancel":
+    # The plugin's own copy is removed with its temporary folder: a copy for the comparison.
+    res["volume_copy"] = os.path.join(os.path.dirname(out_json), "wavelet.vti")
+    pvs.XMLImageDataWriter(Input=wavelet, FileName=res["volume_copy"]).UpdatePipeline()
+elif mode.startswith("cancel"):
+    # "cancel": through the algorithm's abort flag (what ParaView's Abort button sets);
+    # "cancel_by_function[_imported_first]": t2tf_plugin.cancel() from the module this
+    # script imported. Either after a few steps have finished.
     f = tf_filter(raw_reader(volume), steps=2000)
     algo = f.GetClientSideObject()
     seen = []
 
     def on_progress(obj, _event):
-        # Cancel through the algorithm's abort flag (what ParaView's abort button sets),
-        # after a few steps have finished.
-        seen.append(obj.GetProgress())
-        if len(seen) == 6:
-            obj.SetAbortExecute(1)
+        seen.append((time.time(), obj.GetProgress(), obj.GetProgressText()))
+        steps_seen = [t for _, _, t in seen if "step " in (t or "")]
+        if len(steps_seen) == 6:
+            if mode == "cancel":
+                obj.SetAbortExecute(1)
+            else:
+                t2tf_plugin.cancel()
 
     algo.AddObserver("ProgressEvent", on_progress)
     start = time.time()
@@ -99,7 +115,7 @@ elif mode == "cancel":
     pvs.Show(pvs.Sphere(), view)
     pvs.Render(view)
     res["after_cancel_seconds"] = time.time() - start
-    res["progress_events"] = len(seen)
+    res["progress"] = [[t - seen[0][0], p, text] for (t, p, text) in seen]
 elif mode == "refine":
     # A first run, then Refine from the display's functions with a range locked.
     src = raw_reader(volume)
@@ -130,18 +146,118 @@ elif mode == "refine":
     res["after"] = samples()
     record(f, "ImageFile")
 elif mode == "errors":
-    # Each ends in one message in the output window (stderr here), never a traceback.
+    # Each ends in one message in the output window (stderr here), never a traceback, and a
+    # failed filter.
     ok = pvs.Wavelet(WholeExtent=[-4, 4, -4, 4, -4, 4])
+    failed = {}
     print("CASE empty prompt", flush=True)
-    tf_filter(ok, prompt="  ").UpdatePipeline()
+    f = tf_filter(ok, prompt="  ")
+    f.UpdatePipeline()
+    failed["empty"] = f.GetClientSideObject().error
     print("CASE not image data", flush=True)
-    tf_filter(pvs.Sphere()).UpdatePipeline()
+    f = tf_filter(pvs.Sphere())
+    f.UpdatePipeline()
+    failed["notimage"] = f.GetClientSideObject().error
     print("CASE missing binary", flush=True)
+    binary = os.environ["T2TF_BIN"]
     os.environ["T2TF_BIN"] = os.path.join(os.path.dirname(out_json), "no-such-t2tf")
-    tf_filter(ok, prompt="a cloud").UpdatePipeline()
+    f = tf_filter(ok, prompt="a cloud")
+    f.UpdatePipeline()
+    failed["nobinary"] = f.GetClientSideObject().error
+    os.environ["T2TF_BIN"] = binary
     print("CASES DONE", flush=True)
+    res["failed"] = failed
+elif mode == "offline":
+    # The README's pvpython example with no network and an empty model cache: the documented
+    # API raises T2tfError with one line that says what to do.
+    src = pvs.Wavelet(WholeExtent=[-8, 8, -8, 8, -8, 8])
+    try:
+        t2tf_plugin.text_to_transfer_function(src, "a glowing cloud", steps=2, views=1)
+        res["raised"] = None
+    except t2tf_plugin.T2tfError as e:
+        res["raised"] = str(e)
+elif mode == "panel":
+    # What the GUI's panel is made from: the proxy definition's properties in order, with
+    # their labels, visibility, tooltips, domains and hints, and the filter's description.
+    from paraview.servermanager import vtkSMOrderedPropertyIterator
 
-if mode != "errors":
+    proto = servermanager.ProxyManager().SMProxyManager.GetPrototypeProxy(
+        "filters", "TextToTransferFunction")
+    doc = proto.GetDocumentation()
+    res["short_help"], res["long_help"] = doc.GetShortHelp(), doc.GetLongHelp()
+    res["description"] = doc.GetDescription()
+    props = []
+    it = vtkSMOrderedPropertyIterator()
+    it.SetProxy(proto)
+    it.Begin()
+    while not it.IsAtEnd():
+        prop = it.GetProperty()
+        hints = prop.GetHints()
+        props.append({
+            "name": it.GetKey(), "label": prop.GetXMLLabel(),
+            "visibility": prop.GetPanelVisibility(),
+            "doc": prop.GetDocumentation().GetDescription() if prop.GetDocumentation() else None,
+            "hints": [hints.GetNestedElement(i).GetName()
+                      for i in range(hints.GetNumberOfNestedElements())] if hints else [],
+            "min": (prop.GetDomain("range").GetMinimum(0)
+                    if prop.GetDomain("range") is not None else None),
+            "domains": [prop.GetDomain(d).GetClassName() for d in ("files", "range", "bool")
+                        if prop.GetDomain(d) is not None],
+        })
+        it.Next()
+    res["properties"] = props
+    f = TexttoTransferFunction(Input=pvs.Wavelet())
+    res["negatives_default"] = list(f.Negatives)
+    f.Steps = 0  # outside the domain: the panel refuses it, Python reports it
+    res["steps_in_domain"] = bool(f.GetProperty("Steps").SMProperty.IsInDomains())
+elif mode == "presets":
+    # First run through the documented API (after LoadPlugin with ns=globals()), then re-runs
+    # of the same filter: its preset is replaced, never added to.
+    presets = servermanager.vtkSMTransferFunctionPresets.GetInstance()
+
+    def t2tf_names():
+        return sorted(presets.GetPresetName(i) for i in range(presets.GetNumberOfPresets())
+                      if presets.GetPresetName(i).startswith("t2tf: "))
+
+    res["before"] = t2tf_names()
+    src = raw_reader(volume)
+    result, f = t2tf_plugin.text_to_transfer_function(
+        src, "a protein molecule", negatives=["a blank image"], steps=2, views=1, seed=3,
+        model=model, tokenizer=tokenizer)
+    res["first_name"] = result["name"]
+    res["after_first"] = t2tf_names()
+    f.Steps = 3
+    f.UpdatePipeline()
+    res["after_rerun"] = t2tf_names()
+    f.Prompt = "a   glowing\ncloud"
+    f.UpdatePipeline()
+    res["after_new_prompt"] = t2tf_names()
+    res["applied"] = f.GetClientSideObject().result["preset"]["RGBPoints"]
+    res["removed"] = t2tf_plugin.remove_presets()
+    res["after_remove"] = t2tf_names()
+elif mode in ("state_save", "state_load"):
+    # Save a state after one run with a camera of the user's, then load it in a new
+    # session: the result comes back without running t2tf, with the saved camera.
+    state = os.path.join(os.path.dirname(out_json), "t2tf.pvsm")
+    camera = {"position": [200.0, -150.0, 90.0], "focal_point": [31.5, 31.5, 31.5],
+              "view_up": [0.0, 0.0, 1.0]}
+    if mode == "state_save":
+        f = tf_filter(raw_reader(volume), steps=3)
+        pvs.Show(f, view)
+        record(f, "ImageFile")
+        view.CameraPosition = camera["position"]
+        view.CameraFocalPoint = camera["focal_point"]
+        view.CameraViewUp = camera["view_up"]
+        pvs.SaveState(state)
+    else:
+        pvs.LoadState(state)
+        view = pvs.GetActiveViewOrCreate("RenderView")
+        f = pvs.FindSource("TexttoTransferFunction1")
+        pvs.Render(view)
+        record(f, "ImageFile")
+        res["reused"] = f.GetClientSideObject().reused
+        res["saved_camera"] = camera
+if mode not in ("errors", "offline", "panel", "presets"):
     pvs.SaveScreenshot(shot, view, ImageResolution=[size, size])
 with open(out_json, "w") as fh:
     json.dump(res, fh)

@@ -35,7 +35,7 @@ def run_macro(case):
         rgb=list(pvs.GetColorTransferFunction(array).RGBPoints),
         points=list(pvs.GetOpacityTransferFunction(array).Points),
         representation=str(disp.Representation.GetData() if hasattr(disp.Representation, "GetData") else disp.Representation),
-        color_array=str(disp.ColorArrayName[1]), preset_file=result["preset_file"],
+        color_array=str(disp.ColorArrayName[1]), preset=result["preset"],
         has_preset=bool(presets.HasPreset(result["name"])), volume=result["volume"])
 
 

@@ -62,8 +62,8 @@ res.update(
     representation=text(disp.Representation), color_array=str(disp.ColorArrayName[1]),
     rgb=list(lut.RGBPoints), points=list(pwf.Points),
     rescale=text(lut.AutomaticRescaleRangeMode), unit_distance=disp.ScalarOpacityUnitDistance,
-    has_preset=bool(presets.HasPreset(result["name"])), preset_file=result["preset_file"],
-    volume=result["volume"], out=result["out"], interrupted=result["interrupted"])
+    has_preset=bool(presets.HasPreset(result["name"])), preset=result["preset"],
+    volume=result["volume"], interrupted=result["interrupted"])
 pvs.SaveScreenshot(full_png, view, ImageResolution=[size, size])
 
 # The proxy, resampled again on the server with the same dimensions, shown alone with the
@@ -77,6 +77,16 @@ res["proxy_points_on_server"] = again.GetDataInformation().GetNumberOfPoints()
 pvs.Show(again, view)
 t2tf_plugin.apply_to_display(result, again, view, "ImageFile", camera=True)
 pvs.SaveScreenshot(proxy_png, view, ImageResolution=[size, size])
+
+# The filter itself loaded on the server (remote=True): it refuses once (rank 0), runs t2tf
+# on no rank, and fails.
+pvs.LoadPlugin(plugin, remote=True, ns=globals())
+print("SERVER FILTER", flush=True)
+f = TexttoTransferFunction(Input=full, Prompt="a protein molecule", Steps=2, Views=1,
+                           Model=model, Tokenizer=tokenizer)
+f.UpdatePipeline()
+res["server_filter_points"] = f.GetDataInformation().GetNumberOfPoints()
+print("SERVER FILTER DONE", flush=True)
 with open(out_json, "w") as fh:
     json.dump(res, fh)
 pvs.Disconnect()

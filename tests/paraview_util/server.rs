@@ -39,6 +39,9 @@ impl PvServer {
         let child = Command::new("xvfb-run")
             .args(["-a", "mpiexec", "-n", &ranks.to_string(), "pvserver"])
             .arg(format!("--server-port={port}"))
+            // Python plugins (t2tf_plugin.py loaded with remote=True) need ParaView 5.11's
+            // compat path on the server too (paraview/README.md).
+            .env("PYTHONPATH", super::repo().join("paraview/compat"))
             // Open MPI refuses to start as root (containers, CI) without both of these.
             .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
             .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")

@@ -57,7 +57,7 @@ def test_pvpython_imports_t2tf(pv_env, tmp_path):
 
 def test_the_plugin_runs_in_process_on_a_source_without_a_file(pv_env, tmp_path):
     res, _ = run_driver("nofile", pv_env, tmp_path)
-    preset = json.loads(Path(res["preset_file"]).read_text())[0]
+    preset = res["preset"]
     assert res["representation"] == "Volume" and res["color_array"] == "RTData"
     assert res["rgb"] == pytest.approx(preset["RGBPoints"], rel=1e-9)
     assert res["points"] == pytest.approx(preset["Points"], rel=1e-9)
@@ -66,14 +66,14 @@ def test_the_plugin_runs_in_process_on_a_source_without_a_file(pv_env, tmp_path)
     assert res["volume"] is None, "the in-process run wrote the input to a file"
     for key, value in res["result_camera"].items():  # the run's camera is the view's
         assert res["camera"][key] == pytest.approx(value), key
-    report = json.loads((Path(res["out"]) / "report.json").read_text())
+    report = json.loads(res["report"])
     assert report["volume"]["path"] == "(in memory)" and report["steps_run"] == 5
 
 
 def test_the_abort_flag_stops_an_in_process_run(pv_env, tmp_path):
     res, text = run_driver("cancel", pv_env, tmp_path)
     assert res["interrupted"], text
-    report = json.loads((Path(res["out"]) / "report.json").read_text())
+    report = json.loads(res["report"])
     assert 1 <= report["steps_run"] < 2000
     assert "cancelled: kept the transfer function" in text
 
