@@ -13,8 +13,9 @@ The prompt comes from, in this order, and the macro says which:
   3. a file next to the data: NAME.prompt.txt beside NAME.vti/NAME.raw, else t2tf_prompt.txt
      in the data's folder (first non-empty line).
 Other settings come from the environment: T2TF_MODEL, T2TF_TOKENIZER, T2TF_STEPS, T2TF_VIEWS,
-T2TF_SEED, T2TF_NEGATIVES (separated by ';'), T2TF_PROXY_SIZE (remote proxy, points per axis),
-and T2TF_PLUGIN (the plugin file when it is not beside this macro). Problems are one line in
+T2TF_SEED, T2TF_NEGATIVES (separated by ';'), T2TF_REFINE=1 (start from the array's current
+colour and opacity functions), T2TF_LOCK (data ranges kept as they start, "MIN,MAX; MIN,MAX"),
+T2TF_PROXY_SIZE (remote proxy, points per axis), and T2TF_PLUGIN (the plugin file when it is not beside this macro). Problems are one line in
 the output window, never a traceback.
 """
 import importlib.util
@@ -160,8 +161,10 @@ def run(source=None, environ=None, view=None):
                        ns=vars(pvs))
     negatives = [n for n in environ.get("T2TF_NEGATIVES", "a blank image").split(";") if n.strip()]
     try:
+        locks = plugin.parse_locks(environ.get("T2TF_LOCK", ""))
         return plugin.text_to_transfer_function(
             source, prompt, negatives=negatives,
+            refine=environ.get("T2TF_REFINE", "") not in ("", "0"), locks=locks,
             steps=int(environ.get("T2TF_STEPS", "300")),
             views=int(environ.get("T2TF_VIEWS", "3")),
             seed=int(environ.get("T2TF_SEED", "0")),

@@ -274,7 +274,11 @@ impl OptimizeArgs {
                     "--name names one TF; with several --prompt each TF is named from its prompt"
                 );
             }
-            batch_names(&self.prompts)
+            let names = batch_names(&self.prompts);
+            for n in &names {
+                batch_folder(&self.out, n)?;
+            }
+            names
         } else {
             vec![self.tf_name()?]
         };
@@ -317,6 +321,24 @@ fn parse_range(text: &str) -> Result<[f64; 2], String> {
         None => Err(format!(
             "{text:?} is not MIN,MAX (two numbers, e.g. 120,400)"
         )),
+    }
+}
+
+/// A batch prompt's sub-folder of `out`: a folder or nothing yet, never a symlink (nothing
+/// inside an output folder is followed) or another kind of file. Checked before any work and
+/// again before writing.
+fn batch_folder(out: &Path, name: &str) -> Result<PathBuf> {
+    let dir = out.join(name);
+    match std::fs::symlink_metadata(&dir) {
+        Ok(m) if m.file_type().is_symlink() => bail!(
+            "{}: is a symlink; t2tf follows no link inside its output folder: remove it or choose another --out",
+            dir.display()
+        ),
+        Ok(m) if !m.is_dir() => bail!(
+            "{}: exists and is not a folder: remove it or choose another --out",
+            dir.display()
+        ),
+        _ => Ok(dir),
     }
 }
 
@@ -404,7 +426,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
                 }
             }
             let out = if batch {
-                args.out.join(name)
+                batch_folder(&args.out, name)?
             } else {
                 args.out.clone()
             };

@@ -284,6 +284,32 @@ fn a_batch_gives_each_prompt_the_tf_of_its_own_run_and_one_library() {
     for (l, n) in listed.iter().zip(names) {
         assert!(l.starts_with(&format!("{n}-")), "{l} for {n}");
     }
+    // A symlink planted where a prompt's sub-folder goes is refused before any work.
+    let victim = dir.path().join("victim");
+    std::fs::create_dir(&victim).unwrap();
+    let planted = dir.path().join("planted");
+    std::fs::create_dir(&planted).unwrap();
+    std::os::unix::fs::symlink(&victim, planted.join("a-red-molecule")).unwrap();
+    let (ok, err) = optimize(
+        &vol,
+        &[
+            "--steps",
+            "1",
+            "--prompt",
+            prompts[0],
+            "--prompt",
+            prompts[1],
+            "--out",
+            planted.to_str().unwrap(),
+        ],
+        dir.path(),
+    );
+    assert!(!ok && err.contains("is a symlink"), "{err}");
+    assert_eq!(
+        std::fs::read_dir(&victim).unwrap().count(),
+        0,
+        "wrote through the link"
+    );
     // `--name` cannot name several TFs.
     let (ok, err) = optimize(
         &vol,

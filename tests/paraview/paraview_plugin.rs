@@ -909,6 +909,14 @@ fn macro_reads_the_prompt_from_the_environment_or_a_file() {
         assert_close(&floats(&r["points"]), &floats(&preset[0]["Points"]), case);
     }
     // The raw file next to the prompt file went to t2tf as it is.
+    // The macro's refine: started from the display's functions, the range locked.
+    let report: serde_json::Value =
+        serde_json::from_str(res["refine"]["report"].as_str().unwrap()).unwrap();
+    assert!(
+        report["init"].as_str().unwrap().contains("start.json"),
+        "{report}"
+    );
+    assert_eq!(report["locks"], serde_json::json!([[40.0, 120.0]]));
     assert!(res["file"]["volume"]
         .as_str()
         .unwrap()

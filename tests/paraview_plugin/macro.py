@@ -36,7 +36,8 @@ def run_macro(case):
         points=list(pvs.GetOpacityTransferFunction(array).Points),
         representation=str(disp.Representation.GetData() if hasattr(disp.Representation, "GetData") else disp.Representation),
         color_array=str(disp.ColorArrayName[1]), preset=result["preset"],
-        has_preset=bool(presets.HasPreset(result["name"])), volume=result["volume"])
+        has_preset=bool(presets.HasPreset(result["name"])), volume=result["volume"],
+        report=result["report"])
 
 
 # 1. The environment; a source with no file behind it.
@@ -55,6 +56,11 @@ reader.DataExtent = [0, 63, 0, 63, 0, 63]
 reader.ScalarArrayName = "ImageFile"
 pvs.SetActiveSource(reader)
 run_macro("file")
+# 2b. Refine that result with a locked range, through the environment.
+os.environ.update(T2TF_REFINE="1", T2TF_LOCK="40,120", T2TF_PROMPT="a blue molecule")
+run_macro("refine")
+for key in ("T2TF_REFINE", "T2TF_LOCK", "T2TF_PROMPT"):
+    del os.environ[key]
 # 3. Nowhere: a Sphere has no prompt file and T2TF_PROMPT is unset.
 pvs.SetActiveSource(pvs.Wavelet(WholeExtent=[-4, 4, -4, 4, -4, 4]))
 run_macro("nowhere")

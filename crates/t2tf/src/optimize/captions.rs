@@ -356,9 +356,8 @@ pub(crate) fn cached_embeddings<E>(
     let key = cache_key(model_hash, captions);
     let path = dir.map(|d| cache_path(d, &key));
     if let Some(p) = &path {
-        if let Some(e) = std::fs::read(p)
-            .ok()
-            .and_then(|b| decode(&b, &key, captions.len()))
+        if let Some(e) =
+            read_cache(p, captions.len()).and_then(|b| decode(&b, &key, captions.len()))
         {
             return Ok((e, CacheOutcome::Hit(p.clone())));
         }
@@ -374,6 +373,25 @@ pub(crate) fn cached_embeddings<E>(
         },
     };
     Ok((emb, outcome))
+}
+
+/// Widest embedding a cache file may hold: a bound on what is read, so a file planted in the
+/// cache's place (a FIFO, `/dev/zero`, a huge file) is skipped, never read to the end.
+const MAX_DIM: usize = 16384;
+
+/// The cache file's bytes if it is a regular file no larger than `count` embeddings of at
+/// most [`MAX_DIM`] values can be (else `None`: recomputed and replaced).
+fn read_cache(path: &Path, count: usize) -> Option<Vec<u8>> {
+    use std::io::Read;
+    let limit = HEADER.checked_add(count.checked_mul(MAX_DIM)?.checked_mul(4)?)?;
+    let file = crate::input::open(path).ok()?;
+    let len = usize::try_from(file.metadata().ok()?.len()).ok()?;
+    if len > limit {
+        return None;
+    }
+    let mut bytes = Vec::with_capacity(len);
+    file.take(limit as u64 + 1).read_to_end(&mut bytes).ok()?;
+    (bytes.len() <= limit).then_some(bytes)
 }
 
 /// Why the cache file could not be written (a warning, never an error of the run).
@@ -577,6 +595,34 @@ mod tests {
         store(&cache_path(&cache, &key), &key, &emb).unwrap();
         assert_eq!(clear_cache(&cache).unwrap().len(), 1);
         assert!(!cache.exists());
+    }
+
+    #[test]
+    fn a_special_or_huge_file_in_the_caches_place_is_never_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let caps: Vec<String> = vec!["a dog".into()];
+        let compute = |_: &[String]| -> Result<Vec<Vec<f32>>, ()> { Ok(vec![vec![0.5, 1.5]]) };
+        let p = cache_path(dir.path(), &cache_key(b"m", &caps));
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        // A FIFO without a writer: reading it would hang the run. It is skipped, and, not
+        // being a file t2tf may replace, left with a warning.
+        let made = std::process::Command::new("mkfifo").arg(&p).status();
+        if made.is_ok_and(|s| s.success()) {
+            let (e, o) = cached_embeddings(Some(dir.path()), b"m", &caps, compute).unwrap();
+            assert_eq!(e, vec![vec![0.5, 1.5]]);
+            assert!(
+                matches!(&o, CacheOutcome::NotStored(w) if w.contains("FIFO")),
+                "{o:?}"
+            );
+            std::fs::remove_file(&p).unwrap();
+        }
+        // Larger than one caption's embeddings can be: not read, recomputed.
+        std::fs::write(&p, vec![0u8; HEADER + MAX_DIM * 4 + 1]).unwrap();
+        assert_eq!(read_cache(&p, 1), None);
+        let (e, o) = cached_embeddings(Some(dir.path()), b"m", &caps, compute).unwrap();
+        assert!(matches!(o, CacheOutcome::Stored(_)), "{o:?}");
+        assert_eq!(e, vec![vec![0.5, 1.5]]);
+        assert!(read_cache(&p, 1).is_some());
     }
 
     #[test]
