@@ -42,8 +42,8 @@ pub struct OptimizeArgs {
     pub prompts: Vec<String>,
 
     /// Start from this TF file (ParaView .json/.xml, VisIt .ct) instead of the paper's
-    /// initialization: a refine. A few dozen steps usually suffice (see BENCHMARKS.md,
-    /// "Refining"); --steps 0 writes the start itself. A TF with opacity keeps its data
+    /// initialization: a refine. About 50 steps reach what 300 give, in a sixth of the time
+    /// (BENCHMARKS.md, "Design loop"); --steps 0 writes the start itself. A TF with opacity keeps its data
     /// values; a colour map without opacity (a library preset) is spread over the data range,
     /// as ParaView applies it, with the paper's densities.
     #[arg(long, value_name = "FILE")]
