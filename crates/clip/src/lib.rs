@@ -50,6 +50,8 @@ pub mod load;
 pub mod matmul;
 #[cfg(not(feature = "bench"))]
 pub(crate) mod matmul;
+/// OpenCLIP's checkpoint layout (`open_clip_config.json`, OpenCLIP's tensor names).
+pub mod openclip;
 /// Weights packed at load for the hand-written micro-kernels, and the engine and precision
 /// settings.
 pub mod packed;
@@ -66,7 +68,8 @@ mod weights;
 use std::path::{Path, PathBuf};
 
 pub use config::{Activation, ClipConfig, ConfigError};
-pub use load::{ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
+pub use load::{Layout, ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
+pub use openclip::OpenClipConfig;
 pub use packed::{Compute, Engine, Kernel, Precision};
 pub use preprocess::{preprocess, Preprocessing, MEAN, STD};
 pub use similarity::{
@@ -168,15 +171,15 @@ impl Clip {
 
     /// Load from files already resolved, the weight products running as `compute` says.
     pub fn load_files_with(files: &ModelFiles, compute: Compute) -> Result<Clip, ClipError> {
-        let config = ClipConfig::from_file(&files.config)?;
+        let (config, prep) = files.read_config_and_preprocessing()?;
         let tok = ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
-        let prep = files
-            .preprocessor
-            .as_deref()
-            .map(|p| Preprocessing::from_file(p, config.vision.image_size))
-            .transpose()?;
         let weights = Checkpoint::open(&files.weights)?;
-        let mut clip = Clip::from_source_with(config, &weights, compute)?;
+        let mut clip = match files.layout {
+            Layout::Transformers => Clip::from_source_with(config, &weights, compute)?,
+            Layout::OpenClip => {
+                Clip::from_source_with(config, &openclip::OpenClipTensors::new(&weights), compute)?
+            }
+        };
         clip.tokenizer = Some(tok);
         if let Some(p) = prep {
             clip.set_preprocessing(p);
@@ -188,15 +191,14 @@ impl Clip {
     /// config parses, the tokenizer loads, every weight file's header or pickle parses.
     /// Returns a one-line summary.
     pub fn check(files: &ModelFiles) -> Result<String, ClipError> {
-        let config = ClipConfig::from_file(&files.config)?;
+        let (config, _) = files.read_config_and_preprocessing()?;
         ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
-        if let Some(p) = &files.preprocessor {
-            Preprocessing::from_file(p, config.vision.image_size)?;
-        }
         let weights = Checkpoint::open(&files.weights)?;
         Ok(format!(
-            "{:?} weights in {} file(s), {} tensors; vision {}x{} px, patch {}, {} layers",
+            "{:?} weights ({:?} layout) in {} file(s), {} tensors; vision {}x{} px, patch {}, {} \
+             layers",
             files.format,
+            files.layout,
             files.weights.len(),
             weights.names().len(),
             config.vision.image_size,
