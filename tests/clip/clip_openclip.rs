@@ -95,7 +95,10 @@ fn safetensors_copies_give_the_same_model() {
         height: s,
         data: (0..s * s * 3).map(|i| (i % 7) as f32 / 6.0).collect(),
     };
-    let want_image = reference.encode_images(&[image.clone()]).unwrap().0;
+    let want_image = reference
+        .encode_images(std::slice::from_ref(&image))
+        .unwrap()
+        .0;
 
     let bin = Path::new(DIR).join("open_clip_pytorch_model.bin");
     let ckpt = Checkpoint::open(std::slice::from_ref(&bin)).unwrap();
@@ -137,7 +140,7 @@ fn safetensors_copies_give_the_same_model() {
         let clip = Clip::load_files(&files).unwrap();
         assert_eq!(clip.encode_text(&captions).unwrap(), want_text, "{name}");
         assert_eq!(
-            clip.encode_images(&[image.clone()]).unwrap().0,
+            clip.encode_images(std::slice::from_ref(&image)).unwrap().0,
             want_image,
             "{name}"
         );
