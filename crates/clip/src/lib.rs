@@ -10,7 +10,8 @@
 //! `checkpoint` reads the PyTorch ones), `tokenizer` (CLIPTokenizerFast),
 //! `layers` (Linear, LayerNorm, activations), `attention` (CLIPAttention), `encoder`
 //! (CLIPEncoderLayer), `tower` (CLIPEncoder), `text` (CLIPTextTransformer), `vision`
-//! (CLIPVisionTransformer), `load` (files and the Hugging Face cache), `preprocess`
+//! (CLIPVisionTransformer), `load` (files and the Hugging Face cache), `openclip` (OpenCLIP's
+//! checkpoint layout read as `CLIPModel`'s), `preprocess`
 //! (CLIPImageProcessor's resize + crop), `similarity` (cosine and softmax). Weight products run
 //! on `packed` (weights packed at load for hand-written AVX-512F, AVX512_BF16 and AVX2 + FMA
 //! kernels: the engine wherever a SIMD f32 kernel exists) or `matmul` (the `gemm` crate, where
@@ -140,7 +141,8 @@ pub struct Clip {
 }
 
 impl Clip {
-    /// `model`: a directory with `config.json`, `tokenizer.json` and the weights, or a Hugging
+    /// `model`: a directory with `config.json` (or OpenCLIP's `open_clip_config.json`),
+    /// `tokenizer.json` and the weights, or a Hugging
     /// Face repo id (at its `main` branch, fetched into the standard cache; `HF_HUB_OFFLINE=1`
     /// forbids the network).
     pub fn load(model: &str) -> Result<Clip, ClipError> {
