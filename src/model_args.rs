@@ -11,7 +11,8 @@ use crate::pipeline::{Model, ModelOptions};
 pub struct ModelArgs {
     /// CLIP model: a Hugging Face repo id (downloaded into the Hugging Face cache on first use)
     /// or a local folder with config.json, tokenizer.json and the weights (model.safetensors,
-    /// pytorch_model.bin, or their sharded forms).
+    /// pytorch_model.bin, or their sharded forms), or with OpenCLIP's open_clip_config.json,
+    /// tokenizer.json and open_clip_pytorch_model.bin (or open_clip_model.safetensors).
     #[arg(long, value_name = "REPO_ID|DIR", default_value = DEFAULT_MODEL)]
     pub model: String,
 

@@ -85,6 +85,7 @@ fn loading_needs_at_most_one_point_three_times_the_file_beyond_the_model() {
     );
     std::fs::write(dir.path().join("config.json"), config_json(&cfg)).unwrap();
     let files = ModelFiles {
+        layout: t2tf::clip::Layout::Transformers,
         config: dir.path().join("config.json"),
         weights: vec![weights],
         format: t2tf::clip::load::WeightFormat::Safetensors,

@@ -5,6 +5,7 @@
 use anyhow::{bail, Context, Result};
 
 use crate::clip::load::{looks_like_repo_id, resolve_with, WEIGHT_FILES};
+use crate::clip::openclip::{CONFIG as OPEN_CLIP_CONFIG, WEIGHT_FILES as OPEN_CLIP_WEIGHT_FILES};
 use crate::clip::{ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
 use crate::hub::{cached_repos, CachedRepo, Hub, HubSettings, RepoKind};
 use crate::units::human_bytes;
@@ -144,16 +145,23 @@ fn list(a: ListArgs) -> Result<()> {
     Ok(())
 }
 
-/// A repo is a CLIP model if a cached config.json describes a `CLIPModel` (it has both towers).
+/// A repo is a CLIP model if a cached config.json describes a `CLIPModel` (it has both towers),
+/// or a cached open_clip_config.json has a `model_cfg` (OpenCLIP's layout).
 fn is_clip(r: &CachedRepo) -> bool {
     r.snapshots.iter().flat_map(|s| &s.files).any(|f| {
-        f.name == "config.json"
-            && std::fs::read_to_string(&f.path).is_ok_and(|text| {
-                serde_json::from_str::<serde_json::Value>(&text).is_ok_and(|v| {
-                    v.get("model_type").and_then(|m| m.as_str()) == Some("clip")
-                        || (v.get("text_config").is_some() && v.get("vision_config").is_some())
-                })
-            })
+        let json = || {
+            std::fs::read_to_string(&f.path)
+                .ok()
+                .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
+        };
+        match f.name.as_str() {
+            "config.json" => json().is_some_and(|v| {
+                v.get("model_type").and_then(|m| m.as_str()) == Some("clip")
+                    || (v.get("text_config").is_some() && v.get("vision_config").is_some())
+            }),
+            OPEN_CLIP_CONFIG => json().is_some_and(|v| v.get("model_cfg").is_some()),
+            _ => false,
+        }
     })
 }
 
@@ -171,7 +179,8 @@ fn refs(r: &CachedRepo) -> String {
     }
 }
 
-/// The weight files cached in any snapshot (model.safetensors, pytorch_model.bin, shards).
+/// The weight files cached in any snapshot (model.safetensors, pytorch_model.bin, shards,
+/// OpenCLIP's open_clip_pytorch_model.bin and its safetensors copies).
 fn weight_files(r: &CachedRepo) -> Vec<String> {
     let mut names: Vec<String> = r
         .snapshots
@@ -180,6 +189,7 @@ fn weight_files(r: &CachedRepo) -> Vec<String> {
         .map(|f| f.name.clone())
         .filter(|n| {
             WEIGHT_FILES.iter().any(|w| w.0 == n)
+                || OPEN_CLIP_WEIGHT_FILES.iter().any(|w| w.0 == n)
                 || ((n.starts_with("model-") || n.starts_with("pytorch_model-"))
                     && (n.ends_with(".safetensors") || n.ends_with(".bin")))
         })

@@ -1,5 +1,5 @@
 //! The image encoder's input gradient against central finite differences of its own forward
-//! pass, on the tiny fixture models (both activations).
+//! pass, on the tiny fixture models (both activations, and the OpenCLIP-layout model).
 
 use std::path::Path;
 
@@ -31,7 +31,7 @@ fn loss(clip: &Clip, images: &[Image], text: &[f32]) -> f64 {
 /// all give O(1) relative errors).
 #[test]
 fn input_gradient_matches_finite_differences() {
-    for name in ["quick_gelu", "gelu"] {
+    for name in ["quick_gelu", "gelu", "openclip"] {
         let clip = model(name);
         let s = clip.image_size();
         let mut rng = ChaCha8Rng::seed_from_u64(11);

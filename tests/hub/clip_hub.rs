@@ -5,6 +5,9 @@
 //!   has `pytorch_model.bin` on `main` and `model.safetensors` only on a pull-request revision;
 //! - `.bin`, sharded safetensors, sharded `.bin` and safetensors give bit-identical embeddings;
 //! - offline (`HF_HUB_OFFLINE`), a cached model loads with no request at all;
+//! - a repository in OpenCLIP's own layout only (`open_clip_config.json` and
+//!   `open_clip_pytorch_model.bin`, as `laion/CLIP-ViT-g-14-laion2B-s34B-b88K` ships) loads
+//!   through the same fallbacks, and one with both layouts is read as transformers';
 //! - a hostile pickle is refused and runs nothing; a cut or corrupted download is never trusted;
 //! - the CLI (`clip-score`, `model fetch`, `model list`) does all of it through the `HF_*`
 //!   environment variables alone.
@@ -24,6 +27,16 @@ use t2tf::image::Image;
 const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
 const MODEL_DIR: &str = "tests/fixtures/clip/quick_gelu";
 const CHECKPOINTS: &str = "tests/fixtures/clip/checkpoints";
+const OPENCLIP_DIR: &str = "tests/fixtures/clip/openclip";
+
+/// OpenCLIP's Hub layout: its config, the tokenizer and `open_clip_pytorch_model.bin`.
+fn openclip_files() -> Vec<(String, Vec<u8>)> {
+    ["open_clip_config.json", "open_clip_pytorch_model.bin"]
+        .into_iter()
+        .map(|n| (n.to_string(), read(Path::new(OPENCLIP_DIR).join(n))))
+        .chain([("tokenizer.json".to_string(), read(TOKENIZER))])
+        .collect()
+}
 
 fn read(p: impl AsRef<Path>) -> Vec<u8> {
     std::fs::read(p.as_ref()).unwrap_or_else(|e| panic!("{}: {e}", p.as_ref().display()))
@@ -77,6 +90,15 @@ fn hub_spec() -> HubSpec {
         read("tests/fixtures/clip/torch/hostile_os_system.bin"),
     ));
     spec.repo("t2tf-test/hostile").revision("main", hostile);
+    spec.repo("t2tf-test/openclip")
+        .revision("main", openclip_files());
+    let mut both = files_of("safetensors");
+    both.extend(
+        openclip_files()
+            .into_iter()
+            .filter(|(n, _)| n != "tokenizer.json"),
+    );
+    spec.repo("t2tf-test/both-layouts").revision("main", both);
     let mut with_processor = files_of("safetensors");
     with_processor.push((
         "preprocessor_config.json".into(),
@@ -381,4 +403,71 @@ fn preprocessor_config_is_optional_on_the_hub() {
         assert_eq!(files.preprocessor.is_some(), has, "offline {repo}");
     }
     assert!(server.requests().is_empty(), "{:?}", server.requests());
+}
+
+/// A repository with only OpenCLIP's files: `config.json` and OpenCLIP's safetensors names are
+/// asked for and answered 404, `open_clip_pytorch_model.bin` is fetched, and the model scores as
+/// the fixture folder does; offline it loads from the cache with no request. A repository with
+/// both layouts is read as transformers'.
+#[test]
+fn openclip_layout_loads_from_the_hub_then_offline() {
+    let server = HubServer::start(hub_spec());
+    let cache = tempfile::tempdir().unwrap();
+    let want =
+        embeddings(&Clip::load_with_tokenizer(OPENCLIP_DIR, Some(Path::new(TOKENIZER))).unwrap());
+    let online = Hub::new(settings(&server, cache.path(), false));
+    let files = resolve_with(&ModelRequest::new("t2tf-test/openclip"), &online).unwrap();
+    assert_eq!(files.layout, t2tf::clip::Layout::OpenClip);
+    assert_eq!(files.format, WeightFormat::PyTorch);
+    assert!(files.config.ends_with("open_clip_config.json"));
+    assert!(files.preprocessor.is_none());
+    assert_eq!(embeddings(&Clip::load_files(&files).unwrap()), want);
+    let asked: Vec<String> = server.requests().iter().map(|r| r.path.clone()).collect();
+    for name in [
+        "config.json",
+        "open_clip_config.json",
+        "open_clip_model.safetensors",
+        "open_clip_pytorch_model.safetensors",
+        "open_clip_pytorch_model.bin",
+    ] {
+        assert!(
+            asked.iter().any(|p| p.ends_with(&format!("/main/{name}"))),
+            "{name}: {asked:?}"
+        );
+    }
+    assert!(
+        !asked
+            .iter()
+            .any(|p| p.ends_with("/preprocessor_config.json")),
+        "{asked:?}"
+    );
+
+    server.clear_requests();
+    let offline = Hub::new(settings(&server, cache.path(), true));
+    let files = resolve_with(&ModelRequest::new("t2tf-test/openclip"), &offline).unwrap();
+    assert_eq!(files.layout, t2tf::clip::Layout::OpenClip);
+    assert_eq!(embeddings(&Clip::load_files(&files).unwrap()), want);
+    assert!(server.requests().is_empty(), "{:?}", server.requests());
+
+    let files = resolve_with(&ModelRequest::new("t2tf-test/both-layouts"), &online).unwrap();
+    assert_eq!(files.layout, t2tf::clip::Layout::Transformers);
+    assert_eq!(embeddings(&Clip::load_files(&files).unwrap()), reference());
+
+    // `model fetch` and `model list` know the OpenCLIP repository as a CLIP model.
+    let fetched = ok(&t2tf(
+        &["model", "fetch", "t2tf-test/openclip"],
+        &server,
+        cache.path(),
+        false,
+    ));
+    assert!(
+        fetched.contains("open_clip_pytorch_model.bin") && fetched.contains("OpenClip"),
+        "{fetched}"
+    );
+    let listed = ok(&t2tf(&["model", "list"], &server, cache.path(), true));
+    let line = listed
+        .lines()
+        .find(|l| l.starts_with("t2tf-test/openclip "))
+        .unwrap_or_else(|| panic!("{listed}"));
+    assert!(line.contains("open_clip_pytorch_model.bin"), "{listed}");
 }

@@ -384,9 +384,9 @@ impl ClipConfig {
 
 /// Where a tower's fields are read from: `text_config_dict` when present (and not null), else
 /// `text_config`, else nowhere (all defaults). `name` prefixes field names in errors.
-struct Section<'a> {
-    name: &'static str,
-    fields: Option<&'a Map<String, Value>>,
+pub(crate) struct Section<'a> {
+    pub(crate) name: &'static str,
+    pub(crate) fields: Option<&'a Map<String, Value>>,
 }
 
 impl<'a> Section<'a> {
@@ -413,7 +413,7 @@ impl<'a> Section<'a> {
         })
     }
 
-    fn path(&self, field: &str) -> String {
+    pub(crate) fn path(&self, field: &str) -> String {
         if self.name.is_empty() {
             field.to_string()
         } else {
@@ -421,13 +421,13 @@ impl<'a> Section<'a> {
         }
     }
 
-    fn get(&self, field: &str) -> Option<&'a Value> {
+    pub(crate) fn get(&self, field: &str) -> Option<&'a Value> {
         self.fields.and_then(|m| m.get(field))
     }
 
     /// A non-negative whole number (also when written as a float, `1e9`, as Python's `json`
     /// would read it), or `default` when absent.
-    fn size(&self, field: &str, default: usize) -> Result<usize, String> {
+    pub(crate) fn size(&self, field: &str, default: usize) -> Result<usize, String> {
         let Some(v) = self.get(field) else {
             return Ok(default);
         };
@@ -457,7 +457,7 @@ impl<'a> Section<'a> {
         usize::try_from(n).map_err(|_| bad("too large for this machine"))
     }
 
-    fn positive(&self, field: &str, value: usize) -> Result<(), String> {
+    pub(crate) fn positive(&self, field: &str, value: usize) -> Result<(), String> {
         if value == 0 {
             Err(format!("{} is 0, it must be positive", self.path(field)))
         } else {
@@ -480,7 +480,7 @@ impl<'a> Section<'a> {
         }
     }
 
-    fn float(&self, field: &str, default: f64) -> Result<f64, String> {
+    pub(crate) fn float(&self, field: &str, default: f64) -> Result<f64, String> {
         match self.get(field) {
             None => Ok(default),
             Some(Value::Number(n)) => Ok(n.as_f64().unwrap_or(f64::NAN)),
@@ -488,7 +488,7 @@ impl<'a> Section<'a> {
         }
     }
 
-    fn string(&self, field: &str, default: &'a str) -> Result<&'a str, String> {
+    pub(crate) fn string(&self, field: &str, default: &'a str) -> Result<&'a str, String> {
         match self.get(field) {
             None => Ok(default),
             Some(Value::String(s)) => Ok(s),
@@ -542,7 +542,7 @@ impl<'a> Section<'a> {
     }
 }
 
-fn kind(v: &Value) -> &'static str {
+pub(crate) fn kind(v: &Value) -> &'static str {
     match v {
         Value::Null => "null",
         Value::Bool(_) => "a boolean",
@@ -555,7 +555,7 @@ fn kind(v: &Value) -> &'static str {
 
 /// A JSON syntax error with the offending line shown, so a non-JSON value such as Python's
 /// `NaN` or `Infinity` is reported with its field.
-fn json_error(json: &str, e: &serde_json::Error) -> String {
+pub(crate) fn json_error(json: &str, e: &serde_json::Error) -> String {
     let line = json
         .lines()
         .nth(e.line().saturating_sub(1))

@@ -10,7 +10,8 @@
 //! `checkpoint` reads the PyTorch ones), `tokenizer` (CLIPTokenizerFast),
 //! `layers` (Linear, LayerNorm, activations), `attention` (CLIPAttention), `encoder`
 //! (CLIPEncoderLayer), `tower` (CLIPEncoder), `text` (CLIPTextTransformer), `vision`
-//! (CLIPVisionTransformer), `load` (files and the Hugging Face cache), `preprocess`
+//! (CLIPVisionTransformer), `load` (files and the Hugging Face cache), `openclip` (OpenCLIP's
+//! checkpoint layout read as `CLIPModel`'s), `preprocess`
 //! (CLIPImageProcessor's resize + crop), `similarity` (cosine and softmax). Weight products run
 //! on `packed` (weights packed at load for hand-written AVX-512F, AVX512_BF16 and AVX2 + FMA
 //! kernels: the engine wherever a SIMD f32 kernel exists) or `matmul` (the `gemm` crate, where
@@ -50,6 +51,8 @@ pub mod load;
 pub mod matmul;
 #[cfg(not(feature = "bench"))]
 pub(crate) mod matmul;
+/// OpenCLIP's checkpoint layout (`open_clip_config.json`, OpenCLIP's tensor names).
+pub mod openclip;
 /// Weights packed at load for the hand-written micro-kernels, and the engine and precision
 /// settings.
 pub mod packed;
@@ -66,7 +69,8 @@ mod weights;
 use std::path::{Path, PathBuf};
 
 pub use config::{Activation, ClipConfig, ConfigError};
-pub use load::{ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
+pub use load::{Layout, ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
+pub use openclip::OpenClipConfig;
 pub use packed::{bf16_speedup, Compute, Engine, Kernel, Precision, AUTO_BF16_MIN_SPEEDUP};
 pub use preprocess::{preprocess, Preprocessing, MEAN, STD};
 pub use similarity::{
@@ -137,7 +141,8 @@ pub struct Clip {
 }
 
 impl Clip {
-    /// `model`: a directory with `config.json`, `tokenizer.json` and the weights, or a Hugging
+    /// `model`: a directory with `config.json` (or OpenCLIP's `open_clip_config.json`),
+    /// `tokenizer.json` and the weights, or a Hugging
     /// Face repo id (at its `main` branch, fetched into the standard cache; `HF_HUB_OFFLINE=1`
     /// forbids the network).
     pub fn load(model: &str) -> Result<Clip, ClipError> {
@@ -168,15 +173,15 @@ impl Clip {
 
     /// Load from files already resolved, the weight products running as `compute` says.
     pub fn load_files_with(files: &ModelFiles, compute: Compute) -> Result<Clip, ClipError> {
-        let config = ClipConfig::from_file(&files.config)?;
+        let (config, prep) = files.read_config_and_preprocessing()?;
         let tok = ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
-        let prep = files
-            .preprocessor
-            .as_deref()
-            .map(|p| Preprocessing::from_file(p, config.vision.image_size))
-            .transpose()?;
         let weights = Checkpoint::open(&files.weights)?;
-        let mut clip = Clip::from_source_with(config, &weights, compute)?;
+        let mut clip = match files.layout {
+            Layout::Transformers => Clip::from_source_with(config, &weights, compute)?,
+            Layout::OpenClip => {
+                Clip::from_source_with(config, &openclip::OpenClipTensors::new(&weights), compute)?
+            }
+        };
         clip.tokenizer = Some(tok);
         if let Some(p) = prep {
             clip.set_preprocessing(p);
@@ -188,15 +193,14 @@ impl Clip {
     /// config parses, the tokenizer loads, every weight file's header or pickle parses.
     /// Returns a one-line summary.
     pub fn check(files: &ModelFiles) -> Result<String, ClipError> {
-        let config = ClipConfig::from_file(&files.config)?;
+        let (config, _) = files.read_config_and_preprocessing()?;
         ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
-        if let Some(p) = &files.preprocessor {
-            Preprocessing::from_file(p, config.vision.image_size)?;
-        }
         let weights = Checkpoint::open(&files.weights)?;
         Ok(format!(
-            "{:?} weights in {} file(s), {} tensors; vision {}x{} px, patch {}, {} layers",
+            "{:?} weights ({:?} layout) in {} file(s), {} tensors; vision {}x{} px, patch {}, {} \
+             layers",
             files.format,
+            files.layout,
             files.weights.len(),
             weights.names().len(),
             config.vision.image_size,

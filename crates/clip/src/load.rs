@@ -1,14 +1,32 @@
 //! Finding a model's files: a local directory, or a Hugging Face repo id at a revision, through
 //! the Hub cache shared with Python (`crate::hub`).
 //!
-//! Weights are looked for in transformers' order (`modeling_utils.PreTrainedModel.
-//! from_pretrained`): `model.safetensors`, `model.safetensors.index.json` (shards),
-//! `pytorch_model.bin`, `pytorch_model.bin.index.json`. The first that exists wins.
+//! Two layouts are read:
+//!
+//! - **transformers** (`CLIPModel.save_pretrained`): `config.json`, and weights looked for in
+//!   transformers' order (`modeling_utils.PreTrainedModel.from_pretrained`):
+//!   `model.safetensors`, `model.safetensors.index.json` (shards), `pytorch_model.bin`,
+//!   `pytorch_model.bin.index.json`. The first that exists wins.
+//! - **OpenCLIP** (`crate::openclip`): `open_clip_config.json` with
+//!   `open_clip_model.safetensors`, `open_clip_pytorch_model.safetensors` or
+//!   `open_clip_pytorch_model.bin`. Some LAION repositories ship only this layout
+//!   (`laion/CLIP-ViT-g-14-laion2B-s34B-b88K`: `open_clip_config.json`, `tokenizer.json` and
+//!   `open_clip_pytorch_model.bin`, no `config.json` seen), others both (the s12B-b42K ViT-g/14
+//!   repository has `config.json`, `pytorch_model.bin` and `model.safetensors` next to
+//!   `open_clip_config.json`, `open_clip_pytorch_model.bin` and
+//!   `open_clip_pytorch_model.safetensors`).
+//!
+//! transformers' layout is tried first; where a source has no `config.json`, or a
+//! `config.json` but none of transformers' weight files, OpenCLIP's is tried. Both need
+//! `tokenizer.json`. Where neither is complete, the error lists every file looked for.
 
 use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use super::config::ClipConfig;
+use super::openclip::{self, OpenClipConfig};
+use super::preprocess::Preprocessing;
 use super::ClipError;
 #[cfg(feature = "hub")]
 use crate::hub::{Hub, HubError, HubRepo, HubSettings};
@@ -77,10 +95,22 @@ pub enum WeightFormat {
     PyTorch,
 }
 
+/// Which program's files a model comes as: they name the config and the tensors differently.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// transformers' `CLIPModel`: `config.json`, `model.safetensors` / `pytorch_model.bin`.
+    Transformers,
+    /// OpenCLIP's: `open_clip_config.json`, `open_clip_model.safetensors` /
+    /// `open_clip_pytorch_model.bin`, OpenCLIP's tensor names.
+    OpenClip,
+}
+
 /// Paths of the files a model needs.
 #[derive(Clone, Debug)]
 pub struct ModelFiles {
-    /// `config.json`.
+    /// Whose layout the config and weights are in.
+    pub layout: Layout,
+    /// `config.json`, or `open_clip_config.json` for OpenCLIP's layout.
     pub config: PathBuf,
     /// One file, or every shard an index names, in the index's order.
     pub weights: Vec<PathBuf>,
@@ -88,8 +118,37 @@ pub struct ModelFiles {
     pub format: WeightFormat,
     /// `tokenizer.json` (the model's own or `--tokenizer`).
     pub tokenizer: PathBuf,
-    /// `preprocessor_config.json`, where the model has one.
+    /// `preprocessor_config.json`, where the model has one (transformers' layout; OpenCLIP's
+    /// config holds its own `preprocess_cfg`).
     pub preprocessor: Option<PathBuf>,
+}
+
+impl ModelFiles {
+    /// The architecture the config file describes, whichever the layout.
+    pub fn read_config(&self) -> Result<ClipConfig, ClipError> {
+        Ok(self.read_config_and_preprocessing()?.0)
+    }
+
+    /// The architecture, and the image processing where the files say one (else CLIP's).
+    pub(crate) fn read_config_and_preprocessing(
+        &self,
+    ) -> Result<(ClipConfig, Option<Preprocessing>), ClipError> {
+        match self.layout {
+            Layout::Transformers => {
+                let config = ClipConfig::from_file(&self.config)?;
+                let prep = self
+                    .preprocessor
+                    .as_deref()
+                    .map(|p| Preprocessing::from_file(p, config.vision.image_size))
+                    .transpose()?;
+                Ok((config, prep))
+            }
+            Layout::OpenClip => {
+                let c = OpenClipConfig::from_file(&self.config)?;
+                Ok((c.clip, Some(c.preprocessing)))
+            }
+        }
+    }
 }
 
 /// Resolve a request with the Hub settings of the environment (`HF_*` variables).
@@ -154,32 +213,43 @@ fn resolve_local(req: &ModelRequest) -> Result<Option<ModelFiles>, ClipError> {
 /// Everything a model directory lacks, said at once.
 fn check_dir(dir: &Path, own_tokenizer: bool) -> Result<(), ClipError> {
     // A name that is there but not a regular file (a pipe would block the read): said as such.
-    let names = [CONFIG, TOKENIZER]
+    let names = [CONFIG, TOKENIZER, openclip::CONFIG]
         .into_iter()
-        .chain(WEIGHT_FILES.iter().map(|w| w.0));
+        .chain(WEIGHT_FILES.iter().map(|w| w.0))
+        .chain(openclip::WEIGHT_FILES.iter().map(|w| w.0));
     for name in names {
         let path = dir.join(name);
         if let Ok(meta) = std::fs::metadata(&path) {
             t2tf_core::input::regular(&meta).map_err(|e| ClipError::Io { path, source: e })?;
         }
     }
+    let has = |name: &str| dir.join(name).is_file();
+    let transformers = has(CONFIG) && WEIGHT_FILES.iter().any(|w| has(w.0));
+    let open_clip = has(openclip::CONFIG) && openclip::WEIGHT_FILES.iter().any(|w| has(w.0));
     let mut missing = Vec::new();
-    if !dir.join(CONFIG).is_file() {
-        missing.push(CONFIG.to_string());
+    if !transformers && !open_clip {
+        let (config, weights): (&str, Vec<&str>) = if has(openclip::CONFIG) && !has(CONFIG) {
+            (
+                openclip::CONFIG,
+                openclip::WEIGHT_FILES.iter().map(|w| w.0).collect(),
+            )
+        } else {
+            (CONFIG, WEIGHT_FILES.iter().map(|w| w.0).collect())
+        };
+        if !has(config) {
+            missing.push(format!("{CONFIG} (or OpenCLIP's {})", openclip::CONFIG));
+        }
+        missing.push(format!("weights (one of {})", weights.join(", ")));
     }
-    if !own_tokenizer && !dir.join(TOKENIZER).is_file() {
+    if !own_tokenizer && !has(TOKENIZER) {
         missing.push(format!("{TOKENIZER} (or give a `tokenizer`)"));
-    }
-    if !WEIGHT_FILES.iter().any(|w| dir.join(w.0).is_file()) {
-        let names: Vec<&str> = WEIGHT_FILES.iter().map(|w| w.0).collect();
-        missing.push(format!("weights (one of {})", names.join(", ")));
     }
     if missing.is_empty() {
         Ok(())
     } else {
         Err(ClipError::Missing(format!(
             "model directory {} is incomplete: missing {} (a CLIP model folder holds what \
-             transformers' CLIPModel.save_pretrained writes)",
+             transformers' CLIPModel.save_pretrained or OpenCLIP's save_for_hf writes)",
             dir.display(),
             missing.join(", ")
         )))
@@ -262,27 +332,25 @@ fn hub_error(e: HubError) -> ClipError {
 }
 
 fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<ModelFiles, ClipError> {
-    let required = |name: &str| -> Result<PathBuf, ClipError> {
-        src.get(name)?.ok_or_else(|| {
-            ClipError::Missing(format!(
-                "{} has no {name} (a CLIP model has {CONFIG}, {TOKENIZER} and its weights, as \
-                 transformers' CLIPModel saves them)",
-                src.describe()
-            ))
-        })
-    };
-    let config = required(CONFIG)?;
+    let (layout, config, weights, format) = find_layout(src)?;
     // Optional: absent (a 404 from the Hub, remembered in the cache like any missing file, or
-    // offline and never fetched) means CLIP's constants.
-    let preprocessor = src.probe(PREPROCESSOR)?;
-    let (weights, format) = find_weights(src)?;
+    // offline and never fetched) means CLIP's constants. OpenCLIP's config has its own.
+    let preprocessor = match layout {
+        Layout::Transformers => src.probe(PREPROCESSOR)?,
+        Layout::OpenClip => None,
+    };
     let tokenizer = match tokenizer {
         Some(t) => t.to_path_buf(),
-        None => required(TOKENIZER).map_err(|e| {
-            ClipError::Missing(format!("{e}; a `tokenizer` can point to a tokenizer.json"))
+        None => src.get(TOKENIZER)?.ok_or_else(|| {
+            ClipError::Missing(format!(
+                "{} has no {TOKENIZER} (a CLIP model has a config, {TOKENIZER} and its \
+                 weights); a `tokenizer` can point to a tokenizer.json",
+                src.describe()
+            ))
         })?,
     };
     Ok(ModelFiles {
+        layout,
         config,
         weights,
         format,
@@ -291,14 +359,54 @@ fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<Model
     })
 }
 
-/// The first weight file of `WEIGHT_FILES` the source has, with its shards if it is an index.
-fn find_weights(src: &dyn FileSource) -> Result<(Vec<PathBuf>, WeightFormat), ClipError> {
+/// The first complete layout of the source: transformers' (`config.json` and one of its weight
+/// files), else OpenCLIP's (`open_clip_config.json` and one of its weight files).
+fn find_layout(
+    src: &dyn FileSource,
+) -> Result<(Layout, PathBuf, Vec<PathBuf>, WeightFormat), ClipError> {
+    let transformers_config = src.probe(CONFIG)?;
+    if let Some(config) = &transformers_config {
+        if let Some((weights, format)) = find_weights(src)? {
+            return Ok((Layout::Transformers, config.clone(), weights, format));
+        }
+    }
+    let open_clip_config = src.probe(openclip::CONFIG)?;
+    if let Some(config) = &open_clip_config {
+        for (name, format) in openclip::WEIGHT_FILES {
+            if let Some(path) = src.probe(name)? {
+                return Ok((Layout::OpenClip, config.clone(), vec![path], format));
+            }
+        }
+    }
+    let transformers_weights: Vec<&str> = WEIGHT_FILES.iter().map(|w| w.0).collect();
+    let open_clip_weights: Vec<&str> = openclip::WEIGHT_FILES.iter().map(|w| w.0).collect();
+    if transformers_config.is_none() && open_clip_config.is_none() {
+        // Neither config: ask for config.json as a required file, so that offline the cache's
+        // own message (what is missing, where it looked) is what the user sees.
+        src.get(CONFIG)?;
+        return Err(ClipError::Missing(format!(
+            "{} has neither {CONFIG} (transformers' CLIPModel) nor {} (OpenCLIP)",
+            src.describe(),
+            openclip::CONFIG
+        )));
+    }
+    Err(src.no_weights(&format!(
+        "{} (with {CONFIG}), nor {} (with {})",
+        transformers_weights.join(", "),
+        open_clip_weights.join(", "),
+        openclip::CONFIG
+    )))
+}
+
+/// The first weight file of `WEIGHT_FILES` the source has, with its shards if it is an index;
+/// `None` where it has none of them.
+fn find_weights(src: &dyn FileSource) -> Result<Option<(Vec<PathBuf>, WeightFormat)>, ClipError> {
     for (name, format, sharded) in WEIGHT_FILES {
         let Some(path) = src.probe(name)? else {
             continue;
         };
         if !sharded {
-            return Ok((vec![path], format));
+            return Ok(Some((vec![path], format)));
         }
         let mut files = Vec::new();
         for shard in shard_names(&path)? {
@@ -311,10 +419,9 @@ fn find_weights(src: &dyn FileSource) -> Result<(Vec<PathBuf>, WeightFormat), Cl
             })?;
             files.push(p);
         }
-        return Ok((files, format));
+        return Ok(Some((files, format)));
     }
-    let names: Vec<&str> = WEIGHT_FILES.iter().map(|w| w.0).collect();
-    Err(src.no_weights(&names.join(", ")))
+    Ok(None)
 }
 
 #[derive(Deserialize)]
@@ -423,6 +530,35 @@ mod tests {
     }
 
     #[test]
+    fn transformers_layout_first_then_openclips() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let req = ModelRequest::new(d.to_str().unwrap());
+        touch(
+            d,
+            &[TOKENIZER, openclip::CONFIG, "open_clip_pytorch_model.bin"],
+        );
+        let f = resolve(&req).unwrap();
+        assert_eq!(
+            (f.layout, f.format, f.preprocessor.is_none()),
+            (Layout::OpenClip, WeightFormat::PyTorch, true)
+        );
+        assert_eq!(f.config, d.join(openclip::CONFIG));
+        touch(d, &["open_clip_model.safetensors", PREPROCESSOR]);
+        let f = resolve(&req).unwrap();
+        assert_eq!(f.weights, vec![d.join("open_clip_model.safetensors")]);
+        assert!(f.preprocessor.is_none(), "OpenCLIP's config has its own");
+        // A config.json without transformers' weights: still OpenCLIP's layout.
+        touch(d, &[CONFIG]);
+        assert_eq!(resolve(&req).unwrap().layout, Layout::OpenClip);
+        // Both complete (as the s12B-b42K ViT-g/14 repository is): transformers' layout.
+        touch(d, &["pytorch_model.bin"]);
+        let f = resolve(&req).unwrap();
+        assert_eq!((f.layout, f.config), (Layout::Transformers, d.join(CONFIG)));
+        assert_eq!(f.preprocessor, Some(d.join(PREPROCESSOR)));
+    }
+
+    #[test]
     fn hostile_shard_names_are_refused() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
@@ -453,6 +589,7 @@ mod tests {
         for w in WEIGHT_FILES {
             assert!(e.contains(w.0), "{e}");
         }
+        assert!(e.contains(openclip::CONFIG), "{e}");
         assert!(e.contains(TOKENIZER) && e.contains("`tokenizer`"), "{e}");
         touch(d, &[CONFIG, "model.safetensors"]);
         let e = resolve(&req).unwrap_err().to_string();

@@ -25,8 +25,8 @@ pub(crate) fn check_shape(name: &str, got: &[usize], want: &[usize]) -> Result<(
         Ok(())
     } else {
         Err(format!(
-            "tensor \"{name}\" has shape {got:?}, but the config implies {want:?} (is config.json \
-             the one that belongs to these weights?)"
+            "tensor \"{name}\" has shape {got:?}, but the config implies {want:?} (is the config \
+             file the one that belongs to these weights?)"
         ))
     }
 }

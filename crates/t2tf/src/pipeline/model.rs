@@ -14,7 +14,8 @@ use crate::optimize::report::ModelInfo;
 /// What model to load and how it runs.
 #[derive(Clone, Debug)]
 pub struct ModelOptions {
-    /// A Hugging Face repo id or a local folder with config.json, tokenizer.json and weights.
+    /// A Hugging Face repo id or a local folder with a config (config.json, or OpenCLIP's
+    /// open_clip_config.json), tokenizer.json and weights.
     pub model: String,
     /// Branch, tag, pull-request ref (refs/pr/N) or commit of a Hub model.
     pub revision: String,
@@ -76,7 +77,7 @@ impl Model {
         budget: Budget,
     ) -> Result<Model, PipelineError> {
         // The f32 weights must fit before they are read.
-        let config = crate::clip::ClipConfig::from_file(&files.config)?;
+        let config = files.read_config()?;
         budget.check(
             "the CLIP model's weights",
             Some(config.f32_bytes()),
