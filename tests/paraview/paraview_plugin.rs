@@ -621,7 +621,9 @@ fn abort_from_the_gui_event_loop_stops_the_run() {
     let out = loop {
         attempt += 1;
         let out = Command::new("timeout")
-            .args(["300", "xvfb-run", "-a", "paraview"])
+            .args(["300", "xvfb-run"])
+            .args(paraview_util::xvfb_display_args())
+            .arg("paraview")
             .arg(format!(
                 "--script={}",
                 repo().join("tests/paraview_plugin/gui.py").display()

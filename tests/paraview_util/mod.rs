@@ -63,6 +63,18 @@ pub fn pvpython_output(script: &Path, args: &[&str]) -> std::process::Output {
     })
 }
 
+/// `xvfb-run`'s arguments for a free display: `-a` searches upward for one, starting from a
+/// number drawn per call (`-n`). From the default 99 every `xvfb-run -a` on the machine probes
+/// the same numbers, and two starting together can take the same one: the loser's client then
+/// meets the winner's server with the wrong cookie ("bad X server connection").
+pub fn xvfb_display_args() -> [String; 3] {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u32(std::process::id());
+    let n = 200 + h.finish() % 30_000;
+    ["-a".into(), "-n".into(), n.to_string()]
+}
+
 /// Run `timeout 300 xvfb-run -a pvpython --dr SCRIPT` with what `configure` adds (arguments,
 /// environment). The caller holds [`PVPYTHON`]. A failure to reach the X server is retried:
 /// an X server that another `xvfb-run` on this machine just stopped, or just started on the
@@ -74,7 +86,9 @@ pub fn xvfb_pvpython(script: &Path, configure: impl Fn(&mut Command)) -> std::pr
         attempt += 1;
         let mut command = Command::new("timeout");
         command
-            .args(["300", "xvfb-run", "-a", "pvpython", "--dr"])
+            .args(["300", "xvfb-run"])
+            .args(xvfb_display_args())
+            .args(["pvpython", "--dr"])
             .arg(script);
         configure(&mut command);
         let out = command.output().expect("run timeout xvfb-run pvpython");

@@ -37,7 +37,8 @@ impl PvServer {
         let file = std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
         let err = file.try_clone().map_err(|e| e.to_string())?;
         let child = Command::new("xvfb-run")
-            .args(["-a", "mpiexec", "-n", &ranks.to_string(), "pvserver"])
+            .args(super::xvfb_display_args())
+            .args(["mpiexec", "-n", &ranks.to_string(), "pvserver"])
             .arg(format!("--server-port={port}"))
             // Python plugins (t2tf_plugin.py loaded with remote=True) need ParaView 5.11's
             // compat path on the server too (paraview/README.md).

@@ -52,6 +52,14 @@ def t2tf_command():
     return exe
 
 
+def xvfb_run():
+    """`xvfb-run` searching for a free display from a number drawn per call: from the default
+    99 every `xvfb-run -a` probes the same numbers, and two starting together can take the same
+    one ("bad X server connection")."""
+    import random
+    return ["xvfb-run", "-a", "-n", str(random.randrange(200, 30200))]
+
+
 def require(tool, env="T2TF_REQUIRE_PARAVIEW"):
     """Skip unless `tool` is on PATH; fail instead when `env` is 1 (CI)."""
     if shutil.which(tool) is None:

@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from conftest import REPO, read_png, require, require_module
+from conftest import REPO, read_png, require, require_module, xvfb_run
 
 EXAMPLES = REPO / "examples" / "python"
 
@@ -25,7 +25,7 @@ def test_pyvista_renders_the_optimized_tf(tmp_path):
                "--out", "view.png"]
     if not os.environ.get("DISPLAY"):
         require("xvfb-run")
-        command = ["xvfb-run", "-a"] + command
+        command = xvfb_run() + command
     out = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stdout + out.stderr
     picture = read_png(tmp_path / "view.png")
