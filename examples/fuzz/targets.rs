@@ -72,6 +72,7 @@ pub const TARGETS: &[Target] = &[
             "tests/fixtures/fuzz_seeds/hostile_uint64_overflow.vti",
             "tests/fixtures/fuzz_seeds/hostile_int64_overflow.vti",
             "tests/fixtures/fuzz_seeds/hostile_nul_in_header.vti",
+            "tests/fixtures/fuzz_seeds/hostile_lzma_bomb.vti",
         ],
         file_name: "fuzz.vti",
         run: volume,

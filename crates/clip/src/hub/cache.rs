@@ -201,7 +201,7 @@ impl RepoCache {
 /// The commit a ref file records: read without following a symlink or waiting on a FIFO, at
 /// most 128 bytes, and `None` unless it is a commit id (Python writes the bare commit; a
 /// trailing newline from hand edits is tolerated).
-fn read_ref(path: &Path) -> std::io::Result<Option<String>> {
+pub(crate) fn read_ref(path: &Path) -> std::io::Result<Option<String>> {
     let mut options = fs::OpenOptions::new();
     options.read(true);
     #[cfg(unix)]

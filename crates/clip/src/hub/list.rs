@@ -92,8 +92,11 @@ fn parse_folder(name: &str) -> Option<(RepoKind, String)> {
 fn read_repo(path: PathBuf, kind: RepoKind, repo_id: String) -> Result<CachedRepo, HubError> {
     let mut refs = BTreeMap::new();
     for (name, file) in walk_files(&path.join("refs"))? {
-        let commit = fs::read_to_string(&file).map_err(|e| HubError::io(&file, e))?;
-        refs.insert(name, commit.trim().to_string());
+        // Only what a ref file can hold (a commit id), never a symlink's target or a FIFO:
+        // a listing must not print another file's contents.
+        if let Some(commit) = super::cache::read_ref(&file).map_err(|e| HubError::io(&file, e))? {
+            refs.insert(name, commit);
+        }
     }
     let mut snapshots = Vec::new();
     let mut seen = HashSet::new();
@@ -197,6 +200,24 @@ mod tests {
         assert_eq!(parse_folder(".locks"), None);
         assert_eq!(parse_folder("CACHEDIR.TAG"), None);
         assert_eq!(parse_folder("models--"), None);
+    }
+
+    #[test]
+    fn refs_list_only_commit_ids_never_a_linked_files_contents() {
+        let dir = tempfile::tempdir().unwrap();
+        let repo = dir.path().join("models--o--n");
+        std::fs::create_dir_all(repo.join("refs")).unwrap();
+        let commit = "0123456789abcdef0123456789abcdef01234567";
+        std::fs::write(repo.join("refs/main"), commit).unwrap();
+        let victim = dir.path().join("secret.txt");
+        std::fs::write(&victim, "a secret line").unwrap();
+        std::os::unix::fs::symlink(&victim, repo.join("refs/planted")).unwrap();
+        std::fs::write(repo.join("refs/garbage"), "not a commit").unwrap();
+        let repos = cached_repos(dir.path()).unwrap();
+        assert_eq!(repos.len(), 1);
+        let refs = &repos[0].refs;
+        assert_eq!(refs.get("main").map(String::as_str), Some(commit));
+        assert_eq!(refs.len(), 1, "{refs:?}");
     }
 
     #[test]
