@@ -43,9 +43,9 @@ pub struct OptimizeArgs {
 
     /// Start from this TF file (ParaView .json/.xml, VisIt .ct) instead of the paper's
     /// initialization: a refine. About 50 steps reach what 300 give, in a sixth of the time
-    /// (BENCHMARKS.md, "Design loop"); with 0 steps it writes the start itself. A TF with opacity keeps its data
-    /// values; a colour map without opacity (a library preset) is spread over the data range,
-    /// as ParaView applies it, with the paper's densities.
+    /// (BENCHMARKS.md, "Design loop"); with 0 steps it writes the start itself. A TF with
+    /// opacity keeps its data values; a colour map without opacity (a library preset) is
+    /// spread over the data range, as ParaView applies it, with the paper's densities.
     #[arg(long, value_name = "FILE")]
     pub init: Option<PathBuf>,
 
