@@ -217,7 +217,7 @@ impl OptimizeArgs {
     }
 
     /// The TF base name: `--name`, or a slug of the prompt (or the reference image's stem).
-    /// A batch names each TF (and its sub-folder) from its prompt: [`batch_names`].
+    /// A batch names each TF (and its sub-folder) from its prompt (`batch_names`).
     pub fn tf_name(&self) -> Result<String> {
         if let Some(n) = &self.name {
             pipeline::check_name(n).map_err(|e| anyhow::anyhow!("--name: {e}"))?;
@@ -298,7 +298,7 @@ impl OptimizeArgs {
 #[derive(Debug)]
 pub struct ValidArgs {
     args: OptimizeArgs,
-    /// Each run's job and TF base name ([`OptimizeArgs::tf_name`], [`batch_names`]).
+    /// Each run's job and TF base name ([`OptimizeArgs::tf_name`], `batch_names`).
     runs: Vec<(ValidJob, String)>,
 }
 

@@ -268,7 +268,7 @@ impl TfParams {
     }
 
     /// Backward of [`TfParams::anchored_points`]. Inside an interval of width W and spacing
-    /// sum D, ∂x_k/∂d_i = W ([i < k] − (x_k − x0)/W) / D for its inner points k; anchors are
+    /// sum D, ∂x_k/∂d_i = W (\[i < k\] − (x_k − x0)/W) / D for its inner points k; anchors are
     /// constants. Densities and colours as in [`TfParams::backward`].
     pub fn anchored_backward(&self, anchors: &Anchors, g: &ControlPointsGrad) -> TfParamsGrad {
         let k = self.len();
