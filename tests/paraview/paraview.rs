@@ -78,7 +78,7 @@ fn presets_import_and_apply_exactly() {
     let script = dir.path().join("check.py");
     std::fs::write(&script, PRESET_CHECK).unwrap();
     let out = dir.path().join("out.json");
-    let helper = repo().join("paraview");
+    let helper = repo().join("paraview/scripts");
     pvpython(
         &script,
         &[
@@ -313,7 +313,7 @@ fn generated_script_opens_vti_and_legacy_vtk() {
     // The helper's command line: open the .vti, apply the preset, save a screenshot.
     let shot = dir.path().join("helper.png");
     pvpython(
-        &repo().join("paraview/t2tf_apply_preset.py"),
+        &repo().join("paraview/scripts/t2tf_apply_preset.py"),
         &[
             dir.path().join("wavelet_vti.json").to_str().unwrap(),
             dir.path().join("wavelet.vti").to_str().unwrap(),

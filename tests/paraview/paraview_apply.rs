@@ -1,4 +1,4 @@
-//! `paraview/t2tf_apply_preset.py` from the command line in real ParaView: a `.raw` volume
+//! `paraview/scripts/t2tf_apply_preset.py` from the command line in real ParaView: a `.raw` volume
 //! (t2tf's own main input) opens through an ImageReader by its Open SciVis name or by
 //! `--dims`/`--dtype`, and what cannot be shown (unreadable volume, invisible result) ends
 //! with exit status 1 and one line naming the file, not an empty screenshot.
@@ -19,7 +19,7 @@ use t2tf::volume::Volume;
 const NEGHIP: &str = "../shared/data/volumes/neghip_64x64x64_uint8.raw";
 
 fn helper() -> PathBuf {
-    repo().join("paraview/t2tf_apply_preset.py")
+    repo().join("paraview/scripts/t2tf_apply_preset.py")
 }
 
 /// t2tf's preset for neghip, written into `dir`.

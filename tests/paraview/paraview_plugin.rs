@@ -855,7 +855,7 @@ fn macro_reads_the_prompt_from_the_environment_or_a_file() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("macro.json");
     let out = xvfb_pvpython(&repo().join("tests/paraview_plugin/macro.py"), |c| {
-        c.arg(repo().join("paraview/t2tf_macro.py"))
+        c.arg(repo().join("paraview/scripts/t2tf_macro.py"))
             .arg(repo().join(NEGHIP))
             .arg(repo().join("tests/fixtures/clip/quick_gelu"))
             .arg(repo().join("../shared/data/clip/tokenizer.json"))

@@ -1,4 +1,4 @@
-"""pvpython driver for tests/paraview/paraview_plugin.rs's macro test: runs paraview/t2tf_macro.py
+"""pvpython driver for tests/paraview/paraview_plugin.rs's macro test: runs paraview/scripts/t2tf_macro.py
 the way ParaView runs a macro (as __main__) on the active source, five times: the prompt from
 T2TF_PROMPT (a Wavelet source), from a NAME.prompt.txt next to a raw file, from nowhere, on a
 source that is not image data, and without a t2tf binary (the last three: one message, no

@@ -26,14 +26,17 @@ TITLE = "Text to Transfer Function"
 
 
 def _plugin_module():
-    """t2tf_plugin: already imported, else from T2TF_PLUGIN, beside this file, or on
-    PV_PLUGIN_PATH (ParaView copies imported macros elsewhere, so several places)."""
+    """t2tf_plugin: already imported, else from T2TF_PLUGIN, the folder above this one (the
+    repository's paraview/), beside this file, or on PV_PLUGIN_PATH (ParaView copies imported
+    macros elsewhere, so several places)."""
     if "t2tf_plugin" in sys.modules:
         return sys.modules["t2tf_plugin"]
     places = [os.environ.get("T2TF_PLUGIN", "")]
     here = globals().get("__file__")
     if here:
-        places.append(os.path.join(os.path.dirname(os.path.abspath(here)), "t2tf_plugin.py"))
+        folder = os.path.dirname(os.path.abspath(here))
+        places.append(os.path.join(os.path.dirname(folder), "t2tf_plugin.py"))
+        places.append(os.path.join(folder, "t2tf_plugin.py"))
     for folder in os.environ.get("PV_PLUGIN_PATH", "").split(os.pathsep):
         if folder:
             places.append(os.path.join(folder, "t2tf_plugin.py"))
