@@ -51,7 +51,7 @@ use t2tf::image::Image;
 use t2tf::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer};
 use t2tf::optimize::captions::{self, CaptionPool};
 use t2tf::optimize::{
-    initialize, optimize, Background, PhaseTimes, Problem, Renderer, Settings, Targets, View,
+    initialize, optimize, PhaseTimes, Problem, Renderer, Settings, Targets, View,
 };
 use t2tf::render::RenderOptions;
 use t2tf::tf::{default_unit_distance, sigma_to_opacity, ControlPoints};
@@ -187,17 +187,9 @@ fn list<T: std::str::FromStr>(args: &[String], flag: &str) -> Result<Option<Vec<
         .map_err(|_| format!("{flag}: cannot parse '{v}'"))
 }
 
-/// Held-out views: yaws between those of the preview orbit, slightly raised, on white.
+/// Held-out views (`t2tf::bench::held_out_views`).
 fn held_out_views(s: &Settings) -> Vec<View> {
-    (0..HELD_OUT)
-        .map(|i| View {
-            yaw: std::f64::consts::TAU * (i as f64 + 0.37) / HELD_OUT as f64,
-            pitch: 0.1,
-            distance: 0.5 * (s.distance[0] + s.distance[1]),
-            background: Background::Gray { level: 1.0 },
-            seed: 0,
-        })
-        .collect()
+    t2tf::bench::held_out_views(s, HELD_OUT)
 }
 
 /// PSNR (dB) of the views pooled: `t2tf::image::psnr` of the views side by side.

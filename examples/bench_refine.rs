@@ -23,7 +23,7 @@ use t2tf::camera::UpAxis;
 use t2tf::clip::{Clip, ClipConfig, RandomSource, TensorSource};
 use t2tf::image::Image;
 use t2tf::optimize::adapters::VolumeRenderer;
-use t2tf::optimize::{Background, Renderer, Settings, View};
+use t2tf::optimize::{Renderer, Settings};
 use t2tf::pipeline::{self, InitTf, Job, Model, ModelOptions, Optimized, Target};
 use t2tf::render::RenderOptions;
 use t2tf::volume::Volume;
@@ -79,19 +79,6 @@ fn write_model(dir: &Path, shared: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn held_out_views() -> Vec<View> {
-    let s = Settings::default();
-    (0..HELD_OUT)
-        .map(|i| View {
-            yaw: std::f64::consts::TAU * (i as f64 + 0.37) / HELD_OUT as f64,
-            pitch: 0.1,
-            distance: 0.5 * (s.distance[0] + s.distance[1]),
-            background: Background::Gray { level: 1.0 },
-            seed: 0,
-        })
-        .collect()
-}
-
 /// The run's TF from the held-out views at 224², default render options.
 fn held_out(volume: &Volume, run: &Optimized) -> anyhow::Result<Image> {
     let eval = VolumeRenderer {
@@ -104,7 +91,7 @@ fn held_out(volume: &Volume, run: &Optimized) -> anyhow::Result<Image> {
         jitter: false,
     };
     let lut = run.control_points().to_lut(pipeline::PARAVIEW_TABLE);
-    let images = held_out_views()
+    let images = t2tf::bench::held_out_views(&Settings::default(), HELD_OUT)
         .iter()
         .map(|v| eval.render(&lut, v).map(|r| r.0))
         .collect::<Result<Vec<_>, _>>()

@@ -3,6 +3,9 @@
 //! One test binary per area (`cargo test --release --test formats`); each
 //! module covers one subject, so a test's name is `MODULE::TEST`.
 
+#[path = "../colorspace_goldens/mod.rs"]
+mod colorspace_goldens;
+
 mod formats_convert;
 mod formats_errors;
 mod formats_hostile;

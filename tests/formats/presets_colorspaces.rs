@@ -6,48 +6,13 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::colorspace_goldens::{goldens, Golden};
+
 use t2tf::formats::{read_preset, read_tf, write_preset, ExportTf};
 use t2tf::tf::{interpolate, ColorSpace};
 
 fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/paraview")
-}
-
-struct Golden {
-    file: String,
-    x: Vec<f64>,
-    rgb: Vec<[f64; 3]>,
-    opacity: Vec<f64>,
-}
-
-fn goldens() -> Vec<Golden> {
-    let text = std::fs::read_to_string(fixtures().join("colorspace_samples.json")).unwrap();
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
-    let nums = |a: &serde_json::Value| -> Vec<f64> {
-        a.as_array()
-            .unwrap()
-            .iter()
-            .map(|x| x.as_f64().unwrap())
-            .collect()
-    };
-    v.as_object()
-        .unwrap()
-        .iter()
-        .map(|(file, s)| Golden {
-            file: file.clone(),
-            x: nums(&s["x"]),
-            rgb: s["rgb"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|c| {
-                    let c = nums(c);
-                    [c[0], c[1], c[2]]
-                })
-                .collect(),
-            opacity: nums(&s["opacity"]),
-        })
-        .collect()
 }
 
 /// Max abs colour and opacity error of an RGB-linear TF against the goldens.

@@ -3,6 +3,8 @@
 //! One test binary per area (`cargo test --release --test optimize`); each
 //! module covers one subject, so a test's name is `MODULE::TEST`.
 
+#[path = "../colorspace_goldens/mod.rs"]
+mod colorspace_goldens;
 #[path = "../optimize_toy/mod.rs"]
 mod optimize_toy;
 #[path = "../render_util/mod.rs"]

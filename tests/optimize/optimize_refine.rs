@@ -10,6 +10,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use t2tf::formats::{read_tf, ExportTf};
+
+use crate::colorspace_goldens::goldens;
 use t2tf::tf::interpolate;
 
 const MODEL: &str = "tests/fixtures/clip/quick_gelu";
@@ -65,45 +67,6 @@ fn volume(dir: &Path, [lo, hi]: [f32; 2]) -> PathBuf {
     path
 }
 
-struct Golden {
-    x: Vec<f64>,
-    rgb: Vec<[f64; 3]>,
-    opacity: Vec<f64>,
-}
-
-fn goldens() -> Vec<(String, Golden)> {
-    let path = repo().join("tests/fixtures/paraview/colorspace_samples.json");
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
-    let nums = |a: &serde_json::Value| -> Vec<f64> {
-        a.as_array()
-            .unwrap()
-            .iter()
-            .map(|x| x.as_f64().unwrap())
-            .collect()
-    };
-    v.as_object()
-        .unwrap()
-        .iter()
-        .map(|(file, s)| {
-            let g = Golden {
-                x: nums(&s["x"]),
-                rgb: s["rgb"]
-                    .as_array()
-                    .unwrap()
-                    .iter()
-                    .map(|c| {
-                        let c = nums(c);
-                        [c[0], c[1], c[2]]
-                    })
-                    .collect(),
-                opacity: nums(&s["opacity"]),
-            };
-            (file.clone(), g)
-        })
-        .collect()
-}
-
 /// Colour and opacity of `tf` at `x`, as ParaView interpolates the written file (RGB and
 /// opacity linear between points, constant outside).
 fn at(tf: &ExportTf, x: f64) -> ([f64; 3], f64) {
@@ -127,8 +90,9 @@ fn steps_0_writes_the_init_as_paraview_samples_it_in_every_colour_space() {
     let dir = tempfile::tempdir().unwrap();
     // The fixtures span -10..60: a volume with exactly that range.
     let vol = volume(dir.path(), [-10.0, 60.0]);
-    for (file, g) in goldens() {
-        let init = repo().join("tests/fixtures/paraview").join(&file);
+    for g in goldens() {
+        let file = &g.file;
+        let init = repo().join("tests/fixtures/paraview").join(file);
         let out = dir.path().join(file.trim_end_matches(".json"));
         let (ok, err) = optimize(
             &vol,
@@ -164,7 +128,10 @@ fn steps_0_writes_the_init_as_paraview_samples_it_in_every_colour_space() {
         let report: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap())
                 .unwrap();
-        assert!(report["init"].as_str().unwrap().contains(&file), "{report}");
+        assert!(
+            report["init"].as_str().unwrap().contains(file.as_str()),
+            "{report}"
+        );
     }
 }
 
@@ -470,9 +437,9 @@ fn a_colour_map_without_opacity_starts_with_its_colours_over_the_data_range() {
             "{name}: colour off by {:.2}/255",
             err * 255.0
         );
-        let (_, o_max) = (0..=255)
-            .map(|v| at(&tf, v as f64))
-            .fold(([0.0; 3], 0.0f64), |m, (c, o)| (c, m.1.max(o)));
+        let o_max = (0..=255)
+            .map(|v| at(&tf, v as f64).1)
+            .fold(0.0f64, f64::max);
         assert!(o_max > 0.0, "{name}: no opacity");
     }
 }

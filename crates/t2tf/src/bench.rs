@@ -42,6 +42,23 @@ pub fn tile(images: &[Image]) -> Image {
     crate::optimize::driver::tile(images)
 }
 
+/// `n` views no run trains on, for comparing TFs: yaws between those of the preview orbit,
+/// slightly raised (pitch 0.1), at mid distance, on white (`bench_optimize`, `bench_refine`).
+pub fn held_out_views(
+    settings: &crate::optimize::Settings,
+    n: usize,
+) -> Vec<crate::optimize::View> {
+    (0..n)
+        .map(|i| crate::optimize::View {
+            yaw: std::f64::consts::TAU * (i as f64 + 0.37) / n as f64,
+            pitch: 0.1,
+            distance: 0.5 * (settings.distance[0] + settings.distance[1]),
+            background: crate::optimize::Background::Gray { level: 1.0 },
+            seed: 0,
+        })
+        .collect()
+}
+
 /// `into += other`, entry by entry (`LutGrad::add`): `bench_render` sums per-view gradients
 /// as the optimizer does.
 pub fn add_grad(into: &mut LutGrad, other: &LutGrad) {

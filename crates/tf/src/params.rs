@@ -368,38 +368,47 @@ mod tests {
         s
     }
 
+    /// Random weights of `loss`, one per position, density and colour channel.
+    fn random_weights(rng: &mut impl Rng, k: usize) -> ControlPointsGrad {
+        ControlPointsGrad {
+            x: (0..k).map(|_| rng.random_range(-1.0..1.0)).collect(),
+            sigma: (0..k).map(|_| rng.random_range(-1.0..1.0)).collect(),
+            rgb: (0..k)
+                .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)))
+                .collect(),
+        }
+    }
+
+    /// `analytic` against central differences of `f` (the loss of flat parameters) at `flat`.
+    ///
+    /// The maps are smooth (softplus, tanh, a quotient with D ≥ FLOOR·(K−1) > 0); central
+    /// differences with h = 1e-5 have truncation error h²/6·|f'''| ≲ 1e-10·255 and rounding
+    /// ≈ 1e-16·|f|/h ≲ 1e-8 for |f| ≲ 255·K: tolerance 1e-6 absolute plus 1e-6 relative covers
+    /// both with margin.
+    fn assert_central_differences(flat: &[f64], analytic: &[f64], f: impl Fn(&[f64]) -> f64) {
+        let h = 1e-5;
+        for (i, gi) in analytic.iter().enumerate() {
+            let (mut a, mut b) = (flat.to_vec(), flat.to_vec());
+            a[i] += h;
+            b[i] -= h;
+            let fd = (f(&a) - f(&b)) / (2.0 * h);
+            assert!(
+                (fd - gi).abs() < 1e-6 + 1e-6 * fd.abs(),
+                "{} parameters, parameter {i}: fd {fd} analytic {gi}",
+                flat.len()
+            );
+        }
+    }
+
     #[test]
     fn backward_matches_central_differences() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         for k in [2, 3, 8, 20] {
             let p = random_params(&mut rng, k);
-            let w = ControlPointsGrad {
-                x: (0..k).map(|_| rng.random_range(-1.0..1.0)).collect(),
-                sigma: (0..k).map(|_| rng.random_range(-1.0..1.0)).collect(),
-                rgb: (0..k)
-                    .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)))
-                    .collect(),
-            };
-            let g = p.backward(&w).to_flat();
-            let flat = p.to_flat();
-            // The map is smooth (softplus, tanh, a quotient with D ≥ FLOOR·(K−1) > 0); central
-            // differences with h = 1e-5 have truncation error h²/6·|f'''| ≲ 1e-10·255 and
-            // rounding ≈ 1e-16·|f|/h ≲ 1e-8 for |f| ≲ 255·K: tolerance 1e-6 absolute plus 1e-6
-            // relative covers both with margin.
-            let h = 1e-5;
-            for (i, gi) in g.iter().enumerate() {
-                let mut a = flat.clone();
-                a[i] += h;
-                let mut b = flat.clone();
-                b[i] -= h;
-                let fa = loss(&TfParams::from_flat(k, &a).unwrap().control_points(), &w);
-                let fb = loss(&TfParams::from_flat(k, &b).unwrap().control_points(), &w);
-                let fd = (fa - fb) / (2.0 * h);
-                assert!(
-                    (fd - gi).abs() < 1e-6 + 1e-6 * fd.abs(),
-                    "k={k} param {i}: fd {fd} analytic {gi}"
-                );
-            }
+            let w = random_weights(&mut rng, k);
+            assert_central_differences(&p.to_flat(), &p.backward(&w).to_flat(), |v| {
+                loss(&TfParams::from_flat(k, v).unwrap().control_points(), &w)
+            });
         }
     }
 
@@ -459,38 +468,17 @@ mod tests {
         let k = 9;
         let anchors = [(0, 0.0), (3, 0.25), (4, 0.25), (6, 0.7), (8, 1.0)];
         let p = random_params(&mut rng, k);
-        let w = ControlPointsGrad {
-            x: (0..k).map(|_| rng.random_range(-1.0..1.0)).collect(),
-            sigma: (0..k).map(|_| rng.random_range(-1.0..1.0)).collect(),
-            rgb: (0..k)
-                .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)))
-                .collect(),
-        };
+        let w = random_weights(&mut rng, k);
         let cp = p.anchored_points(&anchors);
         cp.validate().unwrap();
         for &(i, x) in &anchors {
             assert_eq!(cp.x[i], x);
         }
         let g = p.anchored_backward(&anchors, &w).to_flat();
-        let flat = p.to_flat();
-        let h = 1e-5;
-        for (i, gi) in g.iter().enumerate() {
-            let f = |d: f64| {
-                let mut a = flat.clone();
-                a[i] += d;
-                loss(
-                    &TfParams::from_flat(k, &a)
-                        .unwrap()
-                        .anchored_points(&anchors),
-                    &w,
-                )
-            };
-            let fd = (f(h) - f(-h)) / (2.0 * h);
-            assert!(
-                (fd - gi).abs() < 1e-6 + 1e-6 * fd.abs(),
-                "param {i}: fd {fd} analytic {gi}"
-            );
-        }
+        assert_central_differences(&p.to_flat(), &g, |v| {
+            let q = TfParams::from_flat(k, v).unwrap();
+            loss(&q.anchored_points(&anchors), &w)
+        });
         // A spacing between two adjacent anchors moves nothing.
         assert_eq!(g[3], 0.0);
     }

@@ -101,8 +101,8 @@ impl Precision {
 
     /// bf16 where the CPU has `vdpbf16ps` *and* it is measured faster than f32 here
     /// ([`bf16_speedup`] ≥ [`AUTO_BF16_MIN_SPEEDUP`]), f32 elsewhere: never an emulated bf16,
-    /// and never a bf16 slower than f32 (on one Intel Xeon with AVX512_BF16, `vdpbf16ps` ran
-    /// the image pass 1.34× slower than the f32 kernel; on Zen 4 1.9–2× faster).
+    /// and never a bf16 slower than f32 (Zen 4 measures 1.8–2× faster; one Intel Xeon with
+    /// AVX512_BF16 was reported to run the image pass 1.34× slower in bf16).
     pub fn auto() -> Precision {
         if bf16_speedup().is_some_and(|s| s >= AUTO_BF16_MIN_SPEEDUP) {
             Precision::Bf16

@@ -181,15 +181,39 @@ pub struct PaperTf {
 
 impl PaperTf {
     fn params(&self, flat: &[f64]) -> Result<TfParams, BoxError> {
-        TfParams::from_flat(self.k, flat).ok_or_else(|| {
-            format!(
-                "{} parameters do not describe a TF of {} control points",
-                flat.len(),
-                self.k
-            )
-            .into()
-        })
+        tf_params(self.k, flat)
     }
+}
+
+/// `flat` as the parameters of a TF of `k` points, or why not.
+pub(crate) fn tf_params(k: usize, flat: &[f64]) -> Result<TfParams, BoxError> {
+    TfParams::from_flat(k, flat).ok_or_else(|| {
+        format!(
+            "{} parameters do not describe a TF of {k} control points",
+            flat.len()
+        )
+        .into()
+    })
+}
+
+/// d loss / d control points: the LUT gradient through `to_lut(lut_size)` plus the terms that
+/// act on the points directly. Every parameterization's backward starts here.
+pub(crate) fn point_gradient(
+    cp: &ControlPoints,
+    lut_size: usize,
+    lut: &LutGrad,
+    direct: &PointGrad,
+) -> crate::tf::ControlPointsGrad {
+    let mut g = cp.lut_backward(lut_size, lut);
+    for (a, b) in g.sigma.iter_mut().zip(&direct.sigma) {
+        *a += b;
+    }
+    for (a, b) in g.rgb.iter_mut().zip(&direct.rgb) {
+        for c in 0..3 {
+            a[c] += b[c];
+        }
+    }
+    g
 }
 
 impl Parameterization for PaperTf {
@@ -212,16 +236,7 @@ impl Parameterization for PaperTf {
         direct: &PointGrad,
     ) -> Result<Vec<f64>, BoxError> {
         let p = self.params(flat)?;
-        let cp = p.control_points();
-        let mut g = cp.lut_backward(self.lut_size, lut);
-        for (a, b) in g.sigma.iter_mut().zip(&direct.sigma) {
-            *a += b;
-        }
-        for (a, b) in g.rgb.iter_mut().zip(&direct.rgb) {
-            for c in 0..3 {
-                a[c] += b[c];
-            }
-        }
+        let g = point_gradient(&p.control_points(), self.lut_size, lut, direct);
         Ok(p.backward(&g).to_flat())
     }
 }

@@ -58,14 +58,7 @@ impl StartTf {
     }
 
     fn params(&self, flat: &[f64]) -> Result<TfParams, BoxError> {
-        TfParams::from_flat(self.k, flat).ok_or_else(|| {
-            format!(
-                "{} parameters do not describe a TF of {} control points",
-                flat.len(),
-                self.k
-            )
-            .into()
-        })
+        super::adapters::tf_params(self.k, flat)
     }
 }
 
@@ -98,16 +91,9 @@ impl Parameterization for StartTf {
         let p = self.params(flat)?;
         let mut cp = p.anchored_points(&self.anchors);
         cp.sigma.iter_mut().for_each(|s| *s *= self.scale);
-        let mut g = cp.lut_backward(self.lut_size, lut);
-        for (a, b) in g.sigma.iter_mut().zip(&direct.sigma) {
-            // d/dσ_paper = scale · d/dσ.
-            *a = (*a + b) * self.scale;
-        }
-        for (a, b) in g.rgb.iter_mut().zip(&direct.rgb) {
-            for c in 0..3 {
-                a[c] += b[c];
-            }
-        }
+        let mut g = super::adapters::point_gradient(&cp, self.lut_size, lut, direct);
+        // d/dσ_paper = scale · d/dσ.
+        g.sigma.iter_mut().for_each(|s| *s *= self.scale);
         let mut grad = p.anchored_backward(&self.anchors, &g);
         for (i, s) in grad.spacing.iter_mut().enumerate() {
             if self.frozen_segment[i] {
