@@ -547,12 +547,62 @@ def apply_to_display(result, source, view=None, array=None, camera=True):
     return disp
 
 
+# The view properties apply_camera sets, in the order an undo restores them.
+CAMERA_PROPERTIES = ("CameraPosition", "CameraFocalPoint", "CameraViewUp", "CameraViewAngle",
+                     "CameraParallelProjection")
+
+
 def apply_camera(cam, view):
+    """Set `view`'s camera to `cam`. Inside an undo set (the GUI's Apply), the change joins
+    it: ParaView's undo stack leaves camera proxies out of its records, so without this
+    Undo Apply would keep t2tf's camera."""
+    undo = _camera_undo_elements(view)
     view.CameraPosition = cam["position"]
     view.CameraFocalPoint = cam["focal_point"]
     view.CameraViewUp = cam["view_up"]
     view.CameraViewAngle = cam["view_angle"]
     view.CameraParallelProjection = 0
+    if undo is not None:
+        undo()
+
+
+def _camera_undo_elements(view):
+    """Where an undo stack builder listens (ParaView's GUI), note the camera properties of
+    `view` now and return a function that notes them again and adds both notes to the undo
+    set being recorded (the builder keeps them only while one is, e.g. during Apply); else
+    None. An undo set undoes its elements last to first and redoes
+    them first to last, so Undo ends on the camera noted first and Redo on the one noted
+    second (the pattern of ParaView's own camera undo, vtkSMInteractionUndoStackBuilder)."""
+    from paraview import servermanager
+
+    try:
+        builder = servermanager.vtkSMProxyManager.GetProxyManager().GetUndoStackBuilder()
+    except AttributeError:
+        return None
+    # The builder adds an element only while a set is being recorded (its Add says whether).
+    if builder is None or builder.GetIgnoreAllChanges():
+        return None
+    proxy = view.SMProxy
+    try:
+        proxy.SynchronizeCameraProperties()  # the camera as shown, after any interaction
+    except AttributeError:
+        pass
+
+    def note():
+        elements = []
+        for name in CAMERA_PROPERTIES:
+            element = servermanager.vtkSMPropertyModificationUndoElement()
+            element.ModifiedProperty(proxy, name)
+            elements.append(element)
+        return elements
+
+    before = note()
+
+    def finish():
+        for element in before + note():
+            builder.Add(element)
+
+    return finish
 
 
 # Results of filters run in this process, applied to their displays as those appear
@@ -810,6 +860,9 @@ PROPERTIES_XML = """
 </StringVectorProperty>
 """
 
+# Results each filter keeps in memory, so Undo and Redo of an Apply do not run t2tf again.
+_CACHED_RESULTS = 8
+
 # Every setting that changes what t2tf computes: part of the key a stored result must match.
 _KEYED = ("_prompt", "_negatives", "_steps", "_views", "_seed", "_model", "_tokenizer",
           "_reference", "_refine", "_locks")
@@ -836,9 +889,12 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self._refine = 0
         self._locks = ""
         self._stored = None  # the Result property, parsed
+        self._cache = {}  # settings-and-input key -> result, the last _CACHED_RESULTS runs
+        self._last_name = None  # the preset name of the last result shown
         self.result = None
         self.error = None
-        self.reused = False
+        self.reused = False  # the result shown was not computed by this update
+        self.restored = False  # ... and came from the Result property (a loaded state)
 
     def FillInputPortInformation(self, port, info):
         # Any data object reaches RequestData, which names the problem in one line; the
@@ -979,16 +1035,34 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         key = hashlib.sha256(json.dumps(settings).encode()).hexdigest()
         stored = self._stored
         if stored and stored.get("key") == key and stored.get("result"):
-            self.reused = True
+            self.reused = self.restored = True
             message("restored the saved result (input and settings unchanged): t2tf not run",
                     False)
             return stored["result"]
+        self.restored = False
+        cached = self._cache.get(key)
+        if cached is not None:
+            # The settings and input of an earlier run of this filter, back again (Redo
+            # Apply, or Undo of a later Apply): its result, without running t2tf.
+            self.reused = True
+            message("reused the result of an earlier run with the same input and settings: "
+                    "t2tf not run", False)
+            self._store({"key": key, "result": cached})
+            return cached
         self.reused = False
-        previous = (stored or {}).get("result", {}).get("name")
+        previous = (stored or {}).get("result", {}).get("name") or self._last_name
         result = self._run(image, array)
         result["replaces"] = previous
+        self._remember(key, result)
         self._store({"key": key, "result": result})
         return result
+
+    def _remember(self, key, result):
+        """Keep the last few results by key (a result is a few kilobytes)."""
+        self._cache.pop(key, None)
+        self._cache[key] = result
+        while len(self._cache) > _CACHED_RESULTS:
+            self._cache.pop(next(iter(self._cache)))
 
     def _store(self, stored):
         """Keep the result in the hidden Result property, which a state saves. Set on the
@@ -1068,10 +1142,11 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         proxy = _proxy_of(self)
         if proxy is None:
             return  # no client-side proxy (e.g. a plain VTK pipeline): nothing to show
-        register_preset(result, result.get("replaces"))
+        register_preset(result, self._last_name or result.get("replaces"))
+        self._last_name = result["name"]
         apply_transfer_function(result, result["array"])
-        # A restored result keeps the state's own camera.
-        camera = bool(self._camera) and not self.reused
+        # A result restored from a state keeps the state's own camera.
+        camera = bool(self._camera) and not self.restored
         _PENDING[id(self)] = (proxy, result, camera, set())
         _watch_displays()
         _apply_pending()

@@ -604,9 +604,30 @@ fn abort_from_the_gui_event_loop_stops_the_run() {
     );
     // The ParaView GUI itself (`paraview --script`): a Qt timer's handler sets the abort
     // flag, so the run can only stop if the plugin lets Qt process events while t2tf runs.
-    let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
-    let config = dir.path().join("config/ParaView");
+    let res = paraview_gui("gui.py", dir.path());
+    assert!(res["exception"].is_null(), "{res}");
+    eprintln!(
+        "gui: {} timer events during a {:.1} s run, aborted at {}",
+        res["ticks_during_run"],
+        res["filter_seconds"].as_f64().unwrap(),
+        res["aborted_at"]
+    );
+    assert_eq!(res["interrupted"], true, "{res}");
+    let report: serde_json::Value = serde_json::from_str(res["report"].as_str().unwrap()).unwrap();
+    let run = report["steps_run"].as_u64().unwrap();
+    assert!((1..2000).contains(&run), "steps_run {run}");
+    assert!(res["ticks_during_run"].as_u64().unwrap() >= 2, "{res}");
+    assert_eq!(runs(dir.path()), 1);
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
+}
+
+/// Run `paraview --script=tests/paraview_plugin/SCRIPT` under xvfb with the plugin's
+/// environment (t2tf through [`counting_t2tf`], temporaries in `dir/tmp`, no welcome dialog)
+/// and return the JSON the script wrote.
+fn paraview_gui(script: &str, dir: &Path) -> serde_json::Value {
+    let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
+    let config = dir.join("config/ParaView");
     std::fs::create_dir_all(&config).unwrap();
     // No welcome dialog: it is modal and would hold the script back.
     std::fs::write(
@@ -614,9 +635,9 @@ fn abort_from_the_gui_event_loop_stops_the_run() {
         "[General]\nGeneralSettings.ShowWelcomeDialog=0\n",
     )
     .unwrap();
-    std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
-    let json = dir.path().join("gui.json");
-    let bin = counting_t2tf(dir.path());
+    std::fs::create_dir_all(dir.join("tmp")).unwrap();
+    let json = dir.join(format!("{script}.json"));
+    let bin = counting_t2tf(dir);
     let mut attempt = 0;
     let out = loop {
         attempt += 1;
@@ -626,12 +647,13 @@ fn abort_from_the_gui_event_loop_stops_the_run() {
             .arg("paraview")
             .arg(format!(
                 "--script={}",
-                repo().join("tests/paraview_plugin/gui.py").display()
+                repo().join("tests/paraview_plugin").join(script).display()
             ))
-            .env("XDG_CONFIG_HOME", dir.path().join("config"))
+            .env("XDG_CONFIG_HOME", dir.join("config"))
             .env("PYTHONPATH", repo().join("paraview/compat"))
-            .env("TMPDIR", dir.path().join("tmp"))
+            .env("TMPDIR", dir.join("tmp"))
             .env("T2TF_BIN", &bin)
+            .env("T2TF_RUNS", dir.join("runs.log"))
             .env("T2TF_PLUGIN", repo().join("paraview/t2tf_plugin.py"))
             .env("T2TF_VOLUME", repo().join(NEGHIP))
             .env("T2TF_MODEL", repo().join("tests/fixtures/clip/quick_gelu"))
@@ -653,19 +675,55 @@ fn abort_from_the_gui_event_loop_stops_the_run() {
         &std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("no JSON ({e}):\n{all}")),
     )
     .unwrap();
-    assert!(res["exception"].is_null(), "{res}");
-    eprintln!(
-        "gui: {} timer events during a {:.1} s run, aborted at {}",
-        res["ticks_during_run"],
-        res["filter_seconds"].as_f64().unwrap(),
-        res["aborted_at"]
+    assert!(res["exception"].is_null(), "{res}\n{all}");
+    res
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn undo_apply_restores_the_camera_and_redo_reuses_the_result() {
+    require_tools(
+        "undo_apply_restores_the_camera_and_redo_reuses_the_result",
+        &["paraview", "xvfb-run"],
     );
-    assert_eq!(res["interrupted"], true, "{res}\n{all}");
-    let report: serde_json::Value = serde_json::from_str(res["report"].as_str().unwrap()).unwrap();
-    let run = report["steps_run"].as_u64().unwrap();
-    assert!((1..2000).contains(&run), "steps_run {run}");
-    assert!(res["ticks_during_run"].as_u64().unwrap() >= 2, "{res}");
-    assert_eq!(runs(dir.path()), 1);
+    // The GUI's own undo stack (what Edit > Undo and Redo drive), in the ParaView GUI.
+    let dir = tempfile::tempdir().unwrap();
+    let res = paraview_gui("gui_undo.py", dir.path());
+    let cam = |step: &str| &res[step]["camera"];
+    let same = |a: &serde_json::Value, b: &serde_json::Value, what: &str| {
+        for key in ["position", "focal_point", "view_up"] {
+            assert_close(
+                &floats(&a[key]),
+                &floats(&b[key]),
+                &format!("{what}: {key}"),
+            );
+        }
+        assert_close(
+            &[a["view_angle"].as_f64().unwrap()],
+            &[b["view_angle"].as_f64().unwrap()],
+            &format!("{what}: view angle"),
+        );
+    };
+    // Apply ran t2tf once and set its camera, which differs from the user's.
+    assert_eq!(res["apply"]["runs"], 1, "{res}");
+    same(cam("apply"), &res["t2tf_camera"], "apply: t2tf's camera");
+    assert_ne!(
+        res["user_camera"]["position"], res["t2tf_camera"]["position"],
+        "the test needs a user camera that differs from t2tf's"
+    );
+    // Undo Apply: the user's camera is back.
+    assert_eq!(res["undo"]["can_redo"], true, "{res}");
+    same(cam("undo"), &res["user_camera"], "undo: the user's camera");
+    // Redo Apply: t2tf's camera again, without running t2tf.
+    same(cam("redo"), &res["t2tf_camera"], "redo: t2tf's camera");
+    assert_eq!(res["redo"]["runs"], 1, "Redo ran t2tf: {res}");
+    // A second Apply with other settings runs t2tf; undoing it brings back the first
+    // settings and shows their result without a run, and so does its Redo.
+    assert_eq!(res["apply2"]["runs"], 2, "{res}");
+    assert_eq!(res["steps_after_undo2"], 2);
+    assert_eq!(res["undo2"]["reused"], true, "{res}");
+    assert_eq!(res["undo2"]["runs"], 2, "Undo ran t2tf: {res}");
+    assert_eq!(res["redo2"]["runs"], 2, "Redo ran t2tf: {res}");
     assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
 }
 
@@ -923,4 +981,59 @@ fn macro_reads_the_prompt_from_the_environment_or_a_file() {
         .as_str()
         .unwrap()
         .ends_with("neghip_64x64x64_uint8.raw"));
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn the_launcher_loads_the_plugin_without_load_plugin() {
+    require_paraview("the_launcher_loads_the_plugin_without_load_plugin");
+    // paraview/bin/t2tf-paraview with no PYTHONPATH or PV_PLUGIN_PATH of the caller's: the
+    // plugin loads at start-up (Debian's ParaView 5.11 on Python 3.11 needs the compat folder
+    // for that) and the tracker lists it alone, the helper scripts are not plugins.
+    let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("launcher.json");
+    let mut attempt = 0;
+    let out = loop {
+        attempt += 1;
+        let out = Command::new("timeout")
+            .args(["300", "xvfb-run"])
+            .args(paraview_util::xvfb_display_args())
+            .arg(repo().join("paraview/bin/t2tf-paraview"))
+            .args(["pvpython", "--dr"])
+            .arg(repo().join("tests/paraview_plugin/launcher.py"))
+            .arg(&json)
+            .env_remove("PYTHONPATH")
+            .env_remove("PV_PLUGIN_PATH")
+            .output()
+            .expect("run xvfb-run t2tf-paraview pvpython");
+        if attempt < 3 && lost_display(&out, "") {
+            continue;
+        }
+        break out;
+    };
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    assert!(!all.contains("getargspec"), "{all}");
+    let res: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("no JSON ({e}):\n{all}")),
+    )
+    .unwrap();
+    let plugin = repo().join("paraview/t2tf_plugin.py");
+    let plugin = plugin.canonicalize().unwrap_or(plugin);
+    let listed: Vec<(String, bool, PathBuf)> = res["plugins"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            let file = PathBuf::from(p[2].as_str().unwrap());
+            (
+                p[0].as_str().unwrap().to_string(),
+                p[1].as_bool().unwrap(),
+                file.canonicalize().unwrap_or(file),
+            )
+        })
+        .collect();
+    assert_eq!(listed, [("t2tf_plugin".to_string(), true, plugin)], "{res}");
+    assert_eq!(res["filter"], true, "{res}");
 }
