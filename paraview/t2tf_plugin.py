@@ -649,7 +649,11 @@ def _apply_pending(*_):
                 continue
             applied.add(key)
             disp.Representation = "Volume"
-            pvs.ColorBy(disp, ("POINTS", result["array"]))
+            # The colour array and functions are set as properties, not through ColorBy:
+            # ColorBy rescales a new colour map to the display's data range, which a display
+            # registered by a loading state does not know yet ("Could not determine array
+            # range."), and t2tf's map is never rescaled anyway.
+            disp.ColorArrayName = ["POINTS", result["array"]]
             lut, pwf = apply_transfer_function(result, result["array"])
             disp.LookupTable = lut
             disp.ScalarOpacityFunction = pwf

@@ -575,6 +575,9 @@ fn a_saved_state_restores_the_result_without_running_t2tf() {
     assert!(out.status.success(), "{all}");
     let loaded = loaded.expect("driver wrote no JSON");
     assert_eq!(runs(dir.path()), 0, "t2tf ran again:\n{all}");
+    // The restored colour map is applied without a rescale the loading display cannot do yet
+    // (ParaView's warning when a colour map is rescaled before the data range is known).
+    assert!(!all.contains("Could not determine array range"), "{all}");
     assert_eq!(loaded["reused"], true);
     assert!(all.contains("restored the saved result"), "{all}");
     for key in ["rgb", "points", "unit_distance", "preset"] {
