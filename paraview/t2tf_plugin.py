@@ -675,6 +675,50 @@ def _watch_displays():
         _OBSERVED.append(pxm)
 
 
+# ---- time estimate -------------------------------------------------------------------
+
+# The timing the last run with each model measured (model -> measured_timing(...)).
+_TIMINGS = {}
+
+
+def measured_timing(report, views, wall_seconds):
+    """What a run measured, for estimates: the median time of one step per view (steps after
+    the first, which carries one-off work), and the start-up (the run's wall time less its
+    steps: model loading, caption embeddings, output). None without two timed steps."""
+    try:
+        steps = [float(s["seconds"]) for s in json.loads(report)["steps"]]
+    except (ValueError, KeyError, TypeError):
+        return None
+    later = sorted(steps[1:])
+    if not later or views < 1:
+        return None
+    per_step = later[len(later) // 2]
+    return {"per_view_step": per_step / views,
+            "start": max(0.0, wall_seconds - sum(steps))}
+
+
+def _seconds(value):
+    if value >= 120:
+        return "%.0f min" % (value / 60.0)
+    if value >= 10:
+        return "%.0f s" % value
+    return "%.1f s" % value
+
+
+def time_estimate(steps, views, timing):
+    """The Time Estimate text for `steps` x `views` from a measured_timing()."""
+    if not timing:
+        return ("measured by the first run: about Steps x Views x the time of one rendering "
+                "and CLIP pass, plus loading the model")
+    each = timing["per_view_step"]
+    total = steps * views * each + timing["start"]
+    ms = 1000.0 * each
+    return "about %s (%d steps x %d views x %s ms, plus %s to start; measured by the last " \
+           "run with this model)" % (_seconds(total), steps, views,
+                                    "%.1f" % ms if ms < 10 else "%.0f" % ms,
+                                    _seconds(timing["start"]))
+
+
 # ---- the filter ----------------------------------------------------------------------
 
 def _text(value):
@@ -801,6 +845,12 @@ PROPERTIES_XML = """
   <IntRangeDomain name="range" min="1" max="16" />
   <Documentation>Random views rendered per step (run time grows with them).</Documentation>
 </IntVectorProperty>
+<StringVectorProperty name="TimeEstimate" label="Time Estimate" command="GetTimeEstimate"
+    information_only="1" number_of_elements="1" default_values="" panel_visibility="default">
+  <Documentation>How long a run with the applied Steps and Views takes, from the time per
+  step and view that the last run with this Model measured (read-only; it follows Steps and
+  Views when they are applied).</Documentation>
+</StringVectorProperty>
 <IntVectorProperty name="Refine" command="SetRefine" number_of_elements="1"
     default_values="0">
   <BooleanDomain name="bool" />
@@ -958,6 +1008,12 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self._camera = int(value)
         self.Modified()
 
+    def GetTimeEstimate(self):
+        """The Time Estimate property: the run time of the applied Steps and Views."""
+        stored = ((self._stored or {}).get("result") or {}).get("timing")
+        timing = _TIMINGS.get(self._model) or stored
+        return time_estimate(self._steps, self._views, timing)
+
     def SetResult(self, value):
         # Not Modified(): the stored result is a cache, not a setting. A state sets it before
         # the first update; the filter itself sets it after each run.
@@ -1111,6 +1167,10 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self.UpdateProgress(1.0)
         result["array"] = array
         result["volume"] = volume
+        result["timing"] = measured_timing(result["report"], self._views,
+                                           time.time() - progress.start)
+        if result["timing"]:
+            _TIMINGS[self._model] = result["timing"]
         if result["interrupted"]:
             message("cancelled: kept the transfer function of the last finished step", False)
         return result

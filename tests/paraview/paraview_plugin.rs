@@ -469,6 +469,7 @@ fn the_panel_reads_in_order_with_a_tooltip_on_every_property() {
             "Negatives",
             "Steps",
             "Views",
+            "TimeEstimate",
             "Refine",
             "LockRanges",
             "Model",
@@ -529,6 +530,66 @@ fn the_panel_reads_in_order_with_a_tooltip_on_every_property() {
         .contains("transfer function"));
     assert!(res["long_help"].as_str().unwrap().contains("CLIP"));
     assert!(res["description"].as_str().unwrap().contains("Abort"));
+}
+
+/// Seconds of a Time Estimate text: "about 4.2 s (...)", "about 12 s", "about 3 min".
+fn estimate_seconds(text: &str) -> f64 {
+    let rest = text
+        .strip_prefix("about ")
+        .unwrap_or_else(|| panic!("estimate {text:?}"));
+    let mut words = rest.split_whitespace();
+    let value: f64 = words.next().unwrap().parse().unwrap();
+    match words
+        .next()
+        .unwrap()
+        .trim_end_matches(|c| c == '(' || c == ',')
+    {
+        "s" => value,
+        "min" => value * 60.0,
+        unit => panic!("unit {unit:?} in {text:?}"),
+    }
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn the_panel_estimates_the_run_time_from_a_measured_step() {
+    require_paraview("the_panel_estimates_the_run_time_from_a_measured_step");
+    let dir = tempfile::tempdir().unwrap();
+    let (out, res) = driver("estimate", dir.path());
+    assert!(out.status.success(), "{}", text(&out));
+    let res = res.expect("driver wrote no JSON");
+    eprintln!("estimate: {res}");
+    assert_eq!(res["information_only"], true, "read-only in the panel");
+    // Before any run there is nothing measured, and it says so.
+    assert!(
+        res["before_run"]
+            .as_str()
+            .unwrap()
+            .starts_with("measured by the first run"),
+        "{res}"
+    );
+    // After the run: its own per-step time, for the applied settings.
+    let each = res["timing"]["per_view_step"].as_f64().unwrap();
+    let start = res["timing"]["start"].as_f64().unwrap();
+    assert!(each > 0.0 && start >= 0.0, "{res}");
+    let after = res["after_run"].as_str().unwrap();
+    assert!(after.contains("3 steps x 1 views"), "{after}");
+    let steps_300 = res["steps_300"].as_str().unwrap();
+    assert!(steps_300.contains("300 steps x 1 views"), "{steps_300}");
+    let views_4 = res["views_4"].as_str().unwrap();
+    assert!(views_4.contains("300 steps x 4 views"), "{views_4}");
+    // The figure follows Steps x Views x the measured time (to the text's rounding).
+    for (text, steps, views) in [(steps_300, 300.0, 1.0), (views_4, 300.0, 4.0)] {
+        let want = steps * views * each + start;
+        let got = estimate_seconds(text);
+        assert!(
+            (got - want).abs() <= 0.06 * want + 0.05,
+            "{text}: {got} s, expected {want:.2} s"
+        );
+    }
+    assert!(estimate_seconds(views_4) > estimate_seconds(steps_300));
+    assert!(estimate_seconds(steps_300) > estimate_seconds(after));
+    assert_eq!(runs(dir.path()), 1, "the estimate ran nothing");
 }
 
 #[test]

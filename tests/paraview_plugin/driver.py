@@ -235,6 +235,27 @@ elif mode == "presets":
     res["applied"] = f.GetClientSideObject().result["preset"]["RGBPoints"]
     res["removed"] = t2tf_plugin.remove_presets()
     res["after_remove"] = t2tf_names()
+elif mode == "estimate":
+    # The panel's read-only Time Estimate before any run, after a 3-step run, and after
+    # Steps and Views are applied (pushed) without running again.
+    f = tf_filter(raw_reader(volume), steps=3)
+    proxy = f.SMProxy
+
+    def estimate():
+        proxy.UpdatePropertyInformation()
+        return proxy.GetProperty("TimeEstimate").GetElement(0)
+
+    res["information_only"] = bool(proxy.GetProperty("TimeEstimate").GetInformationOnly())
+    res["before_run"] = estimate()
+    f.UpdatePipeline()
+    res["after_run"] = estimate()
+    f.Steps = 300
+    proxy.UpdateVTKObjects()
+    res["steps_300"] = estimate()
+    f.Views = 4
+    proxy.UpdateVTKObjects()
+    res["views_4"] = estimate()
+    res["timing"] = f.GetClientSideObject().result["timing"]
 elif mode in ("state_save", "state_load"):
     # Save a state after one run with a camera of the user's, then load it in a new
     # session: the result comes back without running t2tf, with the saved camera.
@@ -257,7 +278,7 @@ elif mode in ("state_save", "state_load"):
         record(f, "ImageFile")
         res["reused"] = f.GetClientSideObject().reused
         res["saved_camera"] = camera
-if mode not in ("errors", "offline", "panel", "presets"):
+if mode not in ("errors", "offline", "panel", "presets", "estimate"):
     pvs.SaveScreenshot(shot, view, ImageResolution=[size, size])
 with open(out_json, "w") as fh:
     json.dump(res, fh)
