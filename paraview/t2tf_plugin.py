@@ -495,11 +495,15 @@ def register_preset(result, replaces=None):
     """Add the result to ParaView's preset manager under its name, replacing a preset of
     that name and `replaces` (the name the same filter's previous run registered), so a
     re-run updates its preset instead of adding another. The old one is removed first:
-    adding a name that exists is fragile in ParaView 5.10 and later."""
+    adding a name that exists is fragile in ParaView 5.10 and later. The preset joins the
+    groups "Default" and "User", as a preset imported in Choose Preset does: the dialog
+    opens on "Default" and lists only that group's presets."""
     presets = _presets()
     for name in {result["name"], replaces} - {None}:
         _remove_preset(presets, name)
+        _PresetGroups.remove(name)
     presets.AddPreset(result["name"], json.dumps(result["preset"]))
+    _PresetGroups.add(result["name"])
     return bool(presets.HasPreset(result["name"]))
 
 
@@ -508,7 +512,116 @@ def remove_presets():
     presets = _presets()
     names = {presets.GetPresetName(i) for i in range(presets.GetNumberOfPresets())
              if not presets.IsPresetBuiltin(i)}
-    return sum(_remove_preset(presets, n) for n in names if n.startswith(PRESET_PREFIX))
+    removed = 0
+    for name in names:
+        if name.startswith(PRESET_PREFIX):
+            removed += _remove_preset(presets, name)
+            _PresetGroups.remove(name)
+    return removed
+
+
+class _PresetGroups:
+    """The preset groups of ParaView's Choose Preset dialog (ParaView 5.11). They live in
+    the GUI's pqPresetGroupsManager, which saves them to the setting
+    TransferFunctionPresets.Groups on every change and reads it at start-up (else its
+    built-in groups). In the GUI the manager itself is called (through ctypes: ParaView's
+    Python has no Qt bindings), so the open dialog and the saved setting both follow. In
+    pvpython and pvbatch there is no manager: the setting is edited where a GUI saved one;
+    where none was saved, the next GUI start loads the built-in groups, which cannot be
+    written here without their list, and the preset shows under "All"."""
+    GROUPS = ("Default", "User")
+    SETTING = "TransferFunctionPresets.Groups"
+    looked_up = False
+    manager = None
+    lib = None
+
+    @classmethod
+    def _manager(cls):
+        if not cls.looked_up:
+            cls.looked_up = True
+            try:
+                # PyDLL: the GIL stays held, as the manager's signals run ParaView code.
+                cls.lib = ctypes.PyDLL(None)
+                core = cls._function("_ZN17pqApplicationCore8instanceEv", ctypes.c_void_p)()
+                if core:
+                    get = cls._function("_ZN17pqApplicationCore7managerERK7QString",
+                                        ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p)
+                    cls.manager = get(core, cls._qstring("PRESET_GROUP_MANAGER")) or None
+            except (OSError, AttributeError, ValueError):
+                cls.manager = None
+        return cls.manager
+
+    @classmethod
+    def _function(cls, name, restype, *argtypes):
+        f = getattr(cls.lib, name)
+        f.restype, f.argtypes = restype, list(argtypes)
+        return f
+
+    @classmethod
+    def _qstring(cls, text):
+        """A QString (a pointer to its shared data) made by QString::fromUtf8. Its data is
+        not released: a few dozen bytes per call, a few calls per run."""
+        data = text.encode("utf-8")
+        buf = (ctypes.c_void_p * 1)()
+        cls._function("_ZN7QString15fromUtf8_helperEPKci", ctypes.c_void_p, ctypes.c_void_p,
+                      ctypes.c_char_p, ctypes.c_int)(ctypes.byref(buf), data, len(data))
+        return ctypes.byref(buf)
+
+    @classmethod
+    def add(cls, name):
+        try:
+            manager = cls._manager()
+            if manager:
+                add = cls._function("_ZN21pqPresetGroupsManager10addToGroupERK7QStringS2_",
+                                    None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p)
+                for group in cls.GROUPS:
+                    add(manager, cls._qstring(group), cls._qstring(name))
+            else:
+                cls._edit_setting(name, add=True)
+        except Exception as e:  # the preset is there; only its group is missing
+            message("could not add %s to the preset groups: %s" % (name, e), False)
+
+    @classmethod
+    def remove(cls, name):
+        try:
+            manager = cls._manager()
+            if manager:
+                cls._function("_ZN21pqPresetGroupsManager19removeFromAllGroupsERK7QString",
+                              None, ctypes.c_void_p, ctypes.c_void_p)(
+                                  manager, cls._qstring(name))
+            else:
+                cls._edit_setting(name, add=False)
+        except Exception as e:
+            message("could not remove %s from the preset groups: %s" % (name, e), False)
+
+    @classmethod
+    def _edit_setting(cls, name, add):
+        from paraview import servermanager
+
+        settings = servermanager.vtkSMSettings.GetInstance()
+        text = settings.GetSettingAsString(cls.SETTING, "")
+        if not text:
+            return
+        groups = json.loads(text)
+        changed = False
+        for group in groups:
+            members = group.setdefault("presets", [])
+            if add and group.get("groupName") in cls.GROUPS and name not in members:
+                members.append(name)
+                changed = True
+            elif not add and name in members:
+                members.remove(name)
+                changed = True
+                if not members and group.get("groupName") != "Default":
+                    group["drop"] = True  # as the manager drops a group it emptied
+        groups = [g for g in groups if not g.pop("drop", False)]
+        if add:
+            have = {g.get("groupName") for g in groups}
+            for missing in [g for g in cls.GROUPS if g not in have]:
+                groups.append({"groupName": missing, "presets": [name]})
+                changed = True
+        if changed:
+            settings.SetSetting(cls.SETTING, json.dumps(groups, separators=(",", ":")))
 
 
 def apply_transfer_function(result, array):
@@ -708,15 +821,13 @@ def _seconds(value):
 def time_estimate(steps, views, timing):
     """The Time Estimate text for `steps` x `views` from a measured_timing()."""
     if not timing:
-        return ("measured by the first run: about Steps x Views x the time of one rendering "
-                "and CLIP pass, plus loading the model")
+        return "known after the first run with this model"
     each = timing["per_view_step"]
     total = steps * views * each + timing["start"]
     ms = 1000.0 * each
-    return "about %s (%d steps x %d views x %s ms, plus %s to start; measured by the last " \
-           "run with this model)" % (_seconds(total), steps, views,
-                                    "%.1f" % ms if ms < 10 else "%.0f" % ms,
-                                    _seconds(timing["start"]))
+    return "about %s (%d steps x %d views x %s ms + %s start)" % (
+        _seconds(total), steps, views, "%.1f" % ms if ms < 10 else "%.0f" % ms,
+        _seconds(timing["start"]))
 
 
 # ---- the filter ----------------------------------------------------------------------
@@ -847,9 +958,10 @@ PROPERTIES_XML = """
 </IntVectorProperty>
 <StringVectorProperty name="TimeEstimate" label="Time Estimate" command="GetTimeEstimate"
     information_only="1" number_of_elements="1" default_values="" panel_visibility="default">
-  <Documentation>How long a run with the applied Steps and Views takes, from the time per
-  step and view that the last run with this Model measured (read-only; it follows Steps and
-  Views when they are applied).</Documentation>
+  <Documentation>How long a run with the applied Steps and Views takes: Steps x Views x
+  the time of one step and view that the last run with this Model measured, plus that run's
+  start-up (loading the model, caption embeddings). Read-only; it follows Steps and Views
+  when they are applied, and is known after the first run.</Documentation>
 </StringVectorProperty>
 <IntVectorProperty name="Refine" command="SetRefine" number_of_elements="1"
     default_values="0">
@@ -1214,6 +1326,9 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         _PENDING[id(self)] = (proxy, result, camera, set())
         _watch_displays()
         _apply_pending()
+        # The panel shows the new run's timing (it reads Time Estimate again only after an
+        # Apply, which may come before this run's update).
+        proxy.SMProxy.UpdatePropertyInformation(proxy.SMProxy.GetProperty("TimeEstimate"))
 
 
 # ---- remote servers ------------------------------------------------------------------

@@ -532,6 +532,54 @@ fn the_panel_reads_in_order_with_a_tooltip_on_every_property() {
     assert!(res["description"].as_str().unwrap().contains("Abort"));
 }
 
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn presets_join_the_default_group_choose_preset_opens_on() {
+    require_tools(
+        "presets_join_the_default_group_choose_preset_opens_on",
+        &["paraview", "xvfb-run"],
+    );
+    // In the GUI, whose pqPresetGroupsManager holds the groups (ParaView's built-in ones in a
+    // fresh settings folder): a run's preset is in "Default", which Choose Preset shows when
+    // it opens, and in "User"; a re-run with another prompt swaps it; remove_presets() takes
+    // it out; ParaView's own presets stay in "Default" throughout.
+    let dir = tempfile::tempdir().unwrap();
+    let res = paraview_gui("gui_presets.py", dir.path());
+    let protein = "t2tf: a protein molecule";
+    let cloud = "t2tf: a glowing cloud";
+    let step = |k: &str| &res[k];
+    let built_in = step("before")["default_size"].as_i64().unwrap();
+    assert!(built_in > 0, "{res}");
+    assert_eq!(step("before")["saved"]["Default"], serde_json::json!([]));
+    for (k, name, other) in [
+        ("after_run", protein, cloud),
+        ("after_new_prompt", cloud, protein),
+    ] {
+        let s = step(k);
+        assert_eq!(
+            s["saved"]["Default"],
+            serde_json::json!([name]),
+            "{k}: {res}"
+        );
+        assert_eq!(s["saved"]["User"], serde_json::json!([name]), "{k}: {res}");
+        assert!(
+            s["t2tf_rank_in_default"][name].as_i64().unwrap() >= 0,
+            "{k}"
+        );
+        assert_eq!(s["t2tf_rank_in_default"][other], -1, "{k}");
+        assert_eq!(s["default_size"].as_i64().unwrap(), built_in + 1, "{k}");
+    }
+    assert_eq!(res["removed"], 1);
+    let after = step("after_remove");
+    assert_eq!(after["saved"]["Default"], serde_json::json!([]), "{res}");
+    assert!(after["saved"]["User"].is_null(), "{res}");
+    assert_eq!(after["default_size"].as_i64().unwrap(), built_in);
+    for k in ["before", "after_run", "after_new_prompt", "after_remove"] {
+        assert_eq!(step(k)["builtin_in_default"], true, "{k}");
+    }
+    assert_eq!(runs(dir.path()), 2);
+}
+
 /// Seconds of a Time Estimate text: "about 4.2 s (...)", "about 12 s", "about 3 min".
 fn estimate_seconds(text: &str) -> f64 {
     let rest = text
@@ -565,7 +613,7 @@ fn the_panel_estimates_the_run_time_from_a_measured_step() {
         res["before_run"]
             .as_str()
             .unwrap()
-            .starts_with("measured by the first run"),
+            .starts_with("known after the first run"),
         "{res}"
     );
     // After the run: its own per-step time, for the applied settings.
@@ -616,6 +664,22 @@ fn presets_are_named_after_the_prompt_and_replaced_by_a_rerun() {
     assert_eq!(names("after_new_prompt"), ["t2tf: a glowing cloud"]);
     assert_eq!(res["removed"], 1);
     assert_eq!(names("after_remove"), Vec::<String>::new());
+    // Choose Preset opens on the group "Default" and lists only its presets: each preset
+    // joins "Default" and "User" (as an imported one does), in the groups a GUI saved, and
+    // leaves them with its preset.
+    let groups = |k: &str| res[format!("groups_{k}")].clone();
+    let with = |name: &str| {
+        serde_json::json!({
+            "Default": ["Cool to Warm", name], "Linear": ["X Ray"], "User": [name]
+        })
+    };
+    assert_eq!(groups("after_first"), with("t2tf: a protein molecule"));
+    assert_eq!(groups("after_rerun"), with("t2tf: a protein molecule"));
+    assert_eq!(groups("after_new_prompt"), with("t2tf: a glowing cloud"));
+    assert_eq!(
+        groups("after_remove"),
+        serde_json::json!({"Default": ["Cool to Warm"], "Linear": ["X Ray"]})
+    );
     assert_eq!(runs(dir.path()), 3, "one run per update");
     assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
 }
