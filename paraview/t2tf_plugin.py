@@ -825,9 +825,10 @@ def time_estimate(steps, views, timing):
     each = timing["per_view_step"]
     total = steps * views * each + timing["start"]
     ms = 1000.0 * each
-    return "about %s (%d steps x %d views x %s ms + %s start)" % (
-        _seconds(total), steps, views, "%.1f" % ms if ms < 10 else "%.0f" % ms,
-        _seconds(timing["start"]))
+    # The total last: the panel's read-only field shows a long text's end.
+    return "%d steps x %d views x %s ms + %s start = about %s" % (
+        steps, views, "%.1f" % ms if ms < 10 else "%.0f" % ms, _seconds(timing["start"]),
+        _seconds(total))
 
 
 # ---- the filter ----------------------------------------------------------------------

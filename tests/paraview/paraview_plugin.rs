@@ -580,18 +580,14 @@ fn presets_join_the_default_group_choose_preset_opens_on() {
     assert_eq!(runs(dir.path()), 2);
 }
 
-/// Seconds of a Time Estimate text: "about 4.2 s (...)", "about 12 s", "about 3 min".
+/// Seconds of a Time Estimate text: "... = about 4.2 s", "... = about 12 s", "... = about 3 min".
 fn estimate_seconds(text: &str) -> f64 {
-    let rest = text
-        .strip_prefix("about ")
+    let (_, rest) = text
+        .rsplit_once("= about ")
         .unwrap_or_else(|| panic!("estimate {text:?}"));
     let mut words = rest.split_whitespace();
     let value: f64 = words.next().unwrap().parse().unwrap();
-    match words
-        .next()
-        .unwrap()
-        .trim_end_matches(|c| c == '(' || c == ',')
-    {
+    match words.next().unwrap() {
         "s" => value,
         "min" => value * 60.0,
         unit => panic!("unit {unit:?} in {text:?}"),
