@@ -15,7 +15,11 @@ opacity, ScalarOpacityUnitDistance, range never rescaled, a preset named after t
 output is the input plus field data t2tf_report (report.json) and t2tf_preset (the preset's
 name). t2tf's files are written to a temporary folder that is removed after the run; the
 result is kept in memory and in the hidden property Result, so a saved state restores it
-without running t2tf again while the input and settings are unchanged.
+without running t2tf again while the input and settings are unchanged. The preset joins the
+groups "Default" and "User" of the Choose Preset dialog (it opens on "Default"). In the GUI,
+Undo of an Apply restores the camera the view had before, and Redo (or Undo of a later
+Apply) reuses the earlier run's result from memory. The read-only Time Estimate shows the
+run time of the applied Steps and Views from the last measured run with the same model.
 
 Connected to a remote pvserver, use text_to_transfer_function(source, prompt, ...) (or the
 macro t2tf_macro.py): it fetches a bounded ResampleToImage proxy of the data, optimizes
