@@ -15,7 +15,11 @@ opacity, ScalarOpacityUnitDistance, range never rescaled, a preset named after t
 output is the input plus field data t2tf_report (report.json) and t2tf_preset (the preset's
 name). t2tf's files are written to a temporary folder that is removed after the run; the
 result is kept in memory and in the hidden property Result, so a saved state restores it
-without running t2tf again while the input and settings are unchanged.
+without running t2tf again while the input and settings are unchanged. The preset joins the
+groups "Default" and "User" of the Choose Preset dialog (it opens on "Default"). In the GUI,
+Undo of an Apply restores the camera the view had before, and Redo (or Undo of a later
+Apply) reuses the earlier run's result from memory. The read-only Time Estimate shows the
+run time of the applied Steps and Views from the last measured run with the same model.
 
 Connected to a remote pvserver, use text_to_transfer_function(source, prompt, ...) (or the
 macro t2tf_macro.py): it fetches a bounded ResampleToImage proxy of the data, optimizes
@@ -495,11 +499,15 @@ def register_preset(result, replaces=None):
     """Add the result to ParaView's preset manager under its name, replacing a preset of
     that name and `replaces` (the name the same filter's previous run registered), so a
     re-run updates its preset instead of adding another. The old one is removed first:
-    adding a name that exists is fragile in ParaView 5.10 and later."""
+    adding a name that exists is fragile in ParaView 5.10 and later. The preset joins the
+    groups "Default" and "User", as a preset imported in Choose Preset does: the dialog
+    opens on "Default" and lists only that group's presets."""
     presets = _presets()
     for name in {result["name"], replaces} - {None}:
         _remove_preset(presets, name)
+        _PresetGroups.remove(name)
     presets.AddPreset(result["name"], json.dumps(result["preset"]))
+    _PresetGroups.add(result["name"])
     return bool(presets.HasPreset(result["name"]))
 
 
@@ -508,7 +516,116 @@ def remove_presets():
     presets = _presets()
     names = {presets.GetPresetName(i) for i in range(presets.GetNumberOfPresets())
              if not presets.IsPresetBuiltin(i)}
-    return sum(_remove_preset(presets, n) for n in names if n.startswith(PRESET_PREFIX))
+    removed = 0
+    for name in names:
+        if name.startswith(PRESET_PREFIX):
+            removed += _remove_preset(presets, name)
+            _PresetGroups.remove(name)
+    return removed
+
+
+class _PresetGroups:
+    """The preset groups of ParaView's Choose Preset dialog (ParaView 5.11). They live in
+    the GUI's pqPresetGroupsManager, which saves them to the setting
+    TransferFunctionPresets.Groups on every change and reads it at start-up (else its
+    built-in groups). In the GUI the manager itself is called (through ctypes: ParaView's
+    Python has no Qt bindings), so the open dialog and the saved setting both follow. In
+    pvpython and pvbatch there is no manager: the setting is edited where a GUI saved one;
+    where none was saved, the next GUI start loads the built-in groups, which cannot be
+    written here without their list, and the preset shows under "All"."""
+    GROUPS = ("Default", "User")
+    SETTING = "TransferFunctionPresets.Groups"
+    looked_up = False
+    manager = None
+    lib = None
+
+    @classmethod
+    def _manager(cls):
+        if not cls.looked_up:
+            cls.looked_up = True
+            try:
+                # PyDLL: the GIL stays held, as the manager's signals run ParaView code.
+                cls.lib = ctypes.PyDLL(None)
+                core = cls._function("_ZN17pqApplicationCore8instanceEv", ctypes.c_void_p)()
+                if core:
+                    get = cls._function("_ZN17pqApplicationCore7managerERK7QString",
+                                        ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p)
+                    cls.manager = get(core, cls._qstring("PRESET_GROUP_MANAGER")) or None
+            except (OSError, AttributeError, ValueError):
+                cls.manager = None
+        return cls.manager
+
+    @classmethod
+    def _function(cls, name, restype, *argtypes):
+        f = getattr(cls.lib, name)
+        f.restype, f.argtypes = restype, list(argtypes)
+        return f
+
+    @classmethod
+    def _qstring(cls, text):
+        """A QString (a pointer to its shared data) made by QString::fromUtf8. Its data is
+        not released: a few dozen bytes per call, a few calls per run."""
+        data = text.encode("utf-8")
+        buf = (ctypes.c_void_p * 1)()
+        cls._function("_ZN7QString15fromUtf8_helperEPKci", ctypes.c_void_p, ctypes.c_void_p,
+                      ctypes.c_char_p, ctypes.c_int)(ctypes.byref(buf), data, len(data))
+        return ctypes.byref(buf)
+
+    @classmethod
+    def add(cls, name):
+        try:
+            manager = cls._manager()
+            if manager:
+                add = cls._function("_ZN21pqPresetGroupsManager10addToGroupERK7QStringS2_",
+                                    None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p)
+                for group in cls.GROUPS:
+                    add(manager, cls._qstring(group), cls._qstring(name))
+            else:
+                cls._edit_setting(name, add=True)
+        except Exception as e:  # the preset is there; only its group is missing
+            message("could not add %s to the preset groups: %s" % (name, e), False)
+
+    @classmethod
+    def remove(cls, name):
+        try:
+            manager = cls._manager()
+            if manager:
+                cls._function("_ZN21pqPresetGroupsManager19removeFromAllGroupsERK7QString",
+                              None, ctypes.c_void_p, ctypes.c_void_p)(
+                                  manager, cls._qstring(name))
+            else:
+                cls._edit_setting(name, add=False)
+        except Exception as e:
+            message("could not remove %s from the preset groups: %s" % (name, e), False)
+
+    @classmethod
+    def _edit_setting(cls, name, add):
+        from paraview import servermanager
+
+        settings = servermanager.vtkSMSettings.GetInstance()
+        text = settings.GetSettingAsString(cls.SETTING, "")
+        if not text:
+            return
+        groups = json.loads(text)
+        changed = False
+        for group in groups:
+            members = group.setdefault("presets", [])
+            if add and group.get("groupName") in cls.GROUPS and name not in members:
+                members.append(name)
+                changed = True
+            elif not add and name in members:
+                members.remove(name)
+                changed = True
+                if not members and group.get("groupName") != "Default":
+                    group["drop"] = True  # as the manager drops a group it emptied
+        groups = [g for g in groups if not g.pop("drop", False)]
+        if add:
+            have = {g.get("groupName") for g in groups}
+            for missing in [g for g in cls.GROUPS if g not in have]:
+                groups.append({"groupName": missing, "presets": [name]})
+                changed = True
+        if changed:
+            settings.SetSetting(cls.SETTING, json.dumps(groups, separators=(",", ":")))
 
 
 def apply_transfer_function(result, array):
@@ -547,12 +664,62 @@ def apply_to_display(result, source, view=None, array=None, camera=True):
     return disp
 
 
+# The view properties apply_camera sets, in the order an undo restores them.
+CAMERA_PROPERTIES = ("CameraPosition", "CameraFocalPoint", "CameraViewUp", "CameraViewAngle",
+                     "CameraParallelProjection")
+
+
 def apply_camera(cam, view):
+    """Set `view`'s camera to `cam`. Inside an undo set (the GUI's Apply), the change joins
+    it: ParaView's undo stack leaves camera proxies out of its records, so without this
+    Undo Apply would keep t2tf's camera."""
+    undo = _camera_undo_elements(view)
     view.CameraPosition = cam["position"]
     view.CameraFocalPoint = cam["focal_point"]
     view.CameraViewUp = cam["view_up"]
     view.CameraViewAngle = cam["view_angle"]
     view.CameraParallelProjection = 0
+    if undo is not None:
+        undo()
+
+
+def _camera_undo_elements(view):
+    """Where an undo stack builder listens (ParaView's GUI), note the camera properties of
+    `view` now and return a function that notes them again and adds both notes to the undo
+    set being recorded (the builder keeps them only while one is, e.g. during Apply); else
+    None. An undo set undoes its elements last to first and redoes
+    them first to last, so Undo ends on the camera noted first and Redo on the one noted
+    second (the pattern of ParaView's own camera undo, vtkSMInteractionUndoStackBuilder)."""
+    from paraview import servermanager
+
+    try:
+        builder = servermanager.vtkSMProxyManager.GetProxyManager().GetUndoStackBuilder()
+    except AttributeError:
+        return None
+    # The builder adds an element only while a set is being recorded (its Add says whether).
+    if builder is None or builder.GetIgnoreAllChanges():
+        return None
+    proxy = view.SMProxy
+    try:
+        proxy.SynchronizeCameraProperties()  # the camera as shown, after any interaction
+    except AttributeError:
+        pass
+
+    def note():
+        elements = []
+        for name in CAMERA_PROPERTIES:
+            element = servermanager.vtkSMPropertyModificationUndoElement()
+            element.ModifiedProperty(proxy, name)
+            elements.append(element)
+        return elements
+
+    before = note()
+
+    def finish():
+        for element in before + note():
+            builder.Add(element)
+
+    return finish
 
 
 # Results of filters run in this process, applied to their displays as those appear
@@ -599,7 +766,11 @@ def _apply_pending(*_):
                 continue
             applied.add(key)
             disp.Representation = "Volume"
-            pvs.ColorBy(disp, ("POINTS", result["array"]))
+            # The colour array and functions are set as properties, not through ColorBy:
+            # ColorBy rescales a new colour map to the display's data range, which a display
+            # registered by a loading state does not know yet ("Could not determine array
+            # range."), and t2tf's map is never rescaled anyway.
+            disp.ColorArrayName = ["POINTS", result["array"]]
             lut, pwf = apply_transfer_function(result, result["array"])
             disp.LookupTable = lut
             disp.ScalarOpacityFunction = pwf
@@ -619,6 +790,49 @@ def _watch_displays():
     if pxm not in _OBSERVED:
         pxm.AddObserver("RegisterEvent", _apply_pending)
         _OBSERVED.append(pxm)
+
+
+# ---- time estimate -------------------------------------------------------------------
+
+# The timing the last run with each model measured (model -> measured_timing(...)).
+_TIMINGS = {}
+
+
+def measured_timing(report, views, wall_seconds):
+    """What a run measured, for estimates: the median time of one step per view (steps after
+    the first, which carries one-off work), and the start-up (the run's wall time less its
+    steps: model loading, caption embeddings, output). None without two timed steps."""
+    try:
+        steps = [float(s["seconds"]) for s in json.loads(report)["steps"]]
+    except (ValueError, KeyError, TypeError):
+        return None
+    later = sorted(steps[1:])
+    if not later or views < 1:
+        return None
+    per_step = later[len(later) // 2]
+    return {"per_view_step": per_step / views,
+            "start": max(0.0, wall_seconds - sum(steps))}
+
+
+def _seconds(value):
+    if value >= 120:
+        return "%.0f min" % (value / 60.0)
+    if value >= 10:
+        return "%.0f s" % value
+    return "%.1f s" % value
+
+
+def time_estimate(steps, views, timing):
+    """The Time Estimate text for `steps` x `views` from a measured_timing()."""
+    if not timing:
+        return "known after the first run with this model"
+    each = timing["per_view_step"]
+    total = steps * views * each + timing["start"]
+    ms = 1000.0 * each
+    # The total last: the panel's read-only field shows a long text's end.
+    return "%d steps x %d views x %s ms + %s start = about %s" % (
+        steps, views, "%.1f" % ms if ms < 10 else "%.0f" % ms, _seconds(timing["start"]),
+        _seconds(total))
 
 
 # ---- the filter ----------------------------------------------------------------------
@@ -747,6 +961,13 @@ PROPERTIES_XML = """
   <IntRangeDomain name="range" min="1" max="16" />
   <Documentation>Random views rendered per step (run time grows with them).</Documentation>
 </IntVectorProperty>
+<StringVectorProperty name="TimeEstimate" label="Time Estimate" command="GetTimeEstimate"
+    information_only="1" number_of_elements="1" default_values="" panel_visibility="default">
+  <Documentation>How long a run with the applied Steps and Views takes: Steps x Views x
+  the time of one step and view that the last run with this Model measured, plus that run's
+  start-up (loading the model, caption embeddings). Read-only; it follows Steps and Views
+  when they are applied, and is known after the first run.</Documentation>
+</StringVectorProperty>
 <IntVectorProperty name="Refine" command="SetRefine" number_of_elements="1"
     default_values="0">
   <BooleanDomain name="bool" />
@@ -810,6 +1031,9 @@ PROPERTIES_XML = """
 </StringVectorProperty>
 """
 
+# Results each filter keeps in memory, so Undo and Redo of an Apply do not run t2tf again.
+_CACHED_RESULTS = 8
+
 # Every setting that changes what t2tf computes: part of the key a stored result must match.
 _KEYED = ("_prompt", "_negatives", "_steps", "_views", "_seed", "_model", "_tokenizer",
           "_reference", "_refine", "_locks")
@@ -836,9 +1060,12 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self._refine = 0
         self._locks = ""
         self._stored = None  # the Result property, parsed
+        self._cache = {}  # settings-and-input key -> result, the last _CACHED_RESULTS runs
+        self._last_name = None  # the preset name of the last result shown
         self.result = None
         self.error = None
-        self.reused = False
+        self.reused = False  # the result shown was not computed by this update
+        self.restored = False  # ... and came from the Result property (a loaded state)
 
     def FillInputPortInformation(self, port, info):
         # Any data object reaches RequestData, which names the problem in one line; the
@@ -897,6 +1124,12 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
     def SetApplyCamera(self, value):
         self._camera = int(value)
         self.Modified()
+
+    def GetTimeEstimate(self):
+        """The Time Estimate property: the run time of the applied Steps and Views."""
+        stored = ((self._stored or {}).get("result") or {}).get("timing")
+        timing = _TIMINGS.get(self._model) or stored
+        return time_estimate(self._steps, self._views, timing)
 
     def SetResult(self, value):
         # Not Modified(): the stored result is a cache, not a setting. A state sets it before
@@ -979,16 +1212,34 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         key = hashlib.sha256(json.dumps(settings).encode()).hexdigest()
         stored = self._stored
         if stored and stored.get("key") == key and stored.get("result"):
-            self.reused = True
+            self.reused = self.restored = True
             message("restored the saved result (input and settings unchanged): t2tf not run",
                     False)
             return stored["result"]
+        self.restored = False
+        cached = self._cache.get(key)
+        if cached is not None:
+            # The settings and input of an earlier run of this filter, back again (Redo
+            # Apply, or Undo of a later Apply): its result, without running t2tf.
+            self.reused = True
+            message("reused the result of an earlier run with the same input and settings: "
+                    "t2tf not run", False)
+            self._store({"key": key, "result": cached})
+            return cached
         self.reused = False
-        previous = (stored or {}).get("result", {}).get("name")
+        previous = (stored or {}).get("result", {}).get("name") or self._last_name
         result = self._run(image, array)
         result["replaces"] = previous
+        self._remember(key, result)
         self._store({"key": key, "result": result})
         return result
+
+    def _remember(self, key, result):
+        """Keep the last few results by key (a result is a few kilobytes)."""
+        self._cache.pop(key, None)
+        self._cache[key] = result
+        while len(self._cache) > _CACHED_RESULTS:
+            self._cache.pop(next(iter(self._cache)))
 
     def _store(self, stored):
         """Keep the result in the hidden Result property, which a state saves. Set on the
@@ -1033,6 +1284,10 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self.UpdateProgress(1.0)
         result["array"] = array
         result["volume"] = volume
+        result["timing"] = measured_timing(result["report"], self._views,
+                                           time.time() - progress.start)
+        if result["timing"]:
+            _TIMINGS[self._model] = result["timing"]
         if result["interrupted"]:
             message("cancelled: kept the transfer function of the last finished step", False)
         return result
@@ -1068,13 +1323,17 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         proxy = _proxy_of(self)
         if proxy is None:
             return  # no client-side proxy (e.g. a plain VTK pipeline): nothing to show
-        register_preset(result, result.get("replaces"))
+        register_preset(result, self._last_name or result.get("replaces"))
+        self._last_name = result["name"]
         apply_transfer_function(result, result["array"])
-        # A restored result keeps the state's own camera.
-        camera = bool(self._camera) and not self.reused
+        # A result restored from a state keeps the state's own camera.
+        camera = bool(self._camera) and not self.restored
         _PENDING[id(self)] = (proxy, result, camera, set())
         _watch_displays()
         _apply_pending()
+        # The panel shows the new run's timing (it reads Time Estimate again only after an
+        # Apply, which may come before this run's update).
+        proxy.SMProxy.UpdatePropertyInformation(proxy.SMProxy.GetProperty("TimeEstimate"))
 
 
 # ---- remote servers ------------------------------------------------------------------

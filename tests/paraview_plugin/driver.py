@@ -219,6 +219,17 @@ elif mode == "presets":
         return sorted(presets.GetPresetName(i) for i in range(presets.GetNumberOfPresets())
                       if presets.GetPresetName(i).startswith("t2tf: "))
 
+    # Choose Preset's groups as a GUI saved them (pvpython has no group manager: the plugin
+    # edits this setting, which the GUI reads at start-up).
+    settings = servermanager.vtkSMSettings.GetInstance()
+    settings.SetSetting("TransferFunctionPresets.Groups", json.dumps(
+        [{"groupName": "Default", "presets": ["Cool to Warm"]},
+         {"groupName": "Linear", "presets": ["X Ray"]}]))
+
+    def groups():
+        return {g["groupName"]: g["presets"] for g in json.loads(
+            settings.GetSettingAsString("TransferFunctionPresets.Groups", ""))}
+
     res["before"] = t2tf_names()
     src = raw_reader(volume)
     result, f = t2tf_plugin.text_to_transfer_function(
@@ -226,15 +237,40 @@ elif mode == "presets":
         model=model, tokenizer=tokenizer)
     res["first_name"] = result["name"]
     res["after_first"] = t2tf_names()
+    res["groups_after_first"] = groups()
     f.Steps = 3
     f.UpdatePipeline()
     res["after_rerun"] = t2tf_names()
+    res["groups_after_rerun"] = groups()
     f.Prompt = "a   glowing\ncloud"
     f.UpdatePipeline()
     res["after_new_prompt"] = t2tf_names()
+    res["groups_after_new_prompt"] = groups()
     res["applied"] = f.GetClientSideObject().result["preset"]["RGBPoints"]
     res["removed"] = t2tf_plugin.remove_presets()
     res["after_remove"] = t2tf_names()
+    res["groups_after_remove"] = groups()
+elif mode == "estimate":
+    # The panel's read-only Time Estimate before any run, after a 3-step run, and after
+    # Steps and Views are applied (pushed) without running again.
+    f = tf_filter(raw_reader(volume), steps=3)
+    proxy = f.SMProxy
+
+    def estimate():
+        proxy.UpdatePropertyInformation()
+        return proxy.GetProperty("TimeEstimate").GetElement(0)
+
+    res["information_only"] = bool(proxy.GetProperty("TimeEstimate").GetInformationOnly())
+    res["before_run"] = estimate()
+    f.UpdatePipeline()
+    res["after_run"] = estimate()
+    f.Steps = 300
+    proxy.UpdateVTKObjects()
+    res["steps_300"] = estimate()
+    f.Views = 4
+    proxy.UpdateVTKObjects()
+    res["views_4"] = estimate()
+    res["timing"] = f.GetClientSideObject().result["timing"]
 elif mode in ("state_save", "state_load"):
     # Save a state after one run with a camera of the user's, then load it in a new
     # session: the result comes back without running t2tf, with the saved camera.
@@ -257,7 +293,7 @@ elif mode in ("state_save", "state_load"):
         record(f, "ImageFile")
         res["reused"] = f.GetClientSideObject().reused
         res["saved_camera"] = camera
-if mode not in ("errors", "offline", "panel", "presets"):
+if mode not in ("errors", "offline", "panel", "presets", "estimate"):
     pvs.SaveScreenshot(shot, view, ImageResolution=[size, size])
 with open(out_json, "w") as fh:
     json.dump(res, fh)
