@@ -5,7 +5,8 @@
 //!     cargo run --release --features bench --example bench_memory -- DIR
 //!     /usr/bin/time -v target/release/t2tf optimize VOLUME --model DIR --prompt "..." --out OUT
 //!
-//! With `--backward [REPS]` instead of a folder it times what holding one copy of a weight
+//! With `--volume DIR` it writes a 1 GiB uint8 volume there (the aneurism upsampled to 1024³)
+//! for the large-volume path (the preview's level). With `--backward [REPS]` instead of a folder it times what holding one copy of a weight
 //! costs: the input backward `dX = dY · W` of ViT-B/32's layers (150 rows: 3 views × 50
 //! tokens) from the forward's packed `Wᵀ` read transposed (`packed::gemm_t`, what a layer
 //! does) against a second packed copy `W` (`packed::gemm`), for the best f32 kernel, the two
@@ -137,7 +138,61 @@ fn backward(reps: usize) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A 1 GiB uint8 volume for measuring the large-volume path: the 256³ aneurism of ../shared
+/// upsampled 4× trilinearly to 1024³ (`aneurism4x_1024x1024x1024_uint8.raw` in `dir`).
+fn large_volume(dir: &Path, shared: &Path) -> anyhow::Result<PathBuf> {
+    use rayon::prelude::*;
+    let src = std::fs::read(shared.join("data/volumes/aneurism_256x256x256_uint8.raw"))?;
+    let (n, f) = (256usize, 4usize);
+    let out_n = n * f;
+    let at = |x: usize, y: usize, z: usize| src[(z * n + y) * n + x] as f32;
+    // Source coordinate and weight of output index i (cell-centred ×4, clamped at the ends).
+    let coord = |i: usize| {
+        let c = ((i as f32 + 0.5) / f as f32 - 0.5).clamp(0.0, (n - 1) as f32);
+        let i0 = (c.floor() as usize).min(n - 2);
+        (i0, c - i0 as f32)
+    };
+    let path = dir.join(format!("aneurism4x_{out_n}x{out_n}x{out_n}_uint8.raw"));
+    let mut file = std::io::BufWriter::new(std::fs::File::create(&path)?);
+    for z in 0..out_n {
+        let (z0, wz) = coord(z);
+        let mut slice = vec![0u8; out_n * out_n];
+        slice
+            .par_chunks_mut(out_n)
+            .enumerate()
+            .for_each(|(y, row)| {
+                let (y0, wy) = coord(y);
+                for (x, v) in row.iter_mut().enumerate() {
+                    let (x0, wx) = coord(x);
+                    let mut s = 0.0;
+                    for (dz, cz) in [(0, 1.0 - wz), (1, wz)] {
+                        for (dy, cy) in [(0, 1.0 - wy), (1, wy)] {
+                            for (dx, cx) in [(0, 1.0 - wx), (1, wx)] {
+                                s += cz * cy * cx * at(x0 + dx, y0 + dy, z0 + dz);
+                            }
+                        }
+                    }
+                    *v = s.round().clamp(0.0, 255.0) as u8;
+                }
+            });
+        std::io::Write::write_all(&mut file, &slice)?;
+    }
+    std::io::Write::flush(&mut file)?;
+    Ok(path)
+}
+
 fn main() -> anyhow::Result<()> {
+    if std::env::args().nth(1).as_deref() == Some("--volume") {
+        let dir = PathBuf::from(
+            std::env::args()
+                .nth(2)
+                .ok_or_else(|| anyhow::anyhow!("usage: bench_memory --volume DIR"))?,
+        );
+        std::fs::create_dir_all(&dir)?;
+        let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
+        println!("wrote {}", large_volume(&dir, &shared)?.display());
+        return Ok(());
+    }
     if std::env::args().nth(1).as_deref() == Some("--backward") {
         let reps = std::env::args()
             .nth(2)
