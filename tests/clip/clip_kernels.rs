@@ -360,15 +360,22 @@ fn golden_fixtures_with_every_kernel() {
         let golden: Golden =
             serde_json::from_str(&std::fs::read_to_string(format!("{dir}/golden.json")).unwrap())
                 .unwrap();
-        for &kernel in &kernels {
+        // Every kernel with a backward copy of each weight, and with one copy (the f32
+        // backward then reads the forward's panels transposed, `packed::gemm_t`).
+        let setups = kernels.iter().flat_map(|&k| [(k, false), (k, true)]);
+        for (kernel, one_copy) in setups {
             let tol = match kernel.precision() {
                 Precision::F32 => 1e-4,
                 Precision::Bf16 => 5e-2,
             };
-            let name = format!("{variant} ({})", kernel.name());
+            let copies = if one_copy { "one copy" } else { "two copies" };
+            let name = format!("{variant} ({}, {copies})", kernel.name());
             let mut req = ModelRequest::new(&dir);
             req.tokenizer = Some(Path::new(TOKENIZER).to_path_buf());
-            let compute = Compute::default().with_kernel(kernel).unwrap();
+            let compute = Compute::default()
+                .with_kernel(kernel)
+                .unwrap()
+                .with_one_copy(one_copy);
             let clip = Clip::load_request_with(&req, compute).unwrap();
             let ids: Vec<Vec<u32>> = golden.texts.iter().map(|t| t.ids.clone()).collect();
             let text = clip.encode_tokens(&ids).unwrap();

@@ -17,9 +17,9 @@ use super::packed::{Engine, Kernel};
 /// `torch.nn.Linear`: `y = x Wᵀ + b`, `W` being `[out, in]` in the checkpoint.
 ///
 /// How `W` is stored depends on the GEMM engine, kernel and precision in force when the layer
-/// is built (`packed::layer_kernel`): packed once for a hand-written f32 kernel (the input
-/// backward reads the forward's panels transposed), packed twice for a bf16 kernel whose layer
-/// needs a backward, or plainly for the `gemm` crate.
+/// is built (`packed::layer_kernel`): packed for a hand-written kernel, once for the forward
+/// and once more for the input backward where the layer has one (unless
+/// [`Compute::one_copy`]), or plainly for the `gemm` crate.
 pub struct Linear {
     w: Weight,
     /// `[out]`, absent for the bias-free projections.
@@ -30,13 +30,13 @@ pub struct Linear {
 
 enum Weight {
     /// Forward contracts over `in`, backward over `out`: `fwd` is `Wᵀ` (k = in, n = out) in
-    /// the micro-kernel's panel layout. An f32 kernel's backward `dX = dY · W` reads these
-    /// panels transposed (`packed::gemm_t`), so the layer holds one copy of its weight: 350 MB
-    /// less for ViT-B/32's image tower, for a backward product about 1.3× slower than from a
-    /// copy of its own (`examples/bench_memory.rs --backward`). A bf16 panel
-    /// pairs k = in, and `vdpbf16ps` would need out paired for the backward: `bwd` is then `W`
-    /// (k = out, n = in) packed too (two bf16 copies take the bytes of one f32 copy). `None`
-    /// for f32 kernels and for layers built for the forward only (the text tower).
+    /// the micro-kernel's panel layout. `bwd` is `W` (k = out, n = in) for the backward
+    /// `dX = dY · W`, unless the layer is built for the forward only (the text tower) or with
+    /// [`Compute::one_copy`]: an f32 backward then reads `fwd`'s panels transposed
+    /// (`packed::gemm_t`), 350 MB less for ViT-B/32's image tower for backward products about
+    /// 1.35× slower (`examples/bench_memory.rs --backward`). A bf16 panel
+    /// pairs k = in, and `vdpbf16ps` would need out paired for the backward: a bf16 layer with
+    /// a backward always keeps `bwd` (two bf16 copies take the bytes of one f32 copy).
     Packed { fwd: PackedB, bwd: Option<PackedB> },
     /// For the `gemm` crate: `[out, in]`, or `[in, out]` when `transposed`. Measured with
     /// `examples/bench_clip.rs`: `gemm` is ~2.5× slower when the right operand is transposed
@@ -77,7 +77,7 @@ impl Linear {
         let w = match compute.layer_kernel() {
             Some(kernel) => Weight::Packed {
                 fwd: PackedB::from_cols_for(kernel, &w, in_dim, out_dim),
-                bwd: (backward && kernel.precision() == Precision::Bf16)
+                bwd: (backward && (kernel.precision() == Precision::Bf16 || !compute.one_copy))
                     .then(|| PackedB::from_rows_for(kernel, &w, out_dim, in_dim)),
             },
             None => {

@@ -7,10 +7,10 @@
 //! `bench_clip --image-only` (ViT-B/32, 3 views, forward + input backward) on an AVX2 machine put
 //! 68 % of the cycles in `gemm`'s micro-kernel and 12.5 % in its packing: `gemm` repacks the weight
 //! operand on every call, and with m = 150 tokens each weight element packed is used for only 150
-//! multiply-adds. The weights never change, so here each one is packed once at load — `Wᵀ` for the
-//! forward `Y = X · Wᵀ`, which the backward `dX = dY · W` reads transposed (`gemm_t`; bf16
-//! layers pack `W` for the backward too, see `layers::Linear`) — and a call only packs its
-//! activation operand (m × k, m = 150 rows, small). The same holds on AVX-512 CPUs with the 6 × 64
+//! multiply-adds. The weights never change, so here each one is packed at load — `Wᵀ` for the
+//! forward `Y = X · Wᵀ` and `W` for the backward `dX = dY · W`, or with `Compute::one_copy`
+//! only `Wᵀ`, whose panels the backward reads transposed (`gemm_t`) — and a call only packs
+//! its activation operand (m × k, m = 150 rows, small). The same holds on AVX-512 CPUs with the 6 × 64
 //! zmm kernel (`avx512.rs` for its shape); the timings of every engine are in BENCHMARKS.md
 //! ("CLIP", "Image pass").
 //!
@@ -317,6 +317,13 @@ pub struct Compute {
     /// A kernel forced whatever the engine and precision say (tests and benchmarks; see
     /// [`Compute::with_kernel`]); `None`: chosen by them.
     pub kernel: Option<Kernel>,
+    /// Whether f32 layers keep one packed copy of each weight: the input backward then reads
+    /// the forward's panels transposed ([`gemm_t`]), which takes the memory of a second copy
+    /// (350 MB for ViT-B/32's image tower) but makes the backward products about 1.35× slower
+    /// (`examples/bench_memory.rs --backward`; the image pass's backward ~1.35× in
+    /// `t2tf optimize`'s timings). `false`: a second copy `W` for the backward, the faster
+    /// product. Results agree to float rounding either way.
+    pub one_copy: bool,
 }
 
 impl Default for Compute {
@@ -333,7 +340,13 @@ impl Compute {
             engine: Engine::detect(),
             precision,
             kernel: None,
+            one_copy: false,
         }
+    }
+
+    /// The same keeping one copy of each weight or not ([`Compute::one_copy`]).
+    pub fn with_one_copy(self, one_copy: bool) -> Compute {
+        Compute { one_copy, ..self }
     }
 
     /// The same with `engine` (tests and benchmarks compare the two engines).
