@@ -360,15 +360,22 @@ fn golden_fixtures_with_every_kernel() {
         let golden: Golden =
             serde_json::from_str(&std::fs::read_to_string(format!("{dir}/golden.json")).unwrap())
                 .unwrap();
-        for &kernel in &kernels {
+        // Every kernel with a backward copy of each weight, and with one copy (the f32
+        // backward then reads the forward's panels transposed, `packed::gemm_t`).
+        let setups = kernels.iter().flat_map(|&k| [(k, false), (k, true)]);
+        for (kernel, one_copy) in setups {
             let tol = match kernel.precision() {
                 Precision::F32 => 1e-4,
                 Precision::Bf16 => 5e-2,
             };
-            let name = format!("{variant} ({})", kernel.name());
+            let copies = if one_copy { "one copy" } else { "two copies" };
+            let name = format!("{variant} ({}, {copies})", kernel.name());
             let mut req = ModelRequest::new(&dir);
             req.tokenizer = Some(Path::new(TOKENIZER).to_path_buf());
-            let compute = Compute::default().with_kernel(kernel).unwrap();
+            let compute = Compute::default()
+                .with_kernel(kernel)
+                .unwrap()
+                .with_one_copy(one_copy);
             let clip = Clip::load_request_with(&req, compute).unwrap();
             let ids: Vec<Vec<u32>> = golden.texts.iter().map(|t| t.ids.clone()).collect();
             let text = clip.encode_tokens(&ids).unwrap();
@@ -423,4 +430,81 @@ fn missing_kernels_are_refused() {
         Kernel::Avx512Bf16.available()
             && t2tf::clip::bf16_speedup().unwrap() >= t2tf::clip::AUTO_BF16_MIN_SPEEDUP
     );
+}
+
+/// The transposed product `C = A · B[.., cols]ᵀ` on a forward packing (`packed::gemm_t`, the
+/// input backward of a layer holding one copy of its weight), for every f32 kernel, against the
+/// f64 reference: odd shapes, column ranges starting and ending inside a panel, strided A, the
+/// ViT-B/32 backward shapes; the same bits whatever the thread count, and the same bits from
+/// the AVX2 and AVX-512 kernels.
+#[test]
+fn transposed_products_match_the_scalar_reference() {
+    // m, B's k × n, the columns of B that A's columns multiply.
+    let cases = [
+        (1, 1, 1, 0..1),
+        (5, 7, 3, 0..3),
+        (7, 65, 130, 63..65),
+        (13, 301, 203, 3..200),
+        (6, 64, 256, 64..256),
+        (151, 97, 515, 1..515),
+        (150, 768, 2304, 768..1536),
+        (150, 3072, 768, 0..768),
+        (150, 768, 3072, 0..3072),
+    ];
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let two = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    let kernels: Vec<Kernel> = available("transposed")
+        .into_iter()
+        .filter(|k| k.precision() == Precision::F32)
+        .collect();
+    for (m, kt, nt, cols) in cases {
+        let b = values(kt * nt, 21, 1.0);
+        let lda = cols.len() + 5;
+        let a = values(m * lda, 22, 1.0);
+        // Reference: C[i][p] = Σ_j A[i][j] · B[p][cols.start + j].
+        let want: Vec<f64> = (0..m * kt)
+            .map(|e| {
+                let (i, p) = (e / kt, e % kt);
+                cols.clone()
+                    .enumerate()
+                    .map(|(j, col)| a[i * lda + j] as f64 * b[p * nt + col] as f64)
+                    .sum()
+            })
+            .collect();
+        let mut by_kernel = Vec::new();
+        for &kernel in &kernels {
+            let packed = PackedB::from_rows_for(kernel, &b, kt, nt);
+            let got = two.install(|| packed::gemm_t(&a, lda, m, &packed, cols.clone()));
+            let single = one.install(|| packed::gemm_t(&a, lda, m, &packed, cols.clone()));
+            assert_eq!(got.len(), m * kt);
+            for (idx, (&g, &w)) in got.iter().zip(&want).enumerate() {
+                assert!(
+                    (g as f64 - w).abs() <= tolerance(cols.len()),
+                    "{} {m}x{kt}x{nt} {cols:?}: element {idx}: {g} vs {w}",
+                    kernel.name()
+                );
+            }
+            assert!(
+                got.iter()
+                    .zip(&single)
+                    .all(|(x, y)| x.to_bits() == y.to_bits()),
+                "{} {m}x{kt}x{nt}: 1 and 2 threads differ",
+                kernel.name()
+            );
+            by_kernel.push((kernel, got));
+        }
+        let bits = |k: Kernel| by_kernel.iter().find(|(x, _)| *x == k).map(|(_, c)| c);
+        if let (Some(x), Some(y)) = (bits(Kernel::Avx2Fma), bits(Kernel::Avx512F)) {
+            assert!(
+                x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits()),
+                "{m}x{kt}x{nt} {cols:?}: AVX2 and AVX-512 differ"
+            );
+        }
+    }
 }

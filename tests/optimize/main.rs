@@ -15,6 +15,7 @@ mod optimize_driver;
 mod optimize_e2e;
 mod optimize_loop;
 mod optimize_pipeline;
+mod optimize_preview;
 mod optimize_progress;
 mod optimize_recovery;
 mod optimize_refine;

@@ -10,15 +10,16 @@ use rayon::prelude::*;
 
 use super::config::Activation;
 use super::matmul::{matmul, Mat, Op};
-use super::packed::{self, Compute, PackedB};
+use super::packed::{self, Compute, PackedB, Precision};
 #[cfg(test)]
 use super::packed::{Engine, Kernel};
 
 /// `torch.nn.Linear`: `y = x Wᵀ + b`, `W` being `[out, in]` in the checkpoint.
 ///
 /// How `W` is stored depends on the GEMM engine, kernel and precision in force when the layer
-/// is built (`packed::layer_kernel`): packed twice for a hand-written kernel, or plainly for
-/// the `gemm` crate.
+/// is built (`packed::layer_kernel`): packed for a hand-written kernel, once for the forward
+/// and once more for the input backward where the layer has one (unless
+/// [`Compute::one_copy`]), or plainly for the `gemm` crate.
 pub struct Linear {
     w: Weight,
     /// `[out]`, absent for the bias-free projections.
@@ -28,9 +29,15 @@ pub struct Linear {
 }
 
 enum Weight {
-    /// Forward contracts over `in`, backward over `out`: `fwd` is `Wᵀ` (k = in, n = out),
-    /// `bwd` is `W` (k = out, n = in), both in the micro-kernel's panel layout.
-    Packed { fwd: PackedB, bwd: PackedB },
+    /// Forward contracts over `in`, backward over `out`: `fwd` is `Wᵀ` (k = in, n = out) in
+    /// the micro-kernel's panel layout. `bwd` is `W` (k = out, n = in) for the backward
+    /// `dX = dY · W`, unless the layer is built for the forward only (the text tower) or with
+    /// [`Compute::one_copy`]: an f32 backward then reads `fwd`'s panels transposed
+    /// (`packed::gemm_t`), 350 MB less for ViT-B/32's image tower for backward products about
+    /// 1.35× slower (`examples/bench_memory.rs --backward`). A bf16 panel
+    /// pairs k = in, and `vdpbf16ps` would need out paired for the backward: a bf16 layer with
+    /// a backward always keeps `bwd` (two bf16 copies take the bytes of one f32 copy).
+    Packed { fwd: PackedB, bwd: Option<PackedB> },
     /// For the `gemm` crate: `[out, in]`, or `[in, out]` when `transposed`. Measured with
     /// `examples/bench_clip.rs`: `gemm` is ~2.5× slower when the right operand is transposed
     /// *and* the inner dimension is long (150×3072 · (768×3072)ᵀ: 63 GFLOPS against 164
@@ -41,13 +48,27 @@ enum Weight {
 
 impl Linear {
     /// From the checkpoint's `[out, in]` weight, stored for `compute`'s kernel
-    /// ([`Compute::layer_kernel`]).
+    /// ([`Compute::layer_kernel`]), with the input backward.
+    #[cfg(test)]
     pub fn new(
         w: Vec<f32>,
         b: Option<Vec<f32>>,
         in_dim: usize,
         out_dim: usize,
         compute: &Compute,
+    ) -> Linear {
+        Linear::build(w, b, in_dim, out_dim, compute, true)
+    }
+
+    /// As [`Linear::new`]; without `backward` nothing is stored for the input backward (a
+    /// bf16 layer packs one copy instead of two), and `backward*` panics on a bf16 layer.
+    pub fn build(
+        w: Vec<f32>,
+        b: Option<Vec<f32>>,
+        in_dim: usize,
+        out_dim: usize,
+        compute: &Compute,
+        backward: bool,
     ) -> Linear {
         assert_eq!(w.len(), in_dim * out_dim, "Linear weight size");
         if let Some(b) = &b {
@@ -56,7 +77,8 @@ impl Linear {
         let w = match compute.layer_kernel() {
             Some(kernel) => Weight::Packed {
                 fwd: PackedB::from_cols_for(kernel, &w, in_dim, out_dim),
-                bwd: PackedB::from_rows_for(kernel, &w, out_dim, in_dim),
+                bwd: (backward && (kernel.precision() == Precision::Bf16 || !compute.one_copy))
+                    .then(|| PackedB::from_rows_for(kernel, &w, out_dim, in_dim)),
             },
             None => {
                 let transposed = in_dim > out_dim;
@@ -191,7 +213,7 @@ impl Linear {
     /// `forward_act`; same bits as `backward` followed by `activation_backward`).
     pub fn backward_act(&self, dy: &[f32], rows: usize, act: Activation, pre: &[f32]) -> Vec<f32> {
         assert_eq!(pre.len(), rows * self.in_dim, "backward_act: pre size");
-        let Weight::Packed { bwd, .. } = &self.w else {
+        let Weight::Packed { fwd, bwd } = &self.w else {
             let mut dx = self.backward(dy, rows);
             activation_backward(act, pre, &mut dx);
             return dx;
@@ -200,7 +222,20 @@ impl Linear {
         let post = |row: usize, col: usize, g: &mut [f32]| {
             act_backward_any(act, &pre[row * n + col..][..g.len()], g)
         };
-        packed::gemm_new_post(dy, k, rows, bwd, 0..k, 0..n, None, Some(&post))
+        match bwd {
+            Some(bwd) => packed::gemm_new_post(dy, k, rows, bwd, 0..k, 0..n, None, Some(&post)),
+            None => packed::gemm_t_post(dy, k, rows, Self::f32_panels(fwd), 0..k, Some(&post)),
+        }
+    }
+
+    /// The forward panels, for a backward that reads them transposed: only an f32 kernel's
+    /// (a bf16 layer without `bwd` was built for the forward only).
+    fn f32_panels(fwd: &PackedB) -> &PackedB {
+        assert!(
+            fwd.kernel().precision() == Precision::F32,
+            "Linear: this bf16 layer was built for the forward pass only"
+        );
+        fwd
     }
 
     // `backward`/`backward_part` mirror `forward`/`forward_part` above: the same split of a
@@ -215,8 +250,11 @@ impl Linear {
     pub fn backward_part(&self, dy: &[f32], rows: usize, outs: Range<usize>) -> Vec<f32> {
         let n = outs.len();
         match &self.w {
-            Weight::Packed { bwd, .. } => {
+            Weight::Packed { bwd: Some(bwd), .. } => {
                 packed::gemm_new(dy, n, rows, bwd, outs, 0..self.in_dim, None)
+            }
+            Weight::Packed { fwd, bwd: None } => {
+                packed::gemm_t_post(dy, n, rows, Self::f32_panels(fwd), outs, None)
             }
             Weight::Plain { w, transposed } => {
                 let mut dx = vec![0.0; rows * self.in_dim];

@@ -30,6 +30,8 @@ pub(crate) struct Names<'a> {
     prefix: String,
     /// How the `Linear` layers read here run.
     compute: Compute,
+    /// Whether those layers keep what their input backward needs.
+    backward: bool,
 }
 
 impl<'a> Names<'a> {
@@ -39,12 +41,16 @@ impl<'a> Names<'a> {
             src,
             prefix: String::new(),
             compute,
+            backward: true,
         }
     }
 
-    /// How the `Linear` layers read here run.
-    pub fn compute(&self) -> &Compute {
-        &self.compute
+    /// The same names, with every layer built under them for the forward pass only.
+    pub fn forward_only(&self) -> Names<'a> {
+        Names {
+            backward: false,
+            ..self.clone()
+        }
     }
 
     /// One level down: `segment` appended to the prefix (with a dot).
@@ -58,6 +64,7 @@ impl<'a> Names<'a> {
             src: self.src,
             prefix,
             compute: self.compute,
+            backward: self.backward,
         }
     }
 
@@ -83,7 +90,13 @@ impl<'a> Names<'a> {
         } else {
             None
         };
-        Ok(Linear::new(w, b, inp, out, &self.compute))
+        Ok(self.linear_from(w, b, inp, out))
+    }
+
+    /// A linear layer from weights at hand (`[out, in]`), built with this tree's compute
+    /// settings and, unless [`Names::forward_only`], its input backward.
+    pub fn linear_from(&self, w: Vec<f32>, b: Option<Vec<f32>>, inp: usize, out: usize) -> Linear {
+        Linear::build(w, b, inp, out, &self.compute, self.backward)
     }
 
     /// `torch.nn.LayerNorm(dim, eps)` stored here (`weight` and `bias`, `[dim]` each).

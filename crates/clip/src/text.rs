@@ -30,6 +30,8 @@ impl TextModel {
     /// The text tower under `root` (the checkpoint's top level: `text_model.*` and
     /// `text_projection`), projecting to `proj` dimensions.
     pub fn load(root: &Names, cfg: &TextConfig, proj: usize) -> Result<TextModel, ClipError> {
+        // The text tower only runs forward: its layers keep no backward copy.
+        let root = &root.forward_only();
         let d = cfg.tower.hidden_size;
         let model = root.pp("text_model");
         let emb = model.pp("embeddings");

@@ -5,7 +5,6 @@
 use super::attention::{Attention, Segments};
 use super::config::TowerConfig;
 use super::encoder::{EncoderLayer, LayerSaved, PooledLayerSaved};
-use super::layers::Linear;
 use super::source::Names;
 use super::ClipError;
 
@@ -35,12 +34,11 @@ impl Tower {
                 })
             };
             let (q, k, v) = (raw("q_proj")?, raw("k_proj")?, raw("v_proj")?);
-            let qkv = Linear::new(
+            let qkv = attn.linear_from(
                 [q.weight, k.weight, v.weight].concat(),
                 Some([q.bias, k.bias, v.bias].concat()),
                 d,
                 3 * d,
-                attn.compute(),
             );
             let mlp = p.pp("mlp");
             layers.push(EncoderLayer {

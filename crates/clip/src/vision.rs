@@ -67,7 +67,7 @@ impl VisionModel {
         let pe = emb.pp("patch_embedding").tensor("weight", &[d, 3, p, p])?;
         Ok(VisionModel {
             cfg: cfg.clone(),
-            patch_embedding: Linear::new(pe, None, 3 * p * p, d, root.compute()),
+            patch_embedding: root.linear_from(pe, None, 3 * p * p, d),
             class_embedding: emb.tensor("class_embedding", &[d])?,
             position_embedding: emb
                 .pp("position_embedding")

@@ -199,8 +199,13 @@ impl SafetensorsFile {
             .ok_or_else(|| self.err(format!("tensor \"{name}\" is missing")))?;
         check_shape(name, &info.shape, shape).map_err(|m| self.err(m))?;
         let (s, e) = info.data_offsets;
-        let bytes = &self.mmap[self.data_start + s..self.data_start + e];
-        let out = widen(bytes, info.dtype).ok_or_else(|| {
+        let range = self.data_start + s..self.data_start + e;
+        let out = widen(&self.mmap[range.clone()], info.dtype);
+        // The tensor is now a copy: its pages stop counting as this process's memory, so a
+        // load holds one tensor of the file at a time on top of the model it builds, not the
+        // whole file's page-cache pages until the map is dropped.
+        release(&self.mmap, range);
+        let out = out.ok_or_else(|| {
             self.err(format!(
                 "tensor \"{name}\" has dtype {:?}; only F32, F16 and BF16 are supported",
                 info.dtype
@@ -213,6 +218,29 @@ impl SafetensorsFile {
 
 /// Little-endian F32/F16/BF16 bytes to f32; `None` for other dtypes. The bytes may be
 /// unaligned, so decode element by element.
+/// Stop counting the pages of `map` that `range` touches as this process's memory
+/// (`MADV_DONTNEED`). Whole pages around the range: a page it shares with a neighbouring
+/// tensor is read back from the file if that tensor is read later.
+fn release(map: &Mmap, range: std::ops::Range<usize>) {
+    // The system's page size (4 KiB on x86-64, 16/64 KiB on some ARM systems, where a 4 KiB
+    // aligned range would make madvise fail and nothing be released).
+    // SAFETY: sysconf only reads a system constant.
+    let page = match unsafe { libc::sysconf(libc::_SC_PAGESIZE) } {
+        p if p > 0 => p as usize,
+        _ => 4096,
+    };
+    let first = range.start / page * page;
+    let end = range.end.div_ceil(page).saturating_mul(page).min(map.len());
+    if end > first {
+        // SAFETY: the map is a read-only shared file mapping and no slice of it is alive
+        // here: after MADV_DONTNEED its pages read back from the file unchanged. A failure
+        // only means the pages stay counted.
+        let _ = unsafe {
+            map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, first, end - first)
+        };
+    }
+}
+
 fn widen(bytes: &[u8], dtype: Dtype) -> Option<Vec<f32>> {
     Some(match dtype {
         Dtype::F32 => bytes

@@ -18,10 +18,13 @@ pub const DEFAULT_STEP: f32 = 1.0;
 /// 28.6 dB, 0.375 is 32.1 dB, 0.25 is 37.6 dB (≥ 42 dB on every other case), at 1.5–4× the
 /// time of step 1 (≤ 0.26 s for two views on a busy 2-core machine).
 pub const FINAL_STEP: f32 = 0.25;
-/// Mip level of pictures for people: always full resolution. The automatic level picks a
-/// coarser one only for small pictures, and there it loses everything the step gains (96² px,
-/// aneurism, ramp TF: 27.0 dB on the automatic level 1 against 74.0 dB on level 0), while
-/// level 0 at that size takes 0.02 s.
+/// Mip level of pictures for people (`t2tf render`, the benchmarks' held-out views): full
+/// resolution. The automatic level picks a coarser one only for small pictures, and there it
+/// loses everything the step gains (96² px, aneurism, ramp TF: 27.0 dB on the automatic level 1
+/// against 74.0 dB on level 0), while level 0 at that size takes 0.02 s. preview.png takes the
+/// automatic level instead ([`choose_level`] at its 256² px): level 0 for volumes up to about
+/// 256³, a coarser level for larger ones, whose level 0 would cost its whole copy (or the
+/// brick cache's traffic) for detail the picture cannot show.
 pub const FINAL_LEVEL: usize = 0;
 /// Default early-termination threshold: a ray stops when T < 1e-3, so what it leaves out is at
 /// most T·|c − B| ≤ 1e-3 per channel, a quarter of an 8-bit level (≥ 60 dB PSNR).

@@ -147,6 +147,71 @@ pub(super) unsafe fn tile_f32(
     store_tile!(c, crow, ldc, t);
 }
 
+/// Rows of the transposed product's tile (`tile_f32_t`).
+pub(super) const MR_T: usize = 4;
+/// Columns of the transposed product's tile: five 16-lane vectors.
+pub(super) const NR_T: usize = 80;
+const NV_T: usize = NR_T / 16;
+
+/// f32 `Cᵀ[4 × 80] (+)= A[4 × kc] · B[kc × 80]` with A read in place from the packed panels
+/// of a forward weight (`super::gemm_t`): A's element (r, c·NR + p), p < NR, is at
+/// `a + c·kstride + r·NR + p` (a panel's rows are NR floats apart, the next panel starts
+/// `kstride` floats on); B is `[kc][80]`. Per k step five B vectors and four broadcast A
+/// values feed 20 multiply-adds (20 accumulators), in k order for each element as `tile_f32`
+/// (so the AVX2 kernel's bits). The accumulators stay in registers across chunks; the tile is
+/// written transposed (`Tile::store_transposed`).
+///
+/// # Safety
+/// AVX-512F present; every A element named above for r < MR_T and k steps < kc readable; `b`
+/// readable for `kc·NR_T` floats and 64-byte aligned; `t.nr == NR_T`, `t.rows ≤ MR_T`; C as in
+/// `Tile::store_transposed`.
+#[target_feature(enable = "avx512f")]
+// Flat on purpose, as `tile_f32`.
+#[allow(clippy::too_many_arguments)]
+pub(super) unsafe fn tile_f32_t(
+    kc: usize,
+    a: *const f32,
+    kstride: usize,
+    b: *const f32,
+    crow: *mut f32,
+    ldc: usize,
+    t: &Tile,
+) {
+    debug_assert_eq!(t.nr, NR_T);
+    debug_assert!(t.rows <= MR_T);
+    let mut c = [[_mm512_setzero_ps(); NV_T]; MR_T];
+    let mut chunk = a;
+    let mut p0 = 0;
+    while p0 < kc {
+        let len = NR.min(kc - p0);
+        for p in 0..len {
+            // SAFETY: p0 + p < kc: inside the chunks and the B panel the caller guarantees;
+            // B rows (32 floats) are 64-byte aligned.
+            unsafe {
+                let bp = b.add((p0 + p) * NR_T);
+                let bv: [__m512; NV_T] = std::array::from_fn(|v| _mm512_load_ps(bp.add(16 * v)));
+                for (r, acc) in c.iter_mut().enumerate() {
+                    let av = _mm512_set1_ps(*chunk.add(r * NR + p));
+                    for (x, bv) in acc.iter_mut().zip(&bv) {
+                        *x = _mm512_fmadd_ps(av, *bv, *x);
+                    }
+                }
+            }
+        }
+        p0 += len;
+        chunk = chunk.wrapping_add(kstride);
+    }
+    let mut acc = [0.0f32; MR_T * NR_T];
+    for (r, row) in c.iter().enumerate() {
+        for (v, x) in row.iter().enumerate() {
+            // SAFETY: MR_T·NV_T vectors of 16 fill the MR_T·NR_T array exactly.
+            unsafe { _mm512_storeu_ps(acc.as_mut_ptr().add(r * NR_T + 16 * v), *x) };
+        }
+    }
+    // SAFETY: forwarded from the caller.
+    unsafe { t.store_transposed(&acc, crow, ldc) }
+}
+
 /// bf16 pairs: `C[6 × 64] (+)= Σ_q A[6][q] · B[q][64]` where every A and B element is a u32
 /// holding two bf16 values (k = 2q in the low half, 2q + 1 in the high half) and `vdpbf16ps`
 /// adds both products into the f32 accumulator.

@@ -7,9 +7,10 @@
 //! `bench_clip --image-only` (ViT-B/32, 3 views, forward + input backward) on an AVX2 machine put
 //! 68 % of the cycles in `gemm`'s micro-kernel and 12.5 % in its packing: `gemm` repacks the weight
 //! operand on every call, and with m = 150 tokens each weight element packed is used for only 150
-//! multiply-adds. The weights never change, so here each one is packed twice at load — `Wᵀ` for the
-//! forward `Y = X · Wᵀ` and `W` for the backward `dX = dY · W` — and a call only packs its
-//! activation operand (m × k, m = 150 rows, small). The same holds on AVX-512 CPUs with the 6 × 64
+//! multiply-adds. The weights never change, so here each one is packed at load — `Wᵀ` for the
+//! forward `Y = X · Wᵀ` and `W` for the backward `dX = dY · W`, or with `Compute::one_copy`
+//! only `Wᵀ`, whose panels the backward reads transposed (`gemm_t`) — and a call only packs
+//! its activation operand (m × k, m = 150 rows, small). The same holds on AVX-512 CPUs with the 6 × 64
 //! zmm kernel (`avx512.rs` for its shape); the timings of every engine are in BENCHMARKS.md
 //! ("CLIP", "Image pass").
 //!
@@ -316,6 +317,13 @@ pub struct Compute {
     /// A kernel forced whatever the engine and precision say (tests and benchmarks; see
     /// [`Compute::with_kernel`]); `None`: chosen by them.
     pub kernel: Option<Kernel>,
+    /// Whether f32 layers keep one packed copy of each weight: the input backward then reads
+    /// the forward's panels transposed ([`gemm_t`]), which takes the memory of a second copy
+    /// (350 MB for ViT-B/32's image tower) but makes the backward products about 1.35× slower
+    /// (`examples/bench_memory.rs --backward`; the image pass's backward ~1.35× in
+    /// `t2tf optimize`'s timings). `false`: a second copy `W` for the backward, the faster
+    /// product. Results agree to float rounding either way.
+    pub one_copy: bool,
 }
 
 impl Default for Compute {
@@ -332,7 +340,13 @@ impl Compute {
             engine: Engine::detect(),
             precision,
             kernel: None,
+            one_copy: false,
         }
+    }
+
+    /// The same keeping one copy of each weight or not ([`Compute::one_copy`]).
+    pub fn with_one_copy(self, one_copy: bool) -> Compute {
+        Compute { one_copy, ..self }
     }
 
     /// The same with `engine` (tests and benchmarks compare the two engines).
@@ -709,6 +723,272 @@ pub(crate) fn gemm_new_post(
     c
 }
 
+/// `C = A · B[.., cols]ᵀ` into a new `[m, b.k()]` matrix, with
+/// - `A`: m × `cols.len()`, row-major with leading dimension `lda` (column 0 of A multiplies
+///   column `cols.start` of B);
+/// - `B`: the packed k × n matrix of a forward product, read transposed in place.
+///
+/// The input backward of a layer that keeps one copy of its weight: the forward packs `Wᵀ`
+/// (k = in, n = out) for `Y = X · Wᵀ`, and `dX = dY · W` is this product on the same panels.
+/// f32 kernels only (a bf16 panel pairs B's rows, the backward would need its columns paired).
+///
+/// Computed as `Cᵀ = B · Aᵀ` (see `transposed_product`): B's panels are row panels of the left
+/// operand, read in place by the AVX-512 kernel (rows `nr` floats apart, the k steps of one
+/// panel contiguous) and copied per call for the interleaved AVX2 and scalar kernels; `Aᵀ`,
+/// small (m = 150 rows of activations), is packed per call as B always is. Threads split B's
+/// rows (C's columns), so every element of C is computed by one thread in the same order
+/// whatever the thread count.
+pub fn gemm_t(a: &[f32], lda: usize, m: usize, b: &PackedB, cols: Range<usize>) -> Vec<f32> {
+    gemm_t_post(a, lda, m, b, cols, None)
+}
+
+/// `gemm_t` with `post(row, 0, values)` applied to every row of C once it is final.
+pub(crate) fn gemm_t_post(
+    a: &[f32],
+    lda: usize,
+    m: usize,
+    b: &PackedB,
+    cols: Range<usize>,
+    post: Option<Post>,
+) -> Vec<f32> {
+    let kernel = b.kernel;
+    assert!(
+        !kernel.bf16(),
+        "packed::gemm_t: {} pairs B's rows; a transposed product needs an f32 kernel",
+        kernel.name()
+    );
+    assert!(cols.end <= b.n, "packed::gemm_t: B range");
+    let (n, k) = (b.k, cols.len());
+    if m > 0 && k > 0 {
+        assert!(
+            lda >= k && a.len() >= (m - 1) * lda + k,
+            "packed::gemm_t: A too small"
+        );
+    }
+    let mut c = vec![0.0f32; m * n];
+    if m > 0 && n > 0 && k > 0 {
+        // Cᵀ (n × m) = B[.., cols] (n × k, read from the panels) · Aᵀ (k × m, packed here),
+        // each tile written into C transposed.
+        transposed_product(&mut c, b, cols.start, a, lda, k, m);
+    }
+    if let (Some(post), true) = (post, n > 0) {
+        for (row, values) in c.chunks_exact_mut(n).enumerate() {
+            post(row, 0, values);
+        }
+    }
+    c
+}
+
+/// `Aᵀ` packed as the right operand of `transposed_product`: `n` rows of `k` floats at stride
+/// `ld` (`AT[p][j] = a[j·ld + p]`) into ⌈n / nr⌉ panels `[k][nr]`, zero past n. Written a block
+/// of k rows at a time, so that the panel rows being filled stay in L1 while each source row
+/// is read contiguously.
+fn pack_transposed(a: &[f32], ld: usize, k: usize, n: usize, nr: usize) -> Vec<Line> {
+    let panel_lines = k * nr / 16;
+    let mut lines = vec![Line([0.0; 16]); n.div_ceil(nr) * panel_lines];
+    let pack = |(jp, panel): (usize, &mut [Line])| {
+        // SAFETY: as in `PackedB::build`: the lines are contiguous f32s without padding.
+        let panel: &mut [f32] =
+            unsafe { std::slice::from_raw_parts_mut(panel.as_mut_ptr().cast(), panel.len() * 16) };
+        const ROWS: usize = 64;
+        for p0 in (0..k).step_by(ROWS) {
+            let p1 = (p0 + ROWS).min(k);
+            for c in 0..nr.min(n - jp * nr) {
+                let src = &a[(jp * nr + c) * ld..][p0..p1];
+                for (p, &v) in (p0..p1).zip(src) {
+                    panel[p * nr + c] = v;
+                }
+            }
+        }
+    };
+    if k * n >= 1 << 16 && rayon::current_num_threads() > 1 {
+        lines.par_chunks_mut(panel_lines).enumerate().for_each(pack);
+    } else {
+        lines.chunks_mut(panel_lines).enumerate().for_each(pack);
+    }
+    lines
+}
+
+/// `c[j][i] = Σ_p B[i][c0 + p] · A[j][p]` for p < k, j < m: `c` is `m × b.k` row-major, B the
+/// packed k × n matrix read with its rows as the left operand's rows (row i of B is row i of
+/// every column panel: `nr` floats, one panel's columns), A m × k at stride `lda`. Computed
+/// as `cᵀ = B · Aᵀ` in tiles of `cᵀ` written transposed.
+///
+/// The AVX-512 kernel here is 12 × 32 (`avx512::tile_f32_t`): the right operand has m = 150
+/// columns (3 views × 50 tokens), which 6 × 64 tiles would pad to 192 (28 % of the products
+/// wasted), 32-column ones to 160. The AVX2 and scalar kernels keep their 6 × 16 tiles, with
+/// the left operand packed per call.
+///
+/// k-blocks never cross a B panel except at its start: a block starts at a column of B that
+/// is a multiple of `NR_MAX` and spans up to `kc` columns (whole panels: the AVX-512 kernel
+/// walks them as chunks), or is the part of one 64-column panel before the first such column.
+/// The blocks do not depend on the kernel, so the AVX2 and AVX-512 kernels add the same
+/// products in the same order (identical bits, as in `gemm`).
+fn transposed_product(
+    c: &mut [f32],
+    b: &PackedB,
+    c0: usize,
+    a: &[f32],
+    lda: usize,
+    k: usize,
+    m: usize,
+) {
+    let kernel = b.kernel;
+    let nr = kernel.nr();
+    let rows_c = b.k;
+    // The tile: rows of B (of C) × columns of Aᵀ (of C).
+    let (tr, tn) = match kernel {
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx512F => (avx512::MR_T, avx512::NR_T),
+        _ => (MR, nr),
+    };
+    let at = pack_transposed(a, lda, k, m, tn);
+    let panels_m = rows_c.div_ceil(tr);
+    let panels_n = m.div_ceil(tn);
+    let mut blocks = Vec::new();
+    let mut s = c0;
+    while s < c0 + k {
+        let e = if !s.is_multiple_of(NR_MAX) {
+            (s.div_ceil(NR_MAX) * NR_MAX).min(c0 + k)
+        } else {
+            (s + kernel.kc()).min(c0 + k)
+        };
+        blocks.push(s..e);
+        s = e;
+    }
+    let parallel = rows_c * m * k >= PARALLEL_MIN_MACS && rayon::current_num_threads() > 1;
+    let threads = if parallel {
+        rayon::current_num_threads().min(panels_m)
+    } else {
+        1
+    };
+    let bflat = b.flat();
+    // SAFETY: as in `PackedB::flat`.
+    let atflat: &[f32] =
+        unsafe { std::slice::from_raw_parts(at.as_ptr().cast::<f32>(), at.len() * 16) };
+    let cp = SendPtr(c.as_mut_ptr());
+    let blocks = &blocks;
+    // B[i][col].
+    let at_b = |i: usize, col: usize| bflat[((col / nr) * rows_c + i) * nr + col % nr];
+    let run = |t: usize| {
+        let (i0, i1) = (t * panels_m / threads, (t + 1) * panels_m / threads);
+        // The left operand where it is copied: `[tiles][kc][MR]` for the interleaved kernels;
+        // for the AVX-512 kernel a last partial row panel, as `[chunks][MR_T][64]`.
+        let mut pack: Vec<f32> = Vec::new();
+        let mut scratch = [0.0f32; MR * 16];
+        let per_block = (MC / tr).max(1);
+        for ib in (i0..i1).step_by(per_block) {
+            let i_end = (ib + per_block).min(i1);
+            for (bi, block) in blocks.iter().enumerate() {
+                let kc = block.len();
+                let interleaved = matches!(kernel, Kernel::Portable | Kernel::Avx2Fma);
+                if interleaved {
+                    pack.clear();
+                    pack.resize((i_end - ib) * kc * MR, 0.0);
+                    for (ti, tile) in pack.chunks_exact_mut(kc * MR).enumerate() {
+                        let i = (ib + ti) * MR;
+                        let valid = MR.min(rows_c - i);
+                        for (p, group) in tile.chunks_exact_mut(MR).enumerate() {
+                            for (r, g) in group[..valid].iter_mut().enumerate() {
+                                *g = at_b(i + r, block.start + p);
+                            }
+                        }
+                    }
+                }
+                for jb in 0..panels_n {
+                    let bpanel = &atflat[(jb * k + block.start - c0) * tn..][..kc * tn];
+                    for i in ib..i_end {
+                        let rows = tr.min(rows_c - i * tr);
+                        let tile = Tile {
+                            rows,
+                            lo: 0,
+                            hi: tn.min(m - jb * tn),
+                            col0: (jb * tn) as isize,
+                            bias: None,
+                            add: bi > 0,
+                            nr: tn,
+                        };
+                        // SAFETY: column i·tr of c is inside its first row (i·tr < rows_c);
+                        // the tile writes columns i·tr + (0 .. rows) < rows_c of rows
+                        // jb·tn + (0 .. hi) < m of the m × rows_c matrix. Threads own disjoint
+                        // row panels i0..i1 of cᵀ, hence disjoint elements of c. The kernel
+                        // was checked against this CPU when B was packed.
+                        unsafe {
+                            let ccol = cp.get().add(i * tr);
+                            match kernel {
+                                Kernel::Portable | Kernel::Avx2Fma => {
+                                    // The kernel's tile into `scratch`, then transposed into c.
+                                    let apanel = &pack[(i - ib) * kc * MR..][..kc * MR];
+                                    let into = Tile {
+                                        lo: 0,
+                                        hi: nr,
+                                        col0: 0,
+                                        add: false,
+                                        ..tile
+                                    };
+                                    let sp = scratch.as_mut_ptr();
+                                    match kernel {
+                                        #[cfg(target_arch = "x86_64")]
+                                        Kernel::Avx2Fma => avx2::tile(
+                                            kc,
+                                            apanel.as_ptr(),
+                                            bpanel.as_ptr(),
+                                            &[],
+                                            sp,
+                                            nr,
+                                            &into,
+                                        ),
+                                        _ => portable::tile_f32(kc, apanel, bpanel, sp, nr, &into),
+                                    }
+                                    tile.store_transposed(&scratch, ccol, rows_c)
+                                }
+                                #[cfg(target_arch = "x86_64")]
+                                Kernel::Avx512F => {
+                                    let (first, kstride) = if rows == tr {
+                                        // Rows i·tr .. of B in place: 64 floats apart, the
+                                        // next panel `rows_c · 64` floats on.
+                                        let at = ((block.start / nr) * rows_c + i * tr) * nr
+                                            + block.start % nr;
+                                        (bflat[at..].as_ptr(), rows_c * nr)
+                                    } else {
+                                        // A last partial row panel: copied as chunks of
+                                        // `MR_T` rows of 64, zero rows.
+                                        let chunks = kc.div_ceil(nr);
+                                        pack.clear();
+                                        pack.resize(chunks * tr * nr, 0.0);
+                                        for r in 0..rows {
+                                            for p in 0..kc {
+                                                pack[(p / nr * tr + r) * nr + p % nr] =
+                                                    at_b(i * tr + r, block.start + p);
+                                            }
+                                        }
+                                        (pack.as_ptr(), tr * nr)
+                                    };
+                                    avx512::tile_f32_t(
+                                        kc,
+                                        first,
+                                        kstride,
+                                        bpanel.as_ptr(),
+                                        ccol,
+                                        rows_c,
+                                        &tile,
+                                    )
+                                }
+                                _ => unreachable!("gemm_t checked for an f32 kernel"),
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    };
+    if threads > 1 {
+        (0..threads).into_par_iter().for_each(run);
+    } else {
+        run(0);
+    }
+}
+
 /// A `*mut f32` that may cross threads: each thread writes a disjoint set of C's columns.
 // The same wrapper as layers.rs's `SyncPtr`; kept apart so that each `unsafe impl`'s SAFETY
 // argument covers exactly one use (disjoint column panels here, one element per thread there).
@@ -1019,6 +1299,27 @@ impl Tile<'_> {
     #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     fn full(&self) -> bool {
         self.rows == MR && self.lo == 0 && self.hi == self.nr
+    }
+
+    /// Write an accumulated tile `acc [rows][nr]` into C transposed: tile element (r, cc)
+    /// goes to C's row `col0 + cc`, column r (the transposed product's tiles, `gemm_t`).
+    ///
+    /// # Safety
+    /// `ccol` is C's column of the tile's first row; rows `col0 + lo .. col0 + hi` and columns
+    /// `< self.rows` from it (leading dimension `ldc`) must be writable.
+    unsafe fn store_transposed(&self, acc: &[f32], ccol: *mut f32, ldc: usize) {
+        for cc in self.lo..self.hi {
+            // SAFETY: inside the region the caller guarantees.
+            let row = unsafe { ccol.offset((cc as isize + self.col0) * ldc as isize) };
+            for r in 0..self.rows {
+                let v = acc[r * self.nr + cc] + self.bias.map_or(0.0, |b| b[cc]);
+                // SAFETY: as above.
+                unsafe {
+                    let dst = row.add(r);
+                    *dst = if self.add { *dst + v } else { v };
+                }
+            }
+        }
     }
 
     /// Write an accumulated tile `acc [MR][nr]` into C through the general (edge) path.

@@ -48,6 +48,36 @@ type Tape<B> = (
 );
 
 impl VolumeRenderer<'_> {
+    /// A picture for people of `view` (preview.png's views): final quality (BENCHMARKS.md, render
+    /// defaults), not the loop's cheaper settings, at least `PREVIEW_SIZE` pixels wide, on
+    /// `level`, or by default the level [`render::choose_level`] picks for its pixel footprint
+    /// as the loop's views do (level 0 unless the volume has more than 2 voxels per pixel
+    /// there: a large volume is then neither copied nor paged through the brick cache at full
+    /// resolution for a picture that cannot show it).
+    pub fn render_picture(
+        &self,
+        lut: &Lut,
+        view: &View,
+        level: Option<usize>,
+    ) -> Result<Image, BoxError> {
+        let size = self.size.max(PREVIEW_SIZE);
+        let camera = self.camera(view)?;
+        let bg = view.background.draw(size, size);
+        let opts = RenderOptions {
+            level: Some(level.unwrap_or_else(|| render::choose_level(self.volume, &camera, size))),
+            ..RenderOptions::final_quality()
+        };
+        let level = render::level_for(self.volume, lut, &camera, (size, size), &opts)?;
+        let prepared = self.backend.prepare(self.volume, level)?;
+        let shot = Shot {
+            camera: &camera,
+            background: &bg,
+            options: &opts,
+            cast: (size, size),
+        };
+        Ok(self.backend.forward(&prepared, lut, &shot)?.0.image)
+    }
+
     fn camera(&self, view: &View) -> Result<Camera, BoxError> {
         let orbit = Orbit {
             yaw: view.yaw,
@@ -106,21 +136,7 @@ impl Renderer for VolumeRenderer<'_> {
 
     /// preview.png views at least `PREVIEW_SIZE` pixels wide, whatever CLIP's input size.
     fn render_preview(&self, lut: &Lut, view: &View) -> Result<Image, BoxError> {
-        let size = self.size.max(PREVIEW_SIZE);
-        let camera = self.camera(view)?;
-        let bg = view.background.draw(size, size);
-        // A picture for people: final quality (BENCHMARKS.md, render defaults), not the loop's
-        // cheaper settings.
-        let opts = RenderOptions::final_quality();
-        let level = render::level_for(self.volume, lut, &camera, (size, size), &opts)?;
-        let prepared = self.backend.prepare(self.volume, level)?;
-        let shot = Shot {
-            camera: &camera,
-            background: &bg,
-            options: &opts,
-            cast: (size, size),
-        };
-        Ok(self.backend.forward(&prepared, lut, &shot)?.0.image)
+        self.render_picture(lut, view, None)
     }
 
     // The signature of `Renderer::backward` in optimize/mod.rs, which this implements.

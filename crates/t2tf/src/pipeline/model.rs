@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use sha2::Digest;
 
 use super::PipelineError;
-use crate::clip::{Clip, Compute, ModelFiles, ModelRequest, Precision};
+use crate::clip::{Clip, ClipConfig, Compute, ModelFiles, ModelRequest, Precision};
 use crate::memory::Budget;
 use crate::optimize::captions;
 use crate::optimize::report::ModelInfo;
@@ -84,6 +84,9 @@ impl Model {
             1,
             "choose a smaller model",
         )?;
+        let compute = compute.with_one_copy(
+            compute.one_copy || !backward_copy_fits(&config, compute, budget.available()),
+        );
         let clip = Clip::load_files_with(files, compute)?;
         let weights_hash = captions::hash_files(&files.weights)?;
         let hex: String = weights_hash.iter().map(|b| format!("{b:02x}")).collect();
@@ -127,5 +130,51 @@ impl Model {
     /// Key of its caption-embedding cache.
     pub fn cache_key(&self) -> &[u8; 32] {
         &self.cache_key
+    }
+}
+
+/// Bytes of the image tower's weights the input backward keeps a second packed copy of (its
+/// linear layers and patch embedding), in f32.
+fn backward_copy_bytes(config: &ClipConfig) -> u64 {
+    let v = &config.vision;
+    let (d, i) = (v.tower.hidden_size as u64, v.tower.intermediate_size as u64);
+    let per_layer = 4 * d * d + 2 * d * i;
+    let patch = v.num_channels as u64 * (v.patch_size as u64).pow(2) * d;
+    let projection = d * config.projection_dim as u64;
+    4 * (v.tower.num_layers as u64 * per_layer + patch + projection)
+}
+
+/// Whether the image tower's f32 layers keep a second copy of their weights for the backward
+/// (the faster backward products, [`Compute::one_copy`]): when the weights with that copy take
+/// at most half of `available`, leaving the other half to the volume, the renderer and the
+/// activations. With ViT-B/32 (605 MB of weights, 351 MB more with the copy) that is any
+/// budget from 1.9 GB; below it the run keeps one copy (`t2tf optimize` of the 256³ aneurism:
+/// 0.74 GB peak against 1.08 GB). bf16 layers always keep both bf16 copies (the bytes of one
+/// f32 copy).
+fn backward_copy_fits(config: &ClipConfig, compute: Compute, available: u64) -> bool {
+    if compute.precision == Precision::Bf16 && Precision::Bf16.native() {
+        return true;
+    }
+    let with_copy = config
+        .f32_bytes()
+        .saturating_add(backward_copy_bytes(config));
+    with_copy <= available / 2
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_backward_copy_is_kept_when_the_weights_with_it_take_half_the_budget() {
+        let c = ClipConfig::vit_b32();
+        // ViT-B/32: 351 MB more for the image tower's copy, 956 MB with it.
+        assert_eq!(backward_copy_bytes(&c), 350_748_672);
+        let f32 = Compute::new(Precision::F32);
+        let with_copy = c.f32_bytes() + backward_copy_bytes(&c);
+        assert!(backward_copy_fits(&c, f32, 2 * with_copy));
+        assert!(!backward_copy_fits(&c, f32, 2 * with_copy - 1));
+        assert!(!backward_copy_fits(&c, f32, 1 << 30));
+        assert!(backward_copy_fits(&c, f32, 4 << 30));
     }
 }
