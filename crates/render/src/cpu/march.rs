@@ -614,18 +614,29 @@ impl Step {
     }
 }
 
-/// Composite `steps` (recorded by a march of `ray` with the same parameters) again, calling
-/// `visit` after each, as that march did: the same classification and compositing, hence the
-/// same [`Sample`]s bit for bit (the AVX2 classifier gives the scalar one's bits), without
-/// walking blocks or interpolating.
+/// Composite `steps` (recorded by a march with the same parameters of a ray whose segments
+/// are `delta` long, the last `delta_last`) again, calling `visit` after each, as that march
+/// did: the same classification and compositing, hence the same [`Sample`]s bit for bit (the
+/// AVX2 classifier gives the scalar one's bits), without the ray, the block walk or the
+/// interpolation.
 #[inline(always)]
 pub(crate) fn replay<F: FnMut(&Sample)>(
     p: &MarchParams,
-    ray: &Ray,
+    (delta, delta_last): (f32, f32),
     steps: &[Step],
     visit: F,
 ) -> Marched {
     let none: &[u8] = &[];
+    // Only the segment lengths are read: steps are never interpolated.
+    let ray = &Ray {
+        a: [0.0; 3],
+        bd: [0.0; 3],
+        inv_bd: [0.0; 3],
+        segments: 1,
+        delta,
+        delta_last,
+        jitter: 0.5,
+    };
     let mut c = Compositor {
         p,
         data: (none, InPlace),

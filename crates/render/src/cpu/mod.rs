@@ -563,10 +563,13 @@ pub struct CpuTape {
 }
 
 /// The steps of one tile's rays, pixel by pixel in tile order: pixel i's are
-/// `steps[ends[i − 1]..ends[i]]`.
+/// `steps[ends[i − 1]..ends[i]]`, on a ray whose segments are `delta` long and whose last
+/// segment is `last[i]` long.
 #[derive(Clone, Debug, Default)]
 struct TileRecord {
     ends: Vec<u32>,
+    last: Vec<f32>,
+    delta: f32,
     steps: Vec<Step>,
 }
 
@@ -604,15 +607,19 @@ fn forward_recorded(
         let mut samples = 0u64;
         let mut rec = record.then(|| TileRecord {
             ends: Vec::with_capacity(TILE * TILE),
+            last: Vec::with_capacity(TILE * TILE),
+            delta: 0.0,
             steps: Vec::new(),
         });
         for (px, py) in v.tile_pixels(tile) {
             let p = py * v.width + px;
             let bg = background.pixel(px, py);
+            let mut last = 0.0;
             let (acc, t) = match v.ray(px, py) {
                 Some(ray) => {
                     let m = match &mut rec {
                         Some(r) => {
+                            (r.delta, last) = (ray.delta, ray.delta_last);
                             let full = ray.delta * v.params.inv_l;
                             march(&v.params, &ray, |s| r.steps.push(Step::of(s, full)))
                         }
@@ -628,6 +635,7 @@ fn forward_recorded(
                     rec = None;
                 } else {
                     r.ends.push(r.steps.len() as u32);
+                    r.last.push(last);
                 }
             }
             out.push((p, std::array::from_fn(|c| acc[c] + t * bg[c]), t));
@@ -764,13 +772,14 @@ fn backward_recorded(
                 let p = py * w + px;
                 let g = [d_image[3 * p], d_image[3 * p + 1], d_image[3 * p + 2]];
                 let g_t = d_transmittance.get(p).copied().unwrap_or(0.0);
+                // A pixel without steps (no ray, or nothing composited) adds nothing.
                 if (g == [0.0; 3] && g_t == 0.0) || steps.is_empty() {
                     continue;
                 }
-                let Some(ray) = v.ray(px, py) else { continue };
                 let (image, t_final) = (r.image.pixel(px, py), r.transmittance[p]);
                 let tail = g_t * t_final;
-                replay(&v.params, &ray, steps, |s| {
+                let deltas = (rec.delta, rec.last[i]);
+                replay(&v.params, deltas, steps, |s| {
                     accumulate(&mut grad, s, g, image, tail)
                 });
             }
