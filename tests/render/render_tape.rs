@@ -12,8 +12,8 @@ use t2tf::render::{self, Backend, CpuBackend, RenderOptions, Shot};
 use t2tf::tf::Lut;
 use t2tf::volume::Volume;
 
-/// Option sets: defaults; jitter; a fine step without skipping or early termination (more
-/// steps per ray than a tape keeps: those tiles are marched again); a coarse level.
+/// Option sets: defaults; jitter; a fine step without skipping or early termination; a
+/// coarse level.
 fn option_sets() -> Vec<RenderOptions> {
     vec![
         RenderOptions::default(),
@@ -44,12 +44,12 @@ fn cameras(v: &Volume) -> Vec<Camera> {
 
 /// Every view and option set of `v` with `lut`: the backend's image, T_N and gradient equal
 /// `render::forward` and `render::backward_from`'s, bit for bit, at `side`².
-fn check(v: &Volume, lut: &Lut, side: usize) {
+fn check(v: &Volume, lut: &Lut, side: usize, option_sets: &[RenderOptions]) {
     let bg = background::from_name("noise", side, side, 3).unwrap();
     let (wi, wt) = weights(side, side, 9);
     let backend = CpuBackend::default();
     for (c, cam) in cameras(v).iter().enumerate() {
-        for (o, opts) in option_sets().iter().enumerate() {
+        for (o, opts) in option_sets.iter().enumerate() {
             let level = render::level_for(v, lut, cam, (side, side), opts).unwrap();
             let prepared = backend.prepare(v, level).unwrap();
             let shot = Shot {
@@ -83,7 +83,13 @@ fn check(v: &Volume, lut: &Lut, side: usize) {
 #[test]
 fn replayed_backward_equals_marching_again() {
     // Dense: every sample composited, rays end by early termination.
-    check(&blob([37, 29, 33]), &random_lut(64, 0.0, 900.0, 1), 40);
+    let options = option_sets();
+    check(
+        &blob([37, 29, 33]),
+        &random_lut(64, 0.0, 900.0, 1),
+        40,
+        &options,
+    );
     // Sparse with empty and uniform bricks (skips and uniform runs on the tape).
     let v = crop_u8_typed(
         "aneurism_256x256x256_uint8.raw",
@@ -95,7 +101,25 @@ fn replayed_backward_equals_marching_again() {
     for e in &mut lut.entries[..20] {
         e[0] = 0.0;
     }
-    check(&v, &lut, 48);
+    check(&v, &lut, 48, &options);
+}
+
+/// Views with more steps than a tape keeps (2²² in all, `cpu::RECORD_STEPS`; here every
+/// sample is one): the tiles past the budget are marched again, with the same result.
+#[test]
+fn tiles_past_the_record_budget_march_again() {
+    let opts = RenderOptions {
+        step: 1.0 / 64.0,
+        early_termination: 0.0,
+        ..RenderOptions::default()
+    };
+    let (v, lut) = (blob([60, 50, 55]), random_lut(64, 0.1, 2.0, 3));
+    let bg = Image::new(56, 56);
+    for cam in cameras(&v) {
+        let samples = render::forward(&v, &lut, &cam, &bg, &opts).unwrap().samples;
+        assert!(samples > 1 << 22, "only {samples} samples");
+    }
+    check(&v, &lut, 56, &[opts]);
 }
 
 /// Cast below the output size: the tape is the cast image's, and the gradient equals the

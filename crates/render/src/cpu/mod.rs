@@ -28,6 +28,7 @@ mod sample;
 mod simd;
 mod skip;
 
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 
 use glam::DVec3;
@@ -51,11 +52,10 @@ use skip::Blocks;
 /// Tile side in pixels (parallel work unit and gradient reduction unit).
 const TILE: usize = 16;
 
-/// Most recorded steps per pixel, on average over a tile, that a forward keeps for its
-/// backward ([`CpuTape`]): 8 bytes each, so at most 128 KiB per tile. A tile with more is
-/// marched again by the backward (a fine step or a final render's tape is not worth its
-/// memory).
-const RECORD_PER_PIXEL: usize = 64;
+/// Most recorded steps a forward keeps for its backward ([`CpuTape`]), over all its tiles: 8
+/// bytes each, so 32 MiB. A 224² view of the optimizer needs a few MiB; tiles past the
+/// budget (a fine step, a large final render) are marched again by the backward.
+const RECORD_STEPS: usize = 1 << 22;
 
 /// The CPU renderer (rayon threads, AVX2 where the CPU has it), with the memory budget its
 /// copies of levels are built within and its cache of the levels it prepared.
@@ -554,8 +554,8 @@ fn resident_view<'a>(
 
 /// What a [`Backend::forward`] keeps for its backward: the result, and per tile (in tile
 /// order) what each ray composited, so the backward replays the compositing instead of
-/// walking blocks and interpolating again (`march::replay`). A tile whose record would exceed
-/// [`RECORD_PER_PIXEL`] has none and is marched again.
+/// walking blocks and interpolating again (`march::replay`). A tile past [`RECORD_STEPS`]
+/// has none and is marched again.
 #[derive(Clone, Debug)]
 pub struct CpuTape {
     rendered: Rendered,
@@ -601,6 +601,9 @@ fn forward_recorded(
             got_h: size.1,
         });
     }
+    // Steps recorded by the tiles done so far (relaxed: which tiles keep their record may
+    // depend on the schedule, the results do not).
+    let recorded = AtomicUsize::new(0);
     // Per tile: (pixel, rgb, T) triples, the sample count and the record.
     let done = each_tile(prepared, lut, camera, size, opts, |v, tile| {
         let mut out: Vec<(usize, [f32; 3], f32)> = Vec::with_capacity(TILE * TILE);
@@ -631,7 +634,7 @@ fn forward_recorded(
                 None => ([0.0; 3], 1.0),
             };
             if let Some(r) = &mut rec {
-                if r.steps.len() > RECORD_PER_PIXEL * TILE * TILE {
+                if r.steps.len() + recorded.load(Ordering::Relaxed) > RECORD_STEPS {
                     rec = None;
                 } else {
                     r.ends.push(r.steps.len() as u32);
@@ -639,6 +642,11 @@ fn forward_recorded(
                 }
             }
             out.push((p, std::array::from_fn(|c| acc[c] + t * bg[c]), t));
+        }
+        if let Some(r) = &rec {
+            if recorded.fetch_add(r.steps.len(), Ordering::Relaxed) + r.steps.len() > RECORD_STEPS {
+                rec = None;
+            }
         }
         (out, samples, rec)
     })?;
