@@ -2,7 +2,14 @@
 //!
 //! ```text
 //! cargo run --release --features bench --example bench_render [-- --out DIR] [--quick] [--speed]
+//!     [--tf FILE] [--evict-mb N]
 //! ```
+//!
+//! `--speed` times the default options only, each TF through both backward paths alternating
+//! (the backend's, which replays what its forward recorded, and the front functions', which
+//! march every ray again), and the drawing of each background kind. `--tf FILE` adds a TF
+//! saved by `bench_optimize --reference-tf FILE` (the optimizer's own); `--evict-mb N` writes
+//! N MiB before each forward and each backward, as CLIP's passes do in the optimizer's loop.
 //!
 //! Volume: `../shared/data/volumes/aneurism_256x256x256_uint8.raw`, and a 512³ trilinear
 //! upsampling of it spanning the same box. Three of the paper's random views (seeded) at
