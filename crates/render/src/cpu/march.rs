@@ -1,7 +1,9 @@
 //! One ray through one mip level: box clipping, trilinear sampling, LUT lookup and front-to-back
 //! compositing. The forward and backward passes run the *same* march (same samples, same skips,
 //! same early stop) and differ only in what they do per sample, so the backward is the exact
-//! gradient of what the forward computed.
+//! gradient of what the forward computed. A forward may record each composited sample's value
+//! ([`Step`]); [`replay`] composites those again, giving the backward the same samples
+//! without the block walk and the interpolation.
 
 use std::ops::ControlFlow;
 

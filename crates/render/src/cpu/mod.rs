@@ -15,6 +15,13 @@
 //! batch of tiles); the march reaches bricks through a slot table there, and is compiled
 //! separately for the whole copy, whose path is unchanged. Both give bit-identical results.
 //!
+//! **The backend's backward replays its forward.** [`Backend::forward`] records, per tile,
+//! each composited sample's value and run length (8 bytes a step, a few MiB for a 224² view,
+//! at most `RECORD_STEPS` per view); [`Backend::backward`] composites them again
+//! (`march::replay`) instead of walking blocks and interpolating: the same samples, so the
+//! same gradient bit for bit, in about half the time of a second march. The front functions
+//! (`render::backward`, `render::backward_from`) and tiles past the budget march again.
+//!
 //! **Prepared levels are cached** per level allocation (`volume::Level` shares its samples in
 //! an `Arc` that never changes): preparing the same level again — every view of an
 //! optimization — costs a lookup. An entry is dropped at the next `prepare` after its level's
@@ -554,7 +561,7 @@ fn resident_view<'a>(
 
 /// What a [`Backend::forward`] keeps for its backward: the result, and per tile (in tile
 /// order) what each ray composited, so the backward replays the compositing instead of
-/// walking blocks and interpolating again (`march::replay`). A tile past [`RECORD_STEPS`]
+/// walking blocks and interpolating again (`march::replay`). A tile past `RECORD_STEPS`
 /// has none and is marched again.
 #[derive(Clone, Debug)]
 pub struct CpuTape {
