@@ -2,7 +2,14 @@
 //!
 //! ```text
 //! cargo run --release --features bench --example bench_render [-- --out DIR] [--quick] [--speed]
+//!     [--tf FILE] [--evict-mb N]
 //! ```
+//!
+//! `--speed` times the default options only, each TF through both backward paths alternating
+//! (the backend's, which replays what its forward recorded, and the front functions', which
+//! march every ray again), and the drawing of each background kind. `--tf FILE` adds a TF
+//! saved by `bench_optimize --reference-tf FILE` (the optimizer's own); `--evict-mb N` writes
+//! N MiB before each forward and each backward, as CLIP's passes do in the optimizer's loop.
 //!
 //! Volume: `../shared/data/volumes/aneurism_256x256x256_uint8.raw`, and a 512³ trilinear
 //! upsampling of it spanning the same box. Three of the paper's random views (seeded) at
@@ -23,8 +30,9 @@ use rand_chacha::ChaCha8Rng;
 use t2tf::background;
 use t2tf::camera::{Camera, UpAxis};
 use t2tf::image::Image;
-use t2tf::render::{self, RenderOptions, Rendered};
-use t2tf::tf::{Lut, LutGrad};
+use t2tf::render::cpu::CpuPrepared;
+use t2tf::render::{self, Backend, CpuBackend, RenderOptions, Rendered, Shot};
+use t2tf::tf::{ControlPoints, Lut, LutGrad};
 use t2tf::volume::{ByteOrder, Geometry, ScalarType, TypedBuffer, Volume};
 
 const SIZE: usize = 224;
@@ -80,22 +88,70 @@ fn main() -> anyhow::Result<()> {
     let d_t: Vec<f32> = (0..SIZE * SIZE)
         .map(|p| (-0.3 + 0.2 * (p as f32 * 0.001).sin()) / n)
         .collect();
+    let evict_mb = match args.iter().position(|a| a == "--evict-mb") {
+        Some(i) => args
+            .get(i + 1)
+            .and_then(|m| m.parse().ok())
+            .ok_or_else(|| anyhow::anyhow!("--evict-mb needs a number of MiB"))?,
+        None => 0,
+    };
     let scene = Scene {
         cameras,
         backgrounds,
         d_image,
         d_t,
+        evict_mb,
+        tape: false,
     };
     let sparse = vessel_tf(0.0);
     let dense = vessel_tf(0.5);
 
+    // A TF saved by `bench_optimize --reference-tf FILE`: the optimizer's own TF, timed
+    // beside the two hand-made ones.
+    let saved = match args.iter().position(|a| a == "--tf") {
+        Some(i) => {
+            let file = args
+                .get(i + 1)
+                .ok_or_else(|| anyhow::anyhow!("--tf needs a file"))?;
+            Some(read_tf(Path::new(file))?)
+        }
+        None => None,
+    };
+
     if args.iter().any(|a| a == "--speed") {
         // Just the default options, for quick before/after comparisons.
-        for (name, lut) in [("sparse", &sparse), ("dense", &dense)] {
-            let (run, fwd, both, cpu) = scene.timed(&v256, lut, &RenderOptions::default(), reps)?;
+        let mut tfs = vec![("sparse", &sparse), ("dense", &dense)];
+        if let Some(lut) = &saved {
+            tfs.push(("saved", lut));
+        }
+        // Each TF through both backward paths, alternating: the optimizer's (`Backend`, whose
+        // forward records what each ray composited and whose backward replays it) and the
+        // front functions' (`render::backward_from`, which marches every ray again).
+        for (name, lut) in tfs {
+            for round in 0..2 {
+                for (path, tape) in [("replay", true), ("re-march", false)] {
+                    let scene = Scene {
+                        tape,
+                        ..scene.clone()
+                    };
+                    let (run, fwd, both, cpu) =
+                        scene.timed(&v256, lut, &RenderOptions::default(), reps)?;
+                    println!(
+                        "{name}, {path} (round {round}): forward {fwd:.3} s, fwd+bwd {both:.3} s, CPU {cpu:.3} s, {:.2}M samples",
+                        run.samples() as f64 / 1e6
+                    );
+                }
+            }
+        }
+        // The optimizer draws each view's background inside its render phase.
+        for kind in ["checkerboard", "noise", "fourier"] {
+            let t0 = Instant::now();
+            for seed in 0..reps as u64 {
+                std::hint::black_box(background::from_name(kind, SIZE, SIZE, seed)?);
+            }
             println!(
-                "{name}: forward {fwd:.3} s, fwd+bwd {both:.3} s, CPU {cpu:.3} s, {:.2}M samples",
-                run.samples() as f64 / 1e6
+                "{kind} background at {SIZE}²: {:.4} s",
+                t0.elapsed().as_secs_f64() / reps as f64
             );
         }
         return Ok(());
@@ -290,6 +346,42 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The LUT (256 entries) of a TF written by `bench_optimize --reference-tf` (JSON with the
+/// control points' `x`, `sigma` and `rgb`).
+fn read_tf(path: &Path) -> anyhow::Result<Lut> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| anyhow::anyhow!("{}: cannot read: {e}", path.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text)?;
+    let bad = |key: &str| anyhow::anyhow!("{}: no `{key}` array", path.display());
+    let floats = |key: &str| -> anyhow::Result<Vec<f64>> {
+        v[key]
+            .as_array()
+            .ok_or_else(|| bad(key))?
+            .iter()
+            .map(|x| x.as_f64().ok_or_else(|| bad(key)))
+            .collect()
+    };
+    let rgb = v["rgb"]
+        .as_array()
+        .ok_or_else(|| bad("rgb"))?
+        .iter()
+        .map(|c| -> anyhow::Result<[f64; 3]> {
+            let c = c
+                .as_array()
+                .filter(|c| c.len() == 3)
+                .ok_or_else(|| bad("rgb"))?;
+            let at = |i: usize| c[i].as_f64().ok_or_else(|| bad("rgb"));
+            Ok([at(0)?, at(1)?, at(2)?])
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let cp = ControlPoints {
+        x: floats("x")?,
+        sigma: floats("sigma")?,
+        rgb,
+    };
+    Ok(cp.to_lut(256))
+}
+
 /// A vessel TF over normalized values: σ rises from 0 at 0.08 to 150 at 0.4, colour from dark
 /// red to pale yellow; `floor` is added to σ everywhere.
 fn vessel_tf(floor: f32) -> Lut {
@@ -333,11 +425,22 @@ struct Scene {
     backgrounds: Vec<Image>,
     d_image: Vec<f32>,
     d_t: Vec<f32>,
+    /// MiB written between the forward and the backward (0: none).
+    evict_mb: usize,
+    /// Through `Backend::forward` and `Backend::backward` (the optimizer's path: the backward
+    /// replays the forward's record), else `render::forward` and `render::backward_from`.
+    tape: bool,
 }
 
 struct Run {
     rendered: Vec<Rendered>,
     grad: LutGrad,
+}
+
+/// A view's forward: the result, and with `Scene::tape` the backend's prepared level and tape.
+struct Forward {
+    rendered: Rendered,
+    tape: Option<(CpuPrepared, <CpuBackend as Backend>::Tape)>,
 }
 
 impl Run {
@@ -369,22 +472,44 @@ impl Run {
 impl Scene {
     /// Forward then backward (from the forward's result) for every view.
     fn run(&self, v: &Volume, lut: &Lut, opts: &RenderOptions) -> anyhow::Result<Run> {
-        let rendered = self.forward(v, lut, opts)?;
-        let grad = self.backward(v, lut, opts, &rendered)?;
+        let forward = self.forward(v, lut, opts)?;
+        let grad = self.backward(v, lut, opts, &forward)?;
+        let rendered = forward.into_iter().map(|f| f.rendered).collect();
         Ok(Run { rendered, grad })
     }
 
-    fn forward(
-        &self,
-        v: &Volume,
-        lut: &Lut,
-        opts: &RenderOptions,
-    ) -> anyhow::Result<Vec<Rendered>> {
+    fn forward(&self, v: &Volume, lut: &Lut, opts: &RenderOptions) -> anyhow::Result<Vec<Forward>> {
         self.cameras
             .iter()
             .zip(&self.backgrounds)
-            .map(|(c, b)| Ok(render::forward(v, lut, c, b, opts)?))
+            .map(|(c, b)| {
+                if !self.tape {
+                    let rendered = render::forward(v, lut, c, b, opts)?;
+                    return Ok(Forward {
+                        rendered,
+                        tape: None,
+                    });
+                }
+                let backend = render::shared_backend();
+                let size = (b.width, b.height);
+                let prepared = backend.prepare(v, render::level_for(v, lut, c, size, opts)?)?;
+                let shot = self.shot(c, b, opts);
+                let (rendered, tape) = backend.forward(&prepared, lut, &shot)?;
+                Ok(Forward {
+                    rendered,
+                    tape: Some((prepared, tape)),
+                })
+            })
             .collect()
+    }
+
+    fn shot<'a>(&self, camera: &'a Camera, bg: &'a Image, opts: &'a RenderOptions) -> Shot<'a> {
+        Shot {
+            camera,
+            background: bg,
+            options: opts,
+            cast: (bg.width, bg.height),
+        }
     }
 
     fn backward(
@@ -392,14 +517,19 @@ impl Scene {
         v: &Volume,
         lut: &Lut,
         opts: &RenderOptions,
-        rendered: &[Rendered],
+        forward: &[Forward],
     ) -> anyhow::Result<LutGrad> {
         let mut grad = LutGrad::zeros(lut.entries.len());
-        for (c, r) in self.cameras.iter().zip(rendered) {
-            t2tf::bench::add_grad(
-                &mut grad,
-                &render::backward_from(v, lut, c, r, opts, &self.d_image, &self.d_t)?,
-            );
+        for ((c, b), f) in self.cameras.iter().zip(&self.backgrounds).zip(forward) {
+            let (d_i, d_t) = (&self.d_image, &self.d_t);
+            let g = match &f.tape {
+                None => render::backward_from(v, lut, c, &f.rendered, opts, d_i, d_t)?,
+                Some((prepared, tape)) => {
+                    let shot = self.shot(c, b, opts);
+                    render::shared_backend().backward(prepared, lut, &shot, tape, d_i, d_t)?
+                }
+            };
+            t2tf::bench::add_grad(&mut grad, &g);
         }
         Ok(grad)
     }
@@ -416,17 +546,33 @@ impl Scene {
         let (mut fwd, mut both) = (Vec::new(), Vec::new());
         let mut last = None;
         let cpu0 = cpu_seconds();
-        for _ in 0..reps {
+        let mut evict = vec![0u8; self.evict_mb << 20];
+        let mut evicted = 0.0;
+        for r in 0..reps {
+            // As in the optimizer, where CLIP's passes (hundreds of MB of weights and
+            // activations) run between the renders: caches hold none of the volume.
+            let mut flush = || {
+                let c = cpu_seconds();
+                evict
+                    .iter_mut()
+                    .for_each(|b| *b = b.wrapping_add(r as u8 | 1));
+                std::hint::black_box(&evict);
+                evicted += cpu_seconds() - c;
+            };
+            flush();
             let t0 = Instant::now();
-            let rendered = self.forward(v, lut, opts)?;
+            let forward = self.forward(v, lut, opts)?;
             let t1 = Instant::now();
-            let grad = self.backward(v, lut, opts, &rendered)?;
+            flush();
+            let t1b = Instant::now();
+            let grad = self.backward(v, lut, opts, &forward)?;
+            let rendered = forward.into_iter().map(|f| f.rendered).collect();
             let t2 = Instant::now();
             fwd.push((t1 - t0).as_secs_f64());
-            both.push((t2 - t0).as_secs_f64());
+            both.push((t1 - t0 + (t2 - t1b)).as_secs_f64());
             last = Some(Run { rendered, grad });
         }
-        let cpu = (cpu_seconds() - cpu0) / reps as f64;
+        let cpu = (cpu_seconds() - cpu0 - evicted) / reps as f64;
         let median = |mut x: Vec<f64>| {
             x.sort_by(f64::total_cmp);
             x[x.len() / 2]

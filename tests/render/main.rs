@@ -11,3 +11,4 @@ mod render_cases;
 mod render_defaults;
 mod render_grad;
 mod render_presets;
+mod render_tape;

@@ -1,7 +1,9 @@
 //! One ray through one mip level: box clipping, trilinear sampling, LUT lookup and front-to-back
 //! compositing. The forward and backward passes run the *same* march (same samples, same skips,
 //! same early stop) and differ only in what they do per sample, so the backward is the exact
-//! gradient of what the forward computed.
+//! gradient of what the forward computed. A forward may record each composited sample's value
+//! ([`Step`]); [`replay`] composites those again, giving the backward the same samples
+//! without the block walk and the interpolation.
 
 use std::ops::ControlFlow;
 
@@ -124,6 +126,11 @@ pub(crate) struct Sample {
     pub(crate) t_after: f32,
     /// Colour accumulated up to and including this sample (no background).
     pub(crate) acc: [f32; 3],
+    /// The scalar value, and how many samples of it the march asked to composite (before
+    /// early termination cut the run): with `delta_norm`, what [`replay`] needs to composite
+    /// the sample again.
+    pub(crate) value: f32,
+    pub(crate) run: u32,
 }
 
 /// Result of one march.
@@ -175,18 +182,25 @@ impl<T: Voxel, S: Slots, F: FnMut(&Sample)> Compositor<'_, '_, T, S, F> {
     #[inline(always)]
     fn shade(&mut self, v: f32, count: u32, delta_norm: f32) -> ControlFlow<()> {
         let k = classify(&self.p.lut.entries, v, delta_norm);
-        self.composite(k, count, delta_norm)
+        self.composite(k, v, count, delta_norm)
     }
 
-    /// Composite `count` samples of class `k` (`None`: empty).
+    /// Composite `count` samples of value `v` and class `k` (`None`: empty).
     #[inline(always)]
-    fn composite(&mut self, k: Option<Classified>, count: u32, delta_norm: f32) -> ControlFlow<()> {
+    fn composite(
+        &mut self,
+        k: Option<Classified>,
+        v: f32,
+        count: u32,
+        delta_norm: f32,
+    ) -> ControlFlow<()> {
         self.samples += 1;
         let Some(k) = k else {
             return ControlFlow::Continue(());
         };
         let t = self.t;
         let stop = self.p.stop_below;
+        let run = count;
         let mut count = count;
         let mut t_after = t * k.ext;
         if count > 1 {
@@ -212,6 +226,8 @@ impl<T: Voxel, S: Slots, F: FnMut(&Sample)> Compositor<'_, '_, T, S, F> {
             t_before: t,
             t_after,
             acc: self.acc,
+            value: v,
+            run,
         });
         self.t = t_after;
         if t_after < stop {
@@ -282,7 +298,7 @@ impl<T: Voxel, S: Slots, F: FnMut(&Sample)> Compositor<'_, '_, T, S, F> {
         while n < n1 {
             simd::interpolate_classify(p, self.data, ray, n, dn, &mut k);
             for i in 0..((n1 - n) as usize).min(CHUNK) {
-                self.composite(k.get(i), 1, dn)?;
+                self.composite(k.get(i), k.v[i], 1, dn)?;
             }
             n += CHUNK as u32;
         }
@@ -563,6 +579,86 @@ fn march_body<T: Voxel, S: Slots, F: FnMut(&Sample)>(
                 v => v,
             };
             let _ = c.shade(v, 1, ray.delta_last * p.inv_l);
+        }
+    }
+    Marched {
+        acc: c.acc,
+        transmittance: c.t,
+        samples: c.samples,
+    }
+}
+
+/// One composited sample of a recorded march (`Sample::value` and `Sample::run`); `run` has
+/// [`Step::LAST`] set for the last, shorter segment's sample.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Step {
+    pub(crate) value: f32,
+    pub(crate) run: u32,
+}
+
+impl Step {
+    /// The flag of the last segment's sample in `run` (a run never has 2³¹ samples: a ray
+    /// has at most `u32::MAX` segments, and a last sample stands for one).
+    pub(crate) const LAST: u32 = 1 << 31;
+
+    /// What a march's visitor records of `s` on `ray`.
+    #[inline(always)]
+    pub(crate) fn of(s: &Sample, full_delta_norm: f32) -> Step {
+        let last = if s.delta_norm == full_delta_norm {
+            0
+        } else {
+            Step::LAST
+        };
+        Step {
+            value: s.value,
+            run: s.run | last,
+        }
+    }
+}
+
+/// Composite `steps` (recorded by a march with the same parameters of a ray whose segments
+/// are `delta` long, the last `delta_last`) again, calling `visit` after each, as that march
+/// did: the same classification and compositing, hence the same [`Sample`]s bit for bit (the
+/// AVX2 classifier gives the scalar one's bits), without the ray, the block walk or the
+/// interpolation.
+#[inline(always)]
+pub(crate) fn replay<F: FnMut(&Sample)>(
+    p: &MarchParams,
+    (delta, delta_last): (f32, f32),
+    steps: &[Step],
+    visit: F,
+) -> Marched {
+    let none: &[u8] = &[];
+    // Only the segment lengths are read: steps are never interpolated.
+    let ray = &Ray {
+        a: [0.0; 3],
+        bd: [0.0; 3],
+        inv_bd: [0.0; 3],
+        segments: 1,
+        delta,
+        delta_last,
+        jitter: 0.5,
+    };
+    let mut c = Compositor {
+        p,
+        data: (none, InPlace),
+        ray,
+        visit,
+        delta_norm: ray.delta * p.inv_l,
+        t: 1.0,
+        acc: [0.0; 3],
+        samples: 0,
+        pending: Pending::None,
+    };
+    let last_dn = ray.delta_last * p.inv_l;
+    for s in steps {
+        let (dn, run) = if s.run & Step::LAST != 0 {
+            (last_dn, s.run & !Step::LAST)
+        } else {
+            (c.delta_norm, s.run)
+        };
+        if c.shade(s.value, run, dn).is_break() {
+            break;
         }
     }
     Marched {
