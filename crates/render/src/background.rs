@@ -243,13 +243,24 @@ fn fourier(width: usize, height: usize, rng: &mut ChaCha8Rng) -> Image {
         .collect();
     let bias: [f32; 3] = std::array::from_fn(|_| gauss(rng) * 0.5);
     let size = width.max(height).max(1) as f32;
+    // sin(θx + θy) = sin θx cos θy + cos θx sin θy with θx = 2π w₀ px + b and θy = 2π w₁ py:
+    // two sines per feature per column and per row instead of one per pixel. A background is
+    // drawn every optimizer step, inside its render phase (a sine per pixel and feature took
+    // about 8 ms at 224², single-threaded, next to a 40 ms render).
+    let axis = |n: usize, freq: f32, phase: f32| -> Vec<(f32, f32)> {
+        (0..n)
+            .map(|i| (TAU * freq * ((i as f32 + 0.5) / size) + phase).sin_cos())
+            .collect()
+    };
+    let cols: Vec<Vec<(f32, f32)>> = feats.iter().map(|(w, b)| axis(width, w[0], *b)).collect();
+    let rows: Vec<Vec<(f32, f32)>> = feats.iter().map(|(w, _)| axis(height, w[1], 0.0)).collect();
     let mut im = Image::new(width, height);
     for y in 0..height {
         for x in 0..width {
-            let p = [(x as f32 + 0.5) / size, (y as f32 + 0.5) / size];
             let mut acc = bias;
-            for ((w, b), m) in feats.iter().zip(&mix) {
-                let f = (TAU * (w[0] * p[0] + w[1] * p[1]) + b).sin();
+            for ((col, row), m) in cols.iter().zip(&rows).zip(&mix) {
+                let ((sx, cx), (sy, cy)) = (col[x], row[y]);
+                let f = sx * cy + cx * sy;
                 for c in 0..3 {
                     acc[c] += m[c] * f;
                 }
@@ -273,6 +284,58 @@ mod tests {
             .iter()
             .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
         (var, lo, hi)
+    }
+
+    #[test]
+    fn fourier_features_match_a_sine_per_pixel() {
+        // The direct formula, f_k(p) = sin(2π w_k·p + b_k) per pixel, from the same draws.
+        for seed in 0..4 {
+            let (w, h) = (61, 37);
+            let fast = fourier(w, h, &mut ChaCha8Rng::seed_from_u64(seed));
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let bandwidth = rng.random_range(1.0f32..=8.0);
+            let gauss = |rng: &mut ChaCha8Rng| {
+                let u1: f32 = rng.random_range(f32::EPSILON..1.0);
+                let u2: f32 = rng.random();
+                (-2.0 * u1.ln()).sqrt() * (TAU * u2).cos()
+            };
+            let feats: Vec<([f32; 2], f32)> = (0..FOURIER_FEATURES)
+                .map(|_| {
+                    let w = [gauss(&mut rng) * bandwidth, gauss(&mut rng) * bandwidth];
+                    (w, rng.random_range(0.0..TAU))
+                })
+                .collect();
+            let gain = 2.0 / (FOURIER_FEATURES as f32).sqrt();
+            let mix: Vec<[f32; 3]> = (0..FOURIER_FEATURES)
+                .map(|_| std::array::from_fn(|_| gauss(&mut rng) * gain))
+                .collect();
+            let bias: [f32; 3] = std::array::from_fn(|_| gauss(&mut rng) * 0.5);
+            let size = w.max(h) as f64;
+            for y in 0..h {
+                for x in 0..w {
+                    let p = [(x as f64 + 0.5) / size, (y as f64 + 0.5) / size];
+                    let mut acc = bias.map(f64::from);
+                    for ((wk, b), m) in feats.iter().zip(&mix) {
+                        let arg = std::f64::consts::TAU
+                            * (f64::from(wk[0]) * p[0] + f64::from(wk[1]) * p[1])
+                            + f64::from(*b);
+                        for c in 0..3 {
+                            acc[c] += f64::from(m[c]) * arg.sin();
+                        }
+                    }
+                    let want = acc.map(|a| 1.0 / (1.0 + (-a).exp()));
+                    let got = fast.pixel(x, y);
+                    for c in 0..3 {
+                        assert!(
+                            (f64::from(got[c]) - want[c]).abs() < 1e-5,
+                            "seed {seed} ({x}, {y}) channel {c}: {} against {}",
+                            got[c],
+                            want[c]
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]
