@@ -47,7 +47,7 @@ cargo build --release --quiet --features bench --example bench_optimize
 bench="$repo/target/release/examples/bench_optimize"
 
 echo "CPU: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) threads"
-echo "peer: torch $("$python" -c 'import torch; print(torch.__version__)'), tcmalloc: ${preload:+yes}${preload:-no}"
+echo "peer: torch $("$python" -c 'import torch; print(torch.__version__)'), tcmalloc: $([[ -n $preload ]] && echo yes || echo no)"
 echo
 echo "| round | t2tf per step (s) | peer per step (s) | peer / t2tf |"
 echo "|---|---|---|---|"
