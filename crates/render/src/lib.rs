@@ -17,7 +17,10 @@
 //!
 //! (from ∂I/∂αₙ = Tₙ (cₙ − Rₙ) with Rₙ the colour seen from just behind n, and
 //! ∂αₙ/∂σₙ = (δₙ/L)(1 − αₙ); no division by 1 − αₙ, so saturated rays stay finite). The ray
-//! is re-marched front to back with the final I and T_N of the forward: memory is O(pixels).
+//! is walked front to back again with the final I and T_N of the forward: the front functions
+//! here march it again (memory O(pixels)); the backend's forward records each composited step
+//! (value and run length) and its backward replays that record (`cpu/march.rs`), which gives
+//! the same bits for less time (BENCHMARKS.md, "Renderer").
 //! σₙ and cₙ are linear in the two LUT entries around the sample, which receive the gradient.
 //!
 //! **Work done.** Rays are clipped to the box; bricks whose value range the LUT maps to σ = 0
