@@ -24,9 +24,12 @@ use super::attention::softmax_rows;
 use super::encoder::EncoderLayer;
 use super::layers::add_assign;
 
-/// Most rows (tree nodes) in one pass: bounds the memory of a call with many captions (the
-/// MLP's `[rows, 4D]` activations are 32 MiB at D = 512) while keeping products tall.
-pub(crate) const MAX_ROWS: usize = 8192;
+/// Most rows (tree nodes) in one pass: bounds the memory of a call with many captions while
+/// keeping products tall. A pass holds about ten `[rows, D]` f32 matrices at once (the MLP's
+/// `[rows, 4D]` among them): ≈ 40 MiB at D = 512 and 2048 rows, on top of the loaded model.
+/// 8192 rows (≈ 160 MiB) would make the caption pool's first use the peak of a default run;
+/// the embeddings do not depend on how the captions are split (`text::tests`).
+pub(crate) const MAX_ROWS: usize = 2048;
 
 /// Query rows per parallel task in `attend` (each is a few thousand multiply-adds).
 const ROWS_PER_TASK: usize = 16;
