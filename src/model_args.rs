@@ -27,8 +27,8 @@ pub struct ModelArgs {
     /// Number format of CLIP's weight products: f32, bf16 (weights and activations rounded to
     /// bf16, f32 accumulation; needs AVX512_BF16) or auto (bf16 where the CPU has it and a
     /// few-millisecond calibration measures it at least 1.15× faster than f32, else f32). f32
-    /// is the default because its runs are reproducible; a bf16 run took 0.67× the f32 time on
-    /// Zen 4, its TF rendering at 53.3 dB PSNR against f32's on held-out views (BENCHMARKS.md).
+    /// is the default because its runs are reproducible; a bf16 run took 0.64× the f32 time on
+    /// Zen 4, its TF rendering at 53.4 dB PSNR against f32's on held-out views (BENCHMARKS.md).
     #[arg(long, value_name = "f32|bf16|auto", default_value = "f32")]
     pub precision: String,
 }
