@@ -148,9 +148,9 @@ fn backward_copy_bytes(config: &ClipConfig) -> u64 {
 /// (the faster backward products, [`Compute::one_copy`]): when the weights with that copy take
 /// at most half of `available`, leaving the other half to the volume, the renderer and the
 /// activations. With ViT-B/32 (605 MB of weights, 351 MB more with the copy) that is any
-/// budget from 1.9 GB; below it the run keeps one copy (`t2tf optimize` of the 256³ aneurism:
-/// 0.74 GB peak against 1.08 GB). bf16 layers always keep both bf16 copies (the bytes of one
-/// f32 copy).
+/// budget from 1.9 GB; below it the run keeps one copy, at a slower backward (BENCHMARKS.md,
+/// "Memory of a default run"). bf16 layers always keep both bf16 copies (the bytes of one f32
+/// copy).
 fn backward_copy_fits(config: &ClipConfig, compute: Compute, available: u64) -> bool {
     if compute.precision == Precision::Bf16 && Precision::Bf16.native() {
         return true;
