@@ -17,10 +17,7 @@ use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use safetensors::tensor::TensorView;
-use safetensors::Dtype;
 use t2tf::camera::UpAxis;
-use t2tf::clip::{Clip, ClipConfig, RandomSource, TensorSource};
 use t2tf::image::Image;
 use t2tf::optimize::adapters::VolumeRenderer;
 use t2tf::optimize::{Renderer, Settings};
@@ -39,45 +36,9 @@ const BATCH: [&str; 5] = [
     "soft tissue",
 ];
 
-/// Records the tensors a model asks for (names and shapes), handing out zeros.
-struct Recorder(std::cell::RefCell<Vec<(String, Vec<usize>)>>);
-
-impl TensorSource for Recorder {
-    fn tensor(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>, t2tf::clip::ClipError> {
-        self.0.borrow_mut().push((name.to_string(), shape.to_vec()));
-        Ok(vec![0.0; shape.iter().product::<usize>().max(1)])
-    }
-}
-
-/// A model folder: the real ViT-B/32 config.json and tokenizer of ../shared, random weights.
-fn write_model(dir: &Path, shared: &Path) -> anyhow::Result<()> {
-    let cfg = ClipConfig::vit_b32();
-    let names = Recorder(Default::default());
-    drop(Clip::from_source(cfg, &names)?);
-    let random = RandomSource::new(7);
-    let data: Vec<(String, Vec<usize>, Vec<u8>)> = names
-        .0
-        .borrow()
-        .iter()
-        .map(|(n, s)| {
-            let v = random.tensor(n, s)?;
-            Ok((
-                n.clone(),
-                s.clone(),
-                v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-            ))
-        })
-        .collect::<anyhow::Result<_>>()?;
-    let views: Vec<(String, TensorView)> = data
-        .iter()
-        .map(|(n, s, b)| Ok((n.clone(), TensorView::new(Dtype::F32, s.clone(), b)?)))
-        .collect::<anyhow::Result<_>>()?;
-    safetensors::serialize_to_file(views, None, &dir.join("model.safetensors"))?;
-    for f in ["config.json", "tokenizer.json"] {
-        std::fs::copy(shared.join("data/clip").join(f), dir.join(f))?;
-    }
-    Ok(())
-}
+#[path = "common/random_model.rs"]
+mod random_model;
+use random_model::write_model;
 
 /// The run's TF from the held-out views at 224², default render options.
 fn held_out(volume: &Volume, run: &Optimized) -> anyhow::Result<Image> {

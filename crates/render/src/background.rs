@@ -219,34 +219,47 @@ fn noise(width: usize, height: usize, rng: &mut ChaCha8Rng) -> Image {
 /// Number of random Fourier features mixed into each image.
 const FOURIER_FEATURES: usize = 16;
 
+/// A Fourier background's random draws: features (w_k, b_k), their RGB mix and the bias.
+struct FourierDraws {
+    feats: Vec<([f32; 2], f32)>,
+    mix: Vec<[f32; 3]>,
+    bias: [f32; 3],
+}
+
+impl FourierDraws {
+    fn new(rng: &mut ChaCha8Rng) -> FourierDraws {
+        let bandwidth = rng.random_range(1.0f32..=8.0);
+        let gauss = |rng: &mut ChaCha8Rng| {
+            // Box–Muller: one standard normal from two uniforms.
+            let u1: f32 = rng.random_range(f32::EPSILON..1.0);
+            let u2: f32 = rng.random();
+            (-2.0 * u1.ln()).sqrt() * (TAU * u2).cos()
+        };
+        let feats: Vec<([f32; 2], f32)> = (0..FOURIER_FEATURES)
+            .map(|_| {
+                let w = [gauss(rng) * bandwidth, gauss(rng) * bandwidth];
+                (w, rng.random_range(0.0..TAU))
+            })
+            .collect();
+        let gain = 2.0 / (FOURIER_FEATURES as f32).sqrt();
+        let mix: Vec<[f32; 3]> = (0..FOURIER_FEATURES)
+            .map(|_| std::array::from_fn(|_| gauss(rng) * gain))
+            .collect();
+        let bias: [f32; 3] = std::array::from_fn(|_| gauss(rng) * 0.5);
+        FourierDraws { feats, mix, bias }
+    }
+}
+
 /// Random Fourier features: f_k(p) = sin(2π w_k·p + b_k), p in [0, 1]² over the image, w_k
 /// Gaussian with a random bandwidth (1 to 8 cycles across the image), b_k uniform phase; RGB is
 /// a random linear mix of the features squashed to (0, 1) by a logistic, like a random one-layer
 /// Fourier-feature network.
 fn fourier(width: usize, height: usize, rng: &mut ChaCha8Rng) -> Image {
-    let bandwidth = rng.random_range(1.0f32..=8.0);
-    let gauss = |rng: &mut ChaCha8Rng| {
-        // Box–Muller: one standard normal from two uniforms.
-        let u1: f32 = rng.random_range(f32::EPSILON..1.0);
-        let u2: f32 = rng.random();
-        (-2.0 * u1.ln()).sqrt() * (TAU * u2).cos()
-    };
-    let feats: Vec<([f32; 2], f32)> = (0..FOURIER_FEATURES)
-        .map(|_| {
-            let w = [gauss(rng) * bandwidth, gauss(rng) * bandwidth];
-            (w, rng.random_range(0.0..TAU))
-        })
-        .collect();
-    let gain = 2.0 / (FOURIER_FEATURES as f32).sqrt();
-    let mix: Vec<[f32; 3]> = (0..FOURIER_FEATURES)
-        .map(|_| std::array::from_fn(|_| gauss(rng) * gain))
-        .collect();
-    let bias: [f32; 3] = std::array::from_fn(|_| gauss(rng) * 0.5);
+    let FourierDraws { feats, mix, bias } = FourierDraws::new(rng);
     let size = width.max(height).max(1) as f32;
     // sin(θx + θy) = sin θx cos θy + cos θx sin θy with θx = 2π w₀ px + b and θy = 2π w₁ py:
-    // two sines per feature per column and per row instead of one per pixel. A background is
-    // drawn every optimizer step, inside its render phase (a sine per pixel and feature took
-    // about 8 ms at 224², single-threaded, next to a 40 ms render).
+    // two sines per feature per column and per row instead of one per pixel and feature: a
+    // background is drawn every optimizer step, inside its render phase.
     let axis = |n: usize, freq: f32, phase: f32| -> Vec<(f32, f32)> {
         (0..n)
             .map(|i| (TAU * freq * ((i as f32 + 0.5) / size) + phase).sin_cos())
@@ -292,24 +305,8 @@ mod tests {
         for seed in 0..4 {
             let (w, h) = (61, 37);
             let fast = fourier(w, h, &mut ChaCha8Rng::seed_from_u64(seed));
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            let bandwidth = rng.random_range(1.0f32..=8.0);
-            let gauss = |rng: &mut ChaCha8Rng| {
-                let u1: f32 = rng.random_range(f32::EPSILON..1.0);
-                let u2: f32 = rng.random();
-                (-2.0 * u1.ln()).sqrt() * (TAU * u2).cos()
-            };
-            let feats: Vec<([f32; 2], f32)> = (0..FOURIER_FEATURES)
-                .map(|_| {
-                    let w = [gauss(&mut rng) * bandwidth, gauss(&mut rng) * bandwidth];
-                    (w, rng.random_range(0.0..TAU))
-                })
-                .collect();
-            let gain = 2.0 / (FOURIER_FEATURES as f32).sqrt();
-            let mix: Vec<[f32; 3]> = (0..FOURIER_FEATURES)
-                .map(|_| std::array::from_fn(|_| gauss(&mut rng) * gain))
-                .collect();
-            let bias: [f32; 3] = std::array::from_fn(|_| gauss(&mut rng) * 0.5);
+            let FourierDraws { feats, mix, bias } =
+                FourierDraws::new(&mut ChaCha8Rng::seed_from_u64(seed));
             let size = w.max(h) as f64;
             for y in 0..h {
                 for x in 0..w {
