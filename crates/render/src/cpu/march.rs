@@ -176,6 +176,24 @@ struct Compositor<'a, 'p, T, S, F> {
     pending: Pending,
 }
 
+impl<'a, 'p, T, S, F> Compositor<'a, 'p, T, S, F> {
+    /// A ray at its start: nothing composited, full transmittance.
+    #[inline]
+    fn start(p: &'p MarchParams<'a>, data: (&'p [T], S), ray: &'p Ray, visit: F) -> Self {
+        Compositor {
+            p,
+            data,
+            ray,
+            visit,
+            delta_norm: ray.delta * p.inv_l,
+            t: 1.0,
+            acc: [0.0; 3],
+            samples: 0,
+            pending: Pending::None,
+        }
+    }
+}
+
 impl<T: Voxel, S: Slots, F: FnMut(&Sample)> Compositor<'_, '_, T, S, F> {
     /// Composite `count` consecutive samples of value `v` (a NaN value is empty space), each of
     /// normalized length `delta_norm`. Breaks once the ray is saturated.
@@ -553,17 +571,7 @@ fn march_body<T: Voxel, S: Slots, F: FnMut(&Sample)>(
     visit: F,
 ) -> Marched {
     let g = &p.grid;
-    let mut c = Compositor {
-        p,
-        data: d,
-        ray,
-        visit,
-        delta_norm: ray.delta * p.inv_l,
-        t: 1.0,
-        acc: [0.0; 3],
-        samples: 0,
-        pending: Pending::None,
-    };
+    let mut c = Compositor::start(p, d, ray, visit);
     let done = walk_blocks(g, ray, |w| match w {
         Work::Uniform(v, n0, n1) => c.uniform(v, n0, n1),
         Work::Samples(n0, n1) => c.interpolated(n0, n1),
@@ -639,17 +647,7 @@ pub(crate) fn replay<F: FnMut(&Sample)>(
         delta_last,
         jitter: 0.5,
     };
-    let mut c = Compositor {
-        p,
-        data: (none, InPlace),
-        ray,
-        visit,
-        delta_norm: ray.delta * p.inv_l,
-        t: 1.0,
-        acc: [0.0; 3],
-        samples: 0,
-        pending: Pending::None,
-    };
+    let mut c = Compositor::start(p, (none, InPlace), ray, visit);
     let last_dn = ray.delta_last * p.inv_l;
     for s in steps {
         let (dn, run) = if s.run & Step::LAST != 0 {
