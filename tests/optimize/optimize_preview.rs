@@ -112,6 +112,13 @@ fn a_large_volumes_preview_is_rendered_on_a_coarser_level_within_40_db_of_level_
             view.yaw
         );
         assert!(chosen > 0, "a 512³ volume's 256² preview renders level 0");
+        // The preview is the chosen level's picture, not level 0's.
+        let on_chosen = renderer.render_picture(&lut, &view, Some(chosen)).unwrap();
+        assert!(
+            preview.data == on_chosen.data,
+            "the preview is not level {chosen}'s picture"
+        );
+        assert!(db.is_finite(), "the preview is level 0's picture");
         assert!(db >= 40.0, "level {chosen}: {db:.1} dB against level 0");
     }
 }
