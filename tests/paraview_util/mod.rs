@@ -108,6 +108,22 @@ pub fn lost_display(out: &std::process::Output, extra: &str) -> bool {
             .contains("bad X server connection")
 }
 
+/// `text` with each distinct line once, in order: a ParaView process that lost its peer repeats
+/// one socket error hundreds of times, and a failing test's message should show the rest.
+pub fn distinct_lines(text: &str) -> String {
+    let mut seen = std::collections::HashSet::new();
+    let mut out = String::new();
+    for line in text.lines() {
+        // VTK prefixes each message with the seconds since start: compare what follows.
+        let key = line.split_once(" [").map_or(line, |(_, rest)| rest);
+        if seen.insert(key) {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    out
+}
+
 /// The TF the preset and script tests export: five points from transparent blue to opaque
 /// white.
 pub fn test_tf() -> ControlPoints {
