@@ -67,15 +67,11 @@ impl VolumeRenderer<'_> {
             level: Some(level.unwrap_or_else(|| render::choose_level(self.volume, &camera, size))),
             ..RenderOptions::final_quality()
         };
-        let level = render::level_for(self.volume, lut, &camera, (size, size), &opts)?;
-        let prepared = self.backend.prepare(self.volume, level)?;
-        let shot = Shot {
-            camera: &camera,
-            background: &bg,
-            options: &opts,
-            cast: (size, size),
-        };
-        Ok(self.backend.forward(&prepared, lut, &shot)?.0.image)
+        // A picture has no backward: render without recording the rays' steps.
+        Ok(self
+            .backend
+            .render(self.volume, lut, &camera, &bg, &opts)?
+            .image)
     }
 
     fn camera(&self, view: &View) -> Result<Camera, BoxError> {
