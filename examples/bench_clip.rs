@@ -100,6 +100,73 @@ fn gemm_gflops(m: usize, n: usize, k: usize, bt: bool, reps: usize) -> f64 {
     2.0 * (m * n * k) as f64 / best / 1e9
 }
 
+/// The f32 FMA peak of the cores: a loop of independent FMAs on registers only (12 chains, the
+/// widest f32 vectors the CPU has), on `threads` threads at once, best of 3. No GEMM reaches it
+/// (loads, packing, memory); it is the ceiling against which a GEMM's efficiency reads the
+/// same on every machine, where a library's GEMM is a moving yardstick.
+fn fma_peak_gflops(threads: usize) -> (f64, &'static str) {
+    const ITERS: usize = 20_000_000;
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::*;
+        #[target_feature(enable = "avx512f")]
+        unsafe fn zmm(iters: usize) -> f32 {
+            let (x, y) = std::hint::black_box((_mm512_set1_ps(0.999), _mm512_set1_ps(1e-3)));
+            let mut acc = [_mm512_set1_ps(1.0); 12];
+            for _ in 0..std::hint::black_box(iters) {
+                for a in acc.iter_mut() {
+                    *a = _mm512_fmadd_ps(*a, x, y);
+                }
+            }
+            acc.iter().map(|a| _mm512_reduce_add_ps(*a)).sum()
+        }
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn ymm(iters: usize) -> f32 {
+            let (x, y) = std::hint::black_box((_mm256_set1_ps(0.999), _mm256_set1_ps(1e-3)));
+            let mut acc = [_mm256_set1_ps(1.0); 12];
+            for _ in 0..std::hint::black_box(iters) {
+                for a in acc.iter_mut() {
+                    *a = _mm256_fmadd_ps(*a, x, y);
+                }
+            }
+            let mut lanes = [0.0f32; 8];
+            acc.iter().fold(0.0, |s, a| {
+                _mm256_storeu_ps(lanes.as_mut_ptr(), *a);
+                s + lanes.iter().sum::<f32>()
+            })
+        }
+        let (run, width, isa): (fn(usize) -> f32, usize, _) =
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: AVX-512F checked just above.
+                (|n| unsafe { zmm(n) }, 16, "AVX-512F zmm")
+            } else if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                // SAFETY: AVX2 and FMA checked just above.
+                (|n| unsafe { ymm(n) }, 8, "AVX2+FMA ymm")
+            } else {
+                return (f64::NAN, "no FMA");
+            };
+        let mut best = 0.0f64;
+        for _ in 0..3 {
+            let t = Instant::now();
+            let sum: f32 = std::thread::scope(|s| {
+                let hs: Vec<_> = (0..threads).map(|_| s.spawn(|| run(ITERS))).collect();
+                hs.into_iter().map(|h| h.join().unwrap_or(0.0)).sum()
+            });
+            std::hint::black_box(sum);
+            let flops = (threads * ITERS * 12 * width * 2) as f64;
+            best = best.max(flops / t.elapsed().as_secs_f64() / 1e9);
+        }
+        (best, isa)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (threads, ITERS);
+        (f64::NAN, "not measured on this architecture")
+    }
+}
+
 /// The f32 GEMM peak of this run: the `gemm` crate's best of 2048³ and 1536³ by wall time,
 /// and by CPU time (FLOPs per CPU second × threads, the best rep): on a shared machine the
 /// CPU-time figure is what the cores deliver while this process runs, whatever the wall time.
@@ -443,6 +510,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if image_only {
         return Ok(());
     }
+    let (fma, isa) = fma_peak_gflops(threads);
+    println!(
+        "\nFMA peak (registers only, {isa}, {threads} threads): {fma:.0} GFLOPS; the best f32 \
+         image pass runs at {:.0} % of it, the GEMM peak above is {:.0} % of it",
+        100.0 * flops / best_f32 / 1e9 / fma,
+        100.0 * img_peak / fma
+    );
 
     // 3. Text encoder, 128 short captions, with each setup's model.
     let tok_path = Path::new("../shared/data/clip/tokenizer.json");
