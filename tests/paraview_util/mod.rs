@@ -114,8 +114,12 @@ pub fn distinct_lines(text: &str) -> String {
     let mut seen = std::collections::HashSet::new();
     let mut out = String::new();
     for line in text.lines() {
-        // VTK prefixes each message with the seconds since start: compare what follows.
-        let key = line.split_once(" [").map_or(line, |(_, rest)| rest);
+        // VTK prefixes each message with the seconds since start, "(   3.566s) " (after colour
+        // codes): compare what follows it.
+        let key = match line.find("s) ") {
+            Some(i) if i < 32 && line[..i].contains('(') => &line[i + 3..],
+            _ => line,
+        };
         if seen.insert(key) {
             out.push_str(line);
             out.push('\n');
