@@ -5,6 +5,9 @@
 //! with `Compute::one_copy` is one copy of the weights (the text tower only runs forward and
 //! keeps no backward copy; the image tower's f32 backward reads the forward's packed panels).
 //!
+//! The text tower is built when texts are encoded and freed by `release_text`, reading only the
+//! token table's rows it needs.
+//!
 //! Its own test binary (one test) so that the process's peak resident set (VmHWM in
 //! /proc/self/status, reset through /proc/self/clear_refs) is this load's alone.
 
@@ -120,6 +123,35 @@ fn loading_needs_at_most_a_quarter_of_the_file_beyond_the_model() {
         "loading needed {transient} KB beyond what the model keeps, more than 0.25× the {file_kb} KB file"
     );
     assert_eq!(clip.config(), &cfg);
+
+    // The text tower is built when texts are encoded, reads only its tokens' rows of the
+    // token table (49,408 × 256 here: 48 MiB), and is freed by `release_text`.
+    let t = &cfg.text.tower;
+    let text_kb =
+        (t.num_layers * (4 * t.hidden_size.pow(2) + 2 * t.hidden_size * t.intermediate_size) * 4
+            / 1024) as u64;
+    let table_kb = (cfg.text.vocab_size * t.hidden_size * 4 / 1024) as u64;
+    let before = status_kb("VmRSS:").unwrap();
+    let first = clip.encode_text(&["a photo of a skull"]).unwrap();
+    let with_text = status_kb("VmRSS:").unwrap();
+    eprintln!(
+        "text tower {text_kb} KB, token table {table_kb} KB; resident {before} KB before \
+         encoding, {with_text} KB with the text tower"
+    );
+    assert!(
+        with_text <= before + text_kb + table_kb / 4,
+        "encoding one caption took {} KB: the token table ({table_kb} KB) was read whole",
+        with_text.saturating_sub(before)
+    );
+    clip.release_text();
+    let after = status_kb("VmRSS:").unwrap();
+    eprintln!("resident after release_text: {after} KB");
+    assert!(
+        after <= before + text_kb / 2,
+        "release_text left {} KB of the {text_kb} KB text tower resident",
+        after.saturating_sub(before)
+    );
+    assert_eq!(clip.encode_text(&["a photo of a skull"]).unwrap(), first);
 }
 
 /// The config as transformers writes it (only the fields that differ from the defaults matter).

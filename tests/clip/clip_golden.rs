@@ -148,3 +148,44 @@ fn quick_gelu_f16_matches_transformers() {
 fn gelu_bf16_matches_transformers() {
     check_variant("gelu");
 }
+
+/// A model loaded from files builds its text tower when texts are encoded and frees it on
+/// `release_text`, reading only the token rows it needs from the file: the embeddings are
+/// those of a model that keeps the whole tower (built from the same checkpoint), bit for
+/// bit, before and after a release, and from two threads at once.
+#[test]
+fn text_tower_built_on_demand_matches_a_kept_one() {
+    use t2tf::clip::{Checkpoint, ClipTokenizer};
+    for variant in ["quick_gelu", "gelu", "openclip"] {
+        let dir = format!("tests/fixtures/clip/{variant}");
+        let mut req = ModelRequest::new(&dir);
+        req.tokenizer = Some(Path::new(TOKENIZER).to_path_buf());
+        let files = t2tf::clip::load::resolve(&req).unwrap();
+        let on_demand = Clip::load_files(&files).unwrap();
+        let captions = ["a photo of a skull", "bones", "a photo of a cat"];
+        let first = on_demand.encode_text(&captions).unwrap();
+        on_demand.release_text();
+        let again = on_demand.encode_text(&captions).unwrap();
+        assert_eq!(first, again, "{variant}: after release_text");
+        std::thread::scope(|s| {
+            on_demand.release_text();
+            let a = s.spawn(|| on_demand.encode_text(&captions[..2]).unwrap());
+            let b = s.spawn(|| on_demand.encode_text(&captions[1..]).unwrap());
+            let (a, b) = (a.join().unwrap(), b.join().unwrap());
+            assert_eq!(a[..], first[..2], "{variant}: thread a");
+            assert_eq!(b[..], first[1..], "{variant}: thread b");
+        });
+        if files.layout == t2tf::clip::Layout::Transformers {
+            let checkpoint = Checkpoint::open(&files.weights).unwrap();
+            let config = on_demand.config().clone();
+            let max = config.text.max_positions;
+            let mut kept = Clip::from_source(config, &checkpoint).unwrap();
+            kept.set_tokenizer(ClipTokenizer::from_file(&files.tokenizer, max).unwrap());
+            assert_eq!(
+                kept.encode_text(&captions).unwrap(),
+                first,
+                "{variant}: kept"
+            );
+        }
+    }
+}

@@ -82,8 +82,10 @@ pub use tokenizer::ClipTokenizer;
 pub use vision::ImageCache;
 pub use weights::Checkpoint;
 
+use std::sync::{Arc, Mutex, PoisonError};
+
 use t2tf_core::image::Image;
-use text::TextModel;
+use text::{TextModel, TokenTable};
 use vision::VisionModel;
 
 /// What can go wrong loading or running CLIP; every variant about a file names it.
@@ -132,12 +134,26 @@ pub enum ClipError {
 /// A loaded CLIP model (`CLIPModel`).
 pub struct Clip {
     config: ClipConfig,
-    text: TextModel,
+    text: TextTower,
     vision: VisionModel,
     tokenizer: Option<ClipTokenizer>,
     logit_scale: f32,
     preprocessing: Preprocessing,
     compute: Compute,
+}
+
+/// The text tower, which only turns texts into embeddings: a run needs it before its loop
+/// and never in it, while the image tower's weights stay for every step.
+enum TextTower {
+    /// Built from a tensor source at hand (random weights, a test's tensors): kept whole.
+    Kept(Box<(TextModel, TokenTable)>),
+    /// Built from the memory-mapped checkpoint when texts are encoded, kept until
+    /// [`Clip::release_text`]; each call reads only its tokens' rows of the token table.
+    FromFile {
+        weights: Checkpoint,
+        layout: Layout,
+        built: Mutex<Option<Arc<TextModel>>>,
+    },
 }
 
 impl Clip {
@@ -176,12 +192,27 @@ impl Clip {
         let (config, prep) = files.read_config_and_preprocessing()?;
         let tok = ClipTokenizer::from_file(&files.tokenizer, config.text.max_positions)?;
         let weights = Checkpoint::open(&files.weights)?;
-        let mut clip = match files.layout {
-            Layout::Transformers => Clip::from_source_with(config, &weights, compute)?,
-            Layout::OpenClip => {
-                Clip::from_source_with(config, &openclip::OpenClipTensors::new(&weights), compute)?
-            }
+        // The text tower is built here once to check its tensors (shapes, values), and
+        // dropped before the image tower is built: the two are never held together at load.
+        with_root(&weights, files.layout, compute, |root| {
+            TextModel::load(root, &config.text, config.projection_dim)?;
+            TokenTable::for_ids(root, &config.text, &[])
+        })?;
+        t2tf_core::memory::return_freed_memory();
+        let (vision, logit_scale) = with_root(&weights, files.layout, compute, |root| {
+            Ok((
+                VisionModel::load(root, &config.vision, config.projection_dim)?,
+                root.tensor("logit_scale", &[])?[0].exp(),
+            ))
+        })?;
+        let text = TextTower::FromFile {
+            weights,
+            layout: files.layout,
+            built: Mutex::new(None),
         };
+        let mut clip = Clip::assemble(config, text, vision, logit_scale, compute);
+        // The text tower and every tensor read for packing are freed.
+        t2tf_core::memory::return_freed_memory();
         clip.tokenizer = Some(tok);
         if let Some(p) = prep {
             clip.set_preprocessing(p);
@@ -224,10 +255,22 @@ impl Clip {
     ) -> Result<Clip, ClipError> {
         let root = source::Names::root(src, compute);
         let text = TextModel::load(&root, &config.text, config.projection_dim)?;
+        let tokens = TokenTable::whole(&root, &config.text)?;
         let vision = VisionModel::load(&root, &config.vision, config.projection_dim)?;
         let logit_scale = root.tensor("logit_scale", &[])?[0].exp();
+        let text = TextTower::Kept(Box::new((text, tokens)));
+        Ok(Clip::assemble(config, text, vision, logit_scale, compute))
+    }
+
+    fn assemble(
+        config: ClipConfig,
+        text: TextTower,
+        vision: VisionModel,
+        logit_scale: f32,
+        compute: Compute,
+    ) -> Clip {
         let preprocessing = Preprocessing::clip(config.vision.image_size);
-        Ok(Clip {
+        Clip {
             config,
             text,
             vision,
@@ -235,7 +278,7 @@ impl Clip {
             logit_scale,
             preprocessing,
             compute,
-        })
+        }
     }
 
     /// How its weight products run (what it was built with).
@@ -282,7 +325,44 @@ impl Clip {
 
     /// Text embeddings from token ids (each sequence as the tokenizer returns it).
     pub fn encode_tokens(&self, ids: &[Vec<u32>]) -> Result<Vec<Vec<f32>>, ClipError> {
-        self.text.forward(ids)
+        match &self.text {
+            TextTower::Kept(kept) => kept.0.forward(ids, &kept.1),
+            TextTower::FromFile {
+                weights,
+                layout,
+                built,
+            } => {
+                let model = {
+                    // Held while building, so that two threads never build it twice; a
+                    // panic while building left nothing half-built in the slot.
+                    let mut slot = built.lock().unwrap_or_else(PoisonError::into_inner);
+                    match &*slot {
+                        Some(m) => Arc::clone(m),
+                        None => {
+                            let m = Arc::new(with_root(weights, *layout, self.compute, |root| {
+                                TextModel::load(root, &self.config.text, self.config.projection_dim)
+                            })?);
+                            *slot = Some(Arc::clone(&m));
+                            m
+                        }
+                    }
+                };
+                let tokens = with_root(weights, *layout, self.compute, |root| {
+                    TokenTable::for_ids(root, &self.config.text, ids)
+                })?;
+                model.forward(ids, &tokens)
+            }
+        }
+    }
+
+    /// Free the text tower's weights until texts are encoded again (then read back from the
+    /// checkpoint, ≈ 0.1 s for ViT-B/32): what a run calls once its texts are embedded, as
+    /// its loop needs only the image tower. A model built from a tensor source keeps them.
+    pub fn release_text(&self) {
+        if let TextTower::FromFile { built, .. } = &self.text {
+            built.lock().unwrap_or_else(PoisonError::into_inner).take();
+            t2tf_core::memory::return_freed_memory();
+        }
     }
 
     /// Side of the square images the vision tower takes (224 for ViT-B/32).
@@ -327,5 +407,21 @@ impl Clip {
     /// `image_size()`², for arbitrary pictures, with the sizes of `preprocessing()`.
     pub fn preprocess(&self, image: &Image) -> Image {
         self.preprocessing.apply(image)
+    }
+}
+
+/// `f` on the root names of `weights`, read in `layout`, layers running as `compute` says.
+fn with_root<R>(
+    weights: &Checkpoint,
+    layout: Layout,
+    compute: Compute,
+    f: impl FnOnce(&source::Names) -> Result<R, ClipError>,
+) -> Result<R, ClipError> {
+    match layout {
+        Layout::Transformers => f(&source::Names::root(weights, compute)),
+        Layout::OpenClip => {
+            let tensors = openclip::OpenClipTensors::new(weights);
+            f(&source::Names::root(&tensors, compute))
+        }
     }
 }

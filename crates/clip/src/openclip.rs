@@ -605,6 +605,13 @@ impl TensorSource for OpenClipTensors<'_> {
             ))),
         }
     }
+
+    fn rows(&self, name: &str, shape: &[usize], rows: &[u32]) -> Result<Vec<f32>, ClipError> {
+        match stored(name) {
+            Some(Stored::Same(n)) => self.checkpoint.rows(&n, shape, rows),
+            _ => crate::source::gather_rows(name, &self.tensor(name, shape)?, shape, rows),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -26,10 +26,11 @@ use super::layers::add_assign;
 
 /// Most rows (tree nodes) in one pass: bounds the memory of a call with many captions while
 /// keeping products tall. A pass holds about ten `[rows, D]` f32 matrices at once (the MLP's
-/// `[rows, 4D]` among them): ≈ 40 MiB at D = 512 and 2048 rows, on top of the loaded model.
-/// 8192 rows (≈ 160 MiB) would make the caption pool's first use the peak of a default run;
-/// the embeddings do not depend on how the captions are split (`text::tests`).
-pub(crate) const MAX_ROWS: usize = 2048;
+/// `[rows, 4D]` among them): ≈ 20 MiB at D = 512 and 1024 rows, on top of the loaded model.
+/// More rows made the caption pool's first use the peak of a default run (2048 rows: ≈ 60
+/// MiB more at the peak, no faster); the embeddings do not depend on how the captions are
+/// split (`text::tests`).
+pub(crate) const MAX_ROWS: usize = 1024;
 
 /// Query rows per parallel task in `attend` (each is a few thousand multiply-adds).
 const ROWS_PER_TASK: usize = 16;

@@ -17,6 +17,36 @@ pub trait TensorSource {
     /// The tensor called `name` (a full checkpoint name such as
     /// `text_model.final_layer_norm.weight`) as f32, checked to have `shape`.
     fn tensor(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>, ClipError>;
+
+    /// Rows `rows` of the tensor `name` (of `shape`, rows along its first dimension), in the
+    /// order asked: `[rows.len(), shape[1..]]`. A source that can read a row alone (a
+    /// memory-mapped safetensors file) reads only those; this default reads the whole tensor.
+    fn rows(&self, name: &str, shape: &[usize], rows: &[u32]) -> Result<Vec<f32>, ClipError> {
+        let all = self.tensor(name, shape)?;
+        gather_rows(name, &all, shape, rows)
+    }
+}
+
+/// Rows `rows` of `all`, a tensor `name` of `shape` (rows along the first dimension).
+pub(crate) fn gather_rows(
+    name: &str,
+    all: &[f32],
+    shape: &[usize],
+    rows: &[u32],
+) -> Result<Vec<f32>, ClipError> {
+    let n = shape.first().copied().unwrap_or(1);
+    let len: usize = shape.iter().skip(1).product();
+    let mut out = Vec::with_capacity(rows.len() * len);
+    for &r in rows {
+        let r = r as usize;
+        if r >= n {
+            return Err(ClipError::Input(format!(
+                "{name}: row {r} asked for, the tensor has {n}"
+            )));
+        }
+        out.extend_from_slice(&all[r * len..(r + 1) * len]);
+    }
+    Ok(out)
 }
 
 /// A tensor source seen from inside a module: names are built by pushing path segments, as
@@ -82,6 +112,11 @@ impl<'a> Names<'a> {
         self.src.tensor(&self.name(leaf), shape)
     }
 
+    /// Rows `rows` of the tensor `leaf` here, of `shape` ([`TensorSource::rows`]).
+    pub fn rows(&self, leaf: &str, shape: &[usize], rows: &[u32]) -> Result<Vec<f32>, ClipError> {
+        self.src.rows(&self.name(leaf), shape, rows)
+    }
+
     /// `torch.nn.Linear(inp, out, bias)` stored here (`weight` `[out, inp]`, `bias` `[out]`).
     pub fn linear(&self, out: usize, inp: usize, bias: bool) -> Result<Linear, ClipError> {
         let w = self.tensor("weight", &[out, inp])?;
@@ -112,6 +147,10 @@ impl<'a> Names<'a> {
 impl TensorSource for Checkpoint {
     fn tensor(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>, ClipError> {
         self.get(name, shape)
+    }
+
+    fn rows(&self, name: &str, shape: &[usize], rows: &[u32]) -> Result<Vec<f32>, ClipError> {
+        Checkpoint::rows(self, name, shape, rows)
     }
 }
 

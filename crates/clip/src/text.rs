@@ -7,6 +7,8 @@
 //! the states of their common beginnings: they run as a prefix tree of tokens (`prefix`), every
 //! projection one GEMM over all distinct prefixes.
 
+use std::collections::HashMap;
+
 use super::config::TextConfig;
 use super::layers::{LayerNorm, Linear};
 use super::prefix;
@@ -14,10 +16,9 @@ use super::source::Names;
 use super::tower::Tower;
 use super::ClipError;
 
+/// The text tower's weights but for its token table (see [`TokenTable`]).
 pub struct TextModel {
     pub cfg: TextConfig,
-    /// `[vocab, D]`
-    token_embedding: Vec<f32>,
     /// `[max_positions, D]`
     position_embedding: Vec<f32>,
     tower: Tower,
@@ -37,9 +38,6 @@ impl TextModel {
         let emb = model.pp("embeddings");
         Ok(TextModel {
             cfg: cfg.clone(),
-            token_embedding: emb
-                .pp("token_embedding")
-                .tensor("weight", &[cfg.vocab_size, d])?,
             position_embedding: emb
                 .pp("position_embedding")
                 .tensor("weight", &[cfg.max_positions, d])?,
@@ -93,11 +91,15 @@ impl TextModel {
     }
 
     /// Token + position embedding of the rows `(token, position)`: `[rows, D]`.
-    fn embed(&self, rows: impl ExactSizeIterator<Item = (u32, usize)>) -> Vec<f32> {
+    fn embed(
+        &self,
+        tokens: &TokenTable,
+        rows: impl ExactSizeIterator<Item = (u32, usize)>,
+    ) -> Vec<f32> {
         let d = self.cfg.tower.hidden_size;
         let mut x = vec![0.0f32; rows.len() * d];
         for (row, (t, i)) in x.chunks_exact_mut(d).zip(rows) {
-            let te = &self.token_embedding[t as usize * d..(t as usize + 1) * d];
+            let te = tokens.row(t);
             let pe = &self.position_embedding[i * d..(i + 1) * d];
             for ((r, a), b) in row.iter_mut().zip(te).zip(pe) {
                 *r = a + b;
@@ -112,13 +114,19 @@ impl TextModel {
     /// any number of them fits in bounded memory and common beginnings are computed once; a
     /// caption's embedding is the same whichever captions share the call (tested bit for bit
     /// with the packed engine in `tests`).
-    pub fn forward(&self, captions: &[Vec<u32>]) -> Result<Vec<Vec<f32>>, ClipError> {
+    /// `tokens` holds at least the rows of the ids in `captions`.
+    pub fn forward(
+        &self,
+        captions: &[Vec<u32>],
+        tokens: &TokenTable,
+    ) -> Result<Vec<Vec<f32>>, ClipError> {
         let prefixes = self.pooled_prefixes(captions)?;
         let p = self.projection.out_dim;
         let mut out = vec![Vec::new(); captions.len()];
         for part in prefix::forest(&prefixes, prefix::MAX_ROWS) {
             let tree = &part.tree;
             let mut x = self.embed(
+                tokens,
                 tree.tokens
                     .iter()
                     .copied()
@@ -148,7 +156,12 @@ impl TextModel {
     /// its own tokens up to the pooled one, or on all of its tokens with `full` (padding
     /// included: what the causal mask makes irrelevant). The reference of the tests.
     #[cfg(test)]
-    fn forward_segments(&self, captions: &[Vec<u32>], full: bool) -> Vec<Vec<f32>> {
+    fn forward_segments(
+        &self,
+        captions: &[Vec<u32>],
+        tokens: &TokenTable,
+        full: bool,
+    ) -> Vec<Vec<f32>> {
         use super::attention::Segments;
         let prefixes = self.pooled_prefixes(captions).expect("valid captions");
         let mut spans = Vec::new();
@@ -163,6 +176,7 @@ impl TextModel {
             causal: true,
         };
         let x = self.embed(
+            tokens,
             captions
                 .iter()
                 .zip(&seg.spans)
@@ -180,6 +194,66 @@ impl TextModel {
     }
 }
 
+/// Rows of the token embedding `[vocab, D]` (`text_model.embeddings.token_embedding`): the
+/// whole table, or the rows of the ids one call uses. The table is the text tower's largest
+/// tensor (25 M of ViT-B/32's 63 M text weights) and a call uses a few thousand of its rows
+/// at most, so a tower built from a checkpoint reads them from the file for each call.
+pub enum TokenTable {
+    /// Every row: `[vocab, D]`.
+    Whole { d: usize, rows: Vec<f32> },
+    /// The rows of some ids: `rows[index[id]]`.
+    Some {
+        d: usize,
+        index: HashMap<u32, usize>,
+        rows: Vec<f32>,
+    },
+}
+
+impl TokenTable {
+    /// The whole table of the model under `root` (the checkpoint's top level).
+    pub fn whole(root: &Names, cfg: &TextConfig) -> Result<TokenTable, ClipError> {
+        let d = cfg.tower.hidden_size;
+        let rows = Self::names(root).tensor("weight", &[cfg.vocab_size, d])?;
+        Ok(TokenTable::Whole { d, rows })
+    }
+
+    /// The rows of the ids in `captions` that the vocabulary has (others are the forward's
+    /// to reject); no ids: only the table's presence and shape are checked.
+    pub fn for_ids(
+        root: &Names,
+        cfg: &TextConfig,
+        captions: &[Vec<u32>],
+    ) -> Result<TokenTable, ClipError> {
+        let d = cfg.tower.hidden_size;
+        let mut ids: Vec<u32> = captions
+            .iter()
+            .flatten()
+            .copied()
+            .filter(|&t| (t as usize) < cfg.vocab_size)
+            .collect();
+        ids.sort_unstable();
+        ids.dedup();
+        let rows = Self::names(root).rows("weight", &[cfg.vocab_size, d], &ids)?;
+        let index = ids.iter().enumerate().map(|(i, &t)| (t, i)).collect();
+        Ok(TokenTable::Some { d, index, rows })
+    }
+
+    fn names<'a>(root: &Names<'a>) -> Names<'a> {
+        root.pp("text_model").pp("embeddings").pp("token_embedding")
+    }
+
+    /// The embedding of token `t` (which the table must hold: the forward checked the ids
+    /// against the vocabulary, and `for_ids` read all of those).
+    fn row(&self, t: u32) -> &[f32] {
+        let (d, r) = match self {
+            TokenTable::Whole { d, .. } => (*d, t as usize),
+            TokenTable::Some { d, index, .. } => (*d, index[&t]),
+        };
+        let (TokenTable::Whole { rows, .. } | TokenTable::Some { rows, .. }) = self;
+        &rows[r * d..(r + 1) * d]
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -189,7 +263,7 @@ mod tests {
 
     /// A small random text tower (3 layers, 4 heads of 8) with CLIP's layout: the end-of-text
     /// token is the largest id (legacy `eos_token_id = 2` pooling).
-    fn model(compute: Compute) -> TextModel {
+    fn model(compute: Compute) -> (TextModel, TokenTable) {
         let cfg = TextConfig {
             tower: TowerConfig {
                 hidden_size: 32,
@@ -204,7 +278,9 @@ mod tests {
             eos_token_id: 2,
         };
         let src = RandomSource::new(11);
-        TextModel::load(&Names::root(&src, compute), &cfg, 16).unwrap()
+        let root = Names::root(&src, compute);
+        let m = TextModel::load(&root, &cfg, 16).unwrap();
+        (m, TokenTable::whole(&root, &cfg).unwrap())
     }
 
     const SOT: u32 = 57;
@@ -254,16 +330,19 @@ mod tests {
                 .map(Some),
         );
         for k in kernels {
-            let m = match k {
+            let (m, t) = match k {
                 Some(k) => model(Compute::default().with_kernel(k).unwrap()),
                 None => model(Compute::default().with_engine(Engine::Crate)),
             };
-            let tree = m.forward(&caps).unwrap();
+            let tree = m.forward(&caps, &t).unwrap();
             let alone: Vec<Vec<f32>> = caps
                 .iter()
-                .map(|c| m.forward_segments(std::slice::from_ref(c), false).remove(0))
+                .map(|c| {
+                    m.forward_segments(std::slice::from_ref(c), &t, false)
+                        .remove(0)
+                })
                 .collect();
-            let packed = m.forward_segments(&caps, false);
+            let packed = m.forward_segments(&caps, &t, false);
             for (c, ((t, a), p)) in tree.iter().zip(&alone).zip(&packed).enumerate() {
                 if k.is_some() {
                     assert_eq!(t, a, "{k:?} caption {c}: tree vs alone");
@@ -285,7 +364,7 @@ mod tests {
     /// the products' heights, not the values of the pooled row's inputs).
     #[test]
     fn tokens_after_the_end_token_do_not_matter() {
-        let m = model(Compute::default());
+        let (m, t) = model(Compute::default());
         let caps: Vec<Vec<u32>> = captions()
             .into_iter()
             .map(|mut c| {
@@ -298,8 +377,8 @@ mod tests {
                 c
             })
             .collect();
-        let full = m.forward_segments(&caps, true);
-        let cut = m.forward(&caps).unwrap();
+        let full = m.forward_segments(&caps, &t, true);
+        let cut = m.forward(&caps, &t).unwrap();
         for (c, (f, t)) in full.iter().zip(&cut).enumerate() {
             assert!(max_rel(f, t) < 1e-6, "caption {c}: {}", max_rel(f, t));
         }

@@ -63,6 +63,22 @@ impl Checkpoint {
         }
     }
 
+    /// Rows `rows` of tensor `name` (of `shape`, rows along the first dimension) as f32,
+    /// `[rows.len(), shape[1..]]`: read alone from a safetensors file (a token table's few
+    /// used rows, without copying the table), from the whole tensor otherwise.
+    pub fn rows(&self, name: &str, shape: &[usize], rows: &[u32]) -> Result<Vec<f32>, ClipError> {
+        match self.owner.get(name).map(|&i| &self.parts[i]) {
+            Some(Part::Safetensors(f)) => f.rows(name, shape, rows),
+            Some(Part::Torch(f)) => {
+                crate::source::gather_rows(name, &f.get(name, shape)?, shape, rows)
+            }
+            None => Err(ClipError::Weights {
+                path: self.describe_files(),
+                msg: format!("tensor \"{name}\" is missing"),
+            }),
+        }
+    }
+
     /// The stored shape of tensor `name`.
     pub fn shape(&self, name: &str) -> Option<Vec<usize>> {
         match self.owner.get(name).map(|&i| &self.parts[i])? {
@@ -214,10 +230,48 @@ impl SafetensorsFile {
         check_finite(name, &out).map_err(|m| self.err(m))?;
         Ok(out)
     }
+
+    /// As `get` for the rows `rows` only (rows along the first dimension), each read from
+    /// the map by itself and its pages released after.
+    fn rows(&self, name: &str, shape: &[usize], rows: &[u32]) -> Result<Vec<f32>, ClipError> {
+        let info = self
+            .metadata
+            .info(name)
+            .ok_or_else(|| self.err(format!("tensor \"{name}\" is missing")))?;
+        check_shape(name, &info.shape, shape).map_err(|m| self.err(m))?;
+        if !matches!(info.dtype, Dtype::F32 | Dtype::F16 | Dtype::BF16) {
+            return Err(self.err(format!(
+                "tensor \"{name}\" has dtype {:?}; only F32, F16 and BF16 are supported",
+                info.dtype
+            )));
+        }
+        let elem = if info.dtype == Dtype::F32 { 4 } else { 2 };
+        let n = shape.first().copied().unwrap_or(1);
+        let row_len = shape.iter().skip(1).product::<usize>();
+        let row_bytes = row_len * elem;
+        let start = self.data_start + info.data_offsets.0;
+        let mut out = Vec::with_capacity(rows.len() * row_len);
+        for &r in rows {
+            let r = r as usize;
+            if r >= n {
+                return Err(ClipError::Input(format!(
+                    "{name}: row {r} asked for, the tensor has {n}"
+                )));
+            }
+            let range = start + r * row_bytes..start + (r + 1) * row_bytes;
+            let row = widen(&self.mmap[range.clone()], info.dtype).unwrap_or_default();
+            release(&self.mmap, range);
+            if row.iter().any(|v| !v.is_finite()) {
+                return Err(self.err(format!(
+                    "tensor \"{name}\" has a non-finite value in row {r}"
+                )));
+            }
+            out.extend(row);
+        }
+        Ok(out)
+    }
 }
 
-/// Little-endian F32/F16/BF16 bytes to f32; `None` for other dtypes. The bytes may be
-/// unaligned, so decode element by element.
 /// Stop counting the pages of `map` that `range` touches as this process's memory
 /// (`MADV_DONTNEED`). Whole pages around the range: a page it shares with a neighbouring
 /// tensor is read back from the file if that tensor is read later.
@@ -232,8 +286,9 @@ fn release(map: &Mmap, range: std::ops::Range<usize>) {
     let first = range.start / page * page;
     let end = range.end.div_ceil(page).saturating_mul(page).min(map.len());
     if end > first {
-        // SAFETY: the map is a read-only shared file mapping and no slice of it is alive
-        // here: after MADV_DONTNEED its pages read back from the file unchanged. A failure
+        // SAFETY: the map is a read-only shared file mapping: after MADV_DONTNEED its pages
+        // read back from the file unchanged, also under a slice another thread is reading (a
+        // text tower built from the map while another call reads token rows). A failure
         // only means the pages stay counted.
         let _ = unsafe {
             map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, first, end - first)
@@ -241,6 +296,8 @@ fn release(map: &Mmap, range: std::ops::Range<usize>) {
     }
 }
 
+/// Little-endian F32/F16/BF16 bytes to f32; `None` for other dtypes. The bytes may be
+/// unaligned, so decode element by element.
 fn widen(bytes: &[u8], dtype: Dtype) -> Option<Vec<f32>> {
     Some(match dtype {
         Dtype::F32 => bytes
@@ -315,6 +372,57 @@ mod tests {
         assert!(e.contains("missing.weight") && e.contains("missing"), "{e}");
         let e = w.get("ids", &[1]).unwrap_err().to_string();
         assert!(e.contains("I64"), "{e}");
+    }
+
+    /// Rows read alone from the map are the rows of the whole tensor, in the order asked,
+    /// for each float dtype; a row past the end, a wrong shape, another dtype and a
+    /// non-finite value in a row read are errors.
+    #[test]
+    fn rows_are_read_alone() {
+        let dir = tempfile::tempdir().unwrap();
+        let table: Vec<f32> = (0..12).map(|v| v as f32 * 0.5).collect();
+        let f16s: Vec<u8> = table
+            .iter()
+            .flat_map(|v| half::f16::from_f32(*v).to_le_bytes())
+            .collect();
+        let bf16s: Vec<u8> = table
+            .iter()
+            .flat_map(|v| half::bf16::from_f32(*v).to_le_bytes())
+            .collect();
+        let mut nan = table.clone();
+        nan[7] = f32::NAN;
+        let p = write(
+            &dir.path().join("model.safetensors"),
+            &[
+                ("f32", Dtype::F32, vec![4, 3], f32_bytes(&table)),
+                ("f16", Dtype::F16, vec![4, 3], f16s),
+                ("bf16", Dtype::BF16, vec![4, 3], bf16s),
+                ("nan", Dtype::F32, vec![4, 3], f32_bytes(&nan)),
+                ("ids", Dtype::I64, vec![4, 3], vec![0; 96]),
+            ],
+        );
+        let w = Checkpoint::open(&[p]).unwrap();
+        for name in ["f32", "f16", "bf16"] {
+            let whole = w.get(name, &[4, 3]).unwrap();
+            let rows = w.rows(name, &[4, 3], &[3, 0, 3]).unwrap();
+            let want: Vec<f32> = [3, 0, 3]
+                .iter()
+                .flat_map(|&r| whole[r * 3..r * 3 + 3].to_vec())
+                .collect();
+            assert_eq!(rows, want, "{name}");
+            assert!(w.rows(name, &[4, 3], &[]).unwrap().is_empty());
+        }
+        let e = w.rows("f32", &[4, 3], &[4]).unwrap_err().to_string();
+        assert!(e.contains("row 4") && e.contains("has 4"), "{e}");
+        let e = w.rows("f32", &[3, 4], &[0]).unwrap_err().to_string();
+        assert!(e.contains("[3, 4]"), "{e}");
+        let e = w.rows("ids", &[4, 3], &[0]).unwrap_err().to_string();
+        assert!(e.contains("I64"), "{e}");
+        assert_eq!(w.rows("nan", &[4, 3], &[0, 3]).unwrap().len(), 6);
+        let e = w.rows("nan", &[4, 3], &[2]).unwrap_err().to_string();
+        assert!(e.contains("\"nan\"") && e.contains("row 2"), "{e}");
+        let e = w.rows("missing", &[4, 3], &[0]).unwrap_err().to_string();
+        assert!(e.contains("missing"), "{e}");
     }
 
     #[test]

@@ -9,6 +9,19 @@
 
 use crate::units::human_bytes as human;
 
+/// Hand the memory this process has freed back to the system, after dropping something
+/// large (a model tower, a load's buffers). glibc's malloc keeps freed blocks of up to 32 MiB
+/// in its arenas once a block that size was freed (its mmap threshold adapts), and those
+/// pages stay counted as the process's memory: without this a dropped text tower would
+/// still count in a run's peak. Elsewhere (other C libraries) a no-op.
+pub fn return_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only walks the allocator's own free lists.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 /// What the budget refused.
 #[derive(Debug, thiserror::Error)]
 #[error(

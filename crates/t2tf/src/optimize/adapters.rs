@@ -181,6 +181,10 @@ impl TextEncoder for ClipModel<'_> {
     fn encode_text(&self, texts: &[&str]) -> Result<Vec<Vec<f32>>, BoxError> {
         Ok(self.0.encode_text(texts)?)
     }
+
+    fn texts_done(&self) {
+        self.0.release_text();
+    }
 }
 
 /// The paper's parameterization (`TfParams`) with `k` control points, LUT of `lut_size`.

@@ -21,6 +21,10 @@ pub trait TextEncoder {
     /// Projected (not normalized) embeddings, one per text. Empty texts and texts longer than
     /// the model's context are the encoder's to reject with a clear error.
     fn encode_text(&self, texts: &[&str]) -> Result<Vec<Vec<f32>>, BoxError>;
+
+    /// The run has all its text embeddings: free what the encoder holds for texts (CLIP's
+    /// text tower), which the loop never uses.
+    fn texts_done(&self) {}
 }
 
 /// What the renders should match.
@@ -141,6 +145,7 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
         pool,
         cache,
     } = embed_targets(job, models)?;
+    models.text_encoder.texts_done();
     times.text = t0.elapsed().as_secs_f64();
 
     let t0 = Instant::now();
