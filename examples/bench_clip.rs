@@ -713,13 +713,7 @@ fn pool_flop(ids: &[Vec<u32>], cfg: &ClipConfig) -> (usize, f64) {
     let body = (t.num_layers.saturating_sub(1)) as f64
         * prefixes.iter().map(|p| row(p.len())).sum::<f64>();
     let last_kv = prefixes.len() as f64 * 2.0 * 2.0 * d * d;
-    let last_ends: f64 = ends
-        .iter()
-        .map(|p| row(p.len()) - 2.0 * 2.0 * d * d)
-        .sum();
+    let last_ends: f64 = ends.iter().map(|p| row(p.len()) - 2.0 * 2.0 * d * d).sum();
     let projection = ends.len() as f64 * 2.0 * d * cfg.projection_dim as f64;
-    (
-        prefixes.len(),
-        body + last_kv + last_ends + projection,
-    )
+    (prefixes.len(), body + last_kv + last_ends + projection)
 }

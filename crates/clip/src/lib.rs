@@ -332,19 +332,18 @@ impl Clip {
                 layout,
                 built,
             } => {
-                let model = {
-                    // Held while building, so that two threads never build it twice; a
-                    // panic while building left nothing half-built in the slot.
-                    let mut slot = built.lock().unwrap_or_else(PoisonError::into_inner);
-                    match &*slot {
-                        Some(m) => Arc::clone(m),
-                        None => {
-                            let m = Arc::new(with_root(weights, *layout, self.compute, |root| {
-                                TextModel::load(root, &self.config.text, self.config.projection_dim)
-                            })?);
-                            *slot = Some(Arc::clone(&m));
-                            m
-                        }
+                let slot = || built.lock().unwrap_or_else(PoisonError::into_inner);
+                let cached = slot().clone();
+                let model = match cached {
+                    Some(m) => m,
+                    None => {
+                        // Built outside the lock: the build runs rayon tasks, and a task this
+                        // thread takes up meanwhile may encode texts too. Calls that race
+                        // may each build; the first one stored is kept.
+                        let m = with_root(weights, *layout, self.compute, |root| {
+                            TextModel::load(root, &self.config.text, self.config.projection_dim)
+                        })?;
+                        Arc::clone(slot().get_or_insert_with(|| Arc::new(m)))
                     }
                 };
                 let tokens = with_root(weights, *layout, self.compute, |root| {
@@ -356,7 +355,7 @@ impl Clip {
     }
 
     /// Free the text tower's weights until texts are encoded again (then read back from the
-    /// checkpoint, ≈ 0.1 s for ViT-B/32): what a run calls once its texts are embedded, as
+    /// checkpoint, ≈ 0.2 s for ViT-B/32): what a run calls once its texts are embedded, as
     /// its loop needs only the image tower. A model built from a tensor source keeps them.
     pub fn release_text(&self) {
         if let TextTower::FromFile { built, .. } = &self.text {

@@ -34,19 +34,24 @@ pub(crate) fn gather_rows(
     shape: &[usize],
     rows: &[u32],
 ) -> Result<Vec<f32>, ClipError> {
-    let n = shape.first().copied().unwrap_or(1);
     let len: usize = shape.iter().skip(1).product();
     let mut out = Vec::with_capacity(rows.len() * len);
     for &r in rows {
-        let r = r as usize;
-        if r >= n {
-            return Err(ClipError::Input(format!(
-                "{name}: row {r} asked for, the tensor has {n}"
-            )));
-        }
+        let r = row_index(name, shape, r)?;
         out.extend_from_slice(&all[r * len..(r + 1) * len]);
     }
     Ok(out)
+}
+
+/// Row `r` of a tensor `name` of `shape`, or the error naming the rows it has.
+pub(crate) fn row_index(name: &str, shape: &[usize], r: u32) -> Result<usize, ClipError> {
+    let n = shape.first().copied().unwrap_or(1);
+    match r as usize {
+        r if r < n => Ok(r),
+        r => Err(ClipError::Input(format!(
+            "{name}: row {r} asked for, the tensor has {n}"
+        ))),
+    }
 }
 
 /// A tensor source seen from inside a module: names are built by pushing path segments, as

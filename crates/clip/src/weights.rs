@@ -246,18 +246,12 @@ impl SafetensorsFile {
             )));
         }
         let elem = if info.dtype == Dtype::F32 { 4 } else { 2 };
-        let n = shape.first().copied().unwrap_or(1);
         let row_len = shape.iter().skip(1).product::<usize>();
         let row_bytes = row_len * elem;
         let start = self.data_start + info.data_offsets.0;
         let mut out = Vec::with_capacity(rows.len() * row_len);
         for &r in rows {
-            let r = r as usize;
-            if r >= n {
-                return Err(ClipError::Input(format!(
-                    "{name}: row {r} asked for, the tensor has {n}"
-                )));
-            }
+            let r = crate::source::row_index(name, shape, r)?;
             let range = start + r * row_bytes..start + (r + 1) * row_bytes;
             let row = widen(&self.mmap[range.clone()], info.dtype).unwrap_or_default();
             release(&self.mmap, range);
