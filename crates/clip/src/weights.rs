@@ -16,7 +16,7 @@ use safetensors::tensor::Metadata;
 use safetensors::{Dtype, SafeTensors};
 
 use super::checkpoint::torch::TorchCheckpoint;
-use super::checkpoint::{check_finite, check_shape};
+use super::checkpoint::{check_finite, check_shape, release};
 use super::ClipError;
 
 /// All the files of one checkpoint, with an index from tensor name to the file holding it.
@@ -64,14 +64,13 @@ impl Checkpoint {
     }
 
     /// Rows `rows` of tensor `name` (of `shape`, rows along the first dimension) as f32,
-    /// `[rows.len(), shape[1..]]`: read alone from a safetensors file (a token table's few
-    /// used rows, without copying the table), from the whole tensor otherwise.
+    /// `[rows.len(), shape[1..]]`: read alone from the map (a token table's few used rows,
+    /// without copying the table) where the file stores them plainly, else from the whole
+    /// tensor.
     pub fn rows(&self, name: &str, shape: &[usize], rows: &[u32]) -> Result<Vec<f32>, ClipError> {
         match self.owner.get(name).map(|&i| &self.parts[i]) {
             Some(Part::Safetensors(f)) => f.rows(name, shape, rows),
-            Some(Part::Torch(f)) => {
-                crate::source::gather_rows(name, &f.get(name, shape)?, shape, rows)
-            }
+            Some(Part::Torch(f)) => f.rows(name, shape, rows),
             None => Err(ClipError::Weights {
                 path: self.describe_files(),
                 msg: format!("tensor \"{name}\" is missing"),
@@ -263,30 +262,6 @@ impl SafetensorsFile {
             out.extend(row);
         }
         Ok(out)
-    }
-}
-
-/// Stop counting the pages of `map` that `range` touches as this process's memory
-/// (`MADV_DONTNEED`). Whole pages around the range: a page it shares with a neighbouring
-/// tensor is read back from the file if that tensor is read later.
-fn release(map: &Mmap, range: std::ops::Range<usize>) {
-    // The system's page size (4 KiB on x86-64, 16/64 KiB on some ARM systems, where a 4 KiB
-    // aligned range would make madvise fail and nothing be released).
-    // SAFETY: sysconf only reads a system constant.
-    let page = match unsafe { libc::sysconf(libc::_SC_PAGESIZE) } {
-        p if p > 0 => p as usize,
-        _ => 4096,
-    };
-    let first = range.start / page * page;
-    let end = range.end.div_ceil(page).saturating_mul(page).min(map.len());
-    if end > first {
-        // SAFETY: the map is a read-only shared file mapping: after MADV_DONTNEED its pages
-        // read back from the file unchanged, also under a slice another thread is reading (a
-        // text tower built from the map while another call reads token rows). A failure
-        // only means the pages stay counted.
-        let _ = unsafe {
-            map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, first, end - first)
-        };
     }
 }
 

@@ -25,6 +25,7 @@ use zip::{CompressionMethod, ZipArchive};
 
 use super::pickle::{self, DType, PickleError, Tensor};
 use super::{check_finite, check_shape};
+use crate::source::{gather_rows, row_index};
 use crate::ClipError;
 
 /// The pickle of a state dict is tens of kilobytes for CLIP and a few megabytes for the
@@ -117,7 +118,55 @@ impl TorchCheckpoint {
         check_shape(name, &loc.tensor.shape, shape).map_err(|m| self.err(m))?;
         let out =
             read_f32(&self.mmap, loc).map_err(|m| self.err(format!("tensor \"{name}\" {m}")))?;
+        // As for safetensors: the copy is made, its storage's pages stop counting (a storage
+        // other tensors view is read back from the file for them).
+        let e = &loc.entry;
+        super::release(&self.mmap, e.start..e.start.saturating_add(e.stored_len));
         check_finite(name, &out).map_err(|m| self.err(m))?;
+        Ok(out)
+    }
+}
+
+impl TorchCheckpoint {
+    /// As `Checkpoint::rows`: rows `rows` of tensor `name` (of `shape`, rows along the first
+    /// dimension). A contiguous tensor in a stored (not deflated) entry has each row read
+    /// alone from the map and its pages released; any other is read whole.
+    pub(crate) fn rows(
+        &self,
+        name: &str,
+        shape: &[usize],
+        rows: &[u32],
+    ) -> Result<Vec<f32>, ClipError> {
+        let loc = self
+            .tensors
+            .get(name)
+            .ok_or_else(|| self.err(format!("tensor \"{name}\" is missing")))?;
+        check_shape(name, &loc.tensor.shape, shape).map_err(|m| self.err(m))?;
+        let (t, e) = (&loc.tensor, &loc.entry);
+        let decode = match decoder(t.dtype) {
+            Some(d) if !e.deflated && e.stored_len == e.size && is_contiguous(t) => d,
+            _ => return gather_rows(name, &self.get(name, shape)?, shape, rows),
+        };
+        let size = t.dtype.size();
+        let row_len: usize = shape.iter().skip(1).product();
+        let mut out = Vec::with_capacity(rows.len() * row_len);
+        for &r in rows {
+            let r = row_index(name, shape, r)?;
+            // Inside the entry: `locate` checked the view's extent against it at open.
+            let from = e.start + (t.offset + r * row_len) * size;
+            let range = from..from + row_len * size;
+            let row: Vec<f32> = self.mmap[range.clone()]
+                .chunks_exact(size)
+                .map(decode)
+                .collect();
+            super::release(&self.mmap, range);
+            if row.iter().any(|v| !v.is_finite()) {
+                return Err(self.err(format!(
+                    "tensor \"{name}\" has a non-finite value in row {r}"
+                )));
+            }
+            out.extend(row);
+        }
         Ok(out)
     }
 }
@@ -569,6 +618,37 @@ mod tests {
         assert_eq!(t.stride, [1, 4]);
         assert_eq!(ck.tensors["shared.broadcast"].tensor.stride, [0, 1]);
         assert_eq!(ck.tensors["u16"].tensor.dtype, DType::U16);
+    }
+
+    /// Rows read alone (contiguous tensors in stored entries, offset views among them) or
+    /// from the whole tensor (transposed and broadcast views, deflated entries) are the
+    /// rows of `get`, in the order asked; where `get` refuses a tensor, so do its rows.
+    #[test]
+    fn rows_are_the_rows_of_the_whole_tensor() {
+        for file in ["state_dict.bin", "deflated.bin", "pytorch_model.bin"] {
+            let ck = TorchCheckpoint::open(&fixture(file)).unwrap();
+            let mut checked = 0;
+            for name in ck.names() {
+                let shape = ck.tensors[name].tensor.shape.clone();
+                let Some(&n) = shape.first() else { continue };
+                let order: Vec<u32> = (0..n as u32).rev().chain([0]).collect();
+                let rows = ck.rows(name, &shape, &order);
+                let Ok(whole) = ck.get(name, &shape) else {
+                    assert!(rows.is_err(), "{file} {name}: rows of a refused tensor");
+                    continue;
+                };
+                let want = gather_rows(name, &whole, &shape, &order).unwrap();
+                assert_eq!(rows.unwrap(), want, "{file} {name}");
+                checked += 1;
+            }
+            assert!(checked >= 4, "{file}: {checked} tensors checked");
+            let name = ck.names()[0].to_string();
+            let shape = ck.tensors[&name].tensor.shape.clone();
+            if let Some(&n) = shape.first() {
+                let e = ck.rows(&name, &shape, &[n as u32]).unwrap_err().to_string();
+                assert!(e.contains("row"), "{e}");
+            }
+        }
     }
 
     #[test]
