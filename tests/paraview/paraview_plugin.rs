@@ -775,7 +775,15 @@ fn paraview_gui(script: &str, dir: &Path) -> serde_json::Value {
                 repo().join("tests/paraview_plugin").join(script).display()
             ))
             .env("XDG_CONFIG_HOME", dir.join("config"))
-            .env("PYTHONPATH", repo().join("paraview/compat"))
+            // The scripts' shared helpers (qt_calls.py) sit beside them.
+            .env(
+                "PYTHONPATH",
+                std::env::join_paths([
+                    repo().join("paraview/compat"),
+                    repo().join("tests/paraview_plugin"),
+                ])
+                .unwrap(),
+            )
             .env("TMPDIR", dir.join("tmp"))
             .env("T2TF_BIN", &bin)
             .env("T2TF_RUNS", dir.join("runs.log"))

@@ -12,24 +12,10 @@ import sys
 
 import paraview.simple as pvs
 from paraview import servermanager
+from qt_calls import function, qstring
 
 env = os.environ
 res = {}
-lib = ctypes.PyDLL(None)
-
-
-def function(name, restype, *argtypes):
-    f = getattr(lib, name)
-    f.restype, f.argtypes = restype, list(argtypes)
-    return f
-
-
-def qstring(text):
-    data = text.encode()
-    buf = (ctypes.c_void_p * 1)()
-    function("_ZN7QString15fromUtf8_helperEPKci", ctypes.c_void_p, ctypes.c_void_p,
-             ctypes.c_char_p, ctypes.c_int)(ctypes.byref(buf), data, len(data))
-    return ctypes.byref(buf)
 
 
 def manager():

@@ -12,25 +12,10 @@ import json
 import os
 
 import paraview.simple as pvs
+from qt_calls import function, lib, qstring
 
 env = os.environ
 res = {}
-lib = ctypes.PyDLL(None)
-
-
-def function(name, restype, *argtypes):
-    f = getattr(lib, name)
-    f.restype, f.argtypes = restype, list(argtypes)
-    return f
-
-
-def qstring(text):
-    """A QString (one pointer: 8 bytes) made by QString::fromUtf8; None gives a null one."""
-    data = text.encode() if text is not None else None
-    buf = (ctypes.c_void_p * 1)()
-    function("_ZN7QString15fromUtf8_helperEPKci", ctypes.c_void_p, ctypes.c_void_p,
-             ctypes.c_char_p, ctypes.c_int)(ctypes.byref(buf), data, len(data or b""))
-    return buf
 
 
 def undo_stack():
