@@ -32,6 +32,8 @@
 //!                                   it instead of running the default again
 //!     --precision f32|bf16|auto     CLIP's precision, as `t2tf optimize --precision` (default
 //!                                   f32); the pool's embeddings are cached per precision
+//!     --copies 1|2                  packed copies of each image-tower weight (default: what
+//!                                   `t2tf optimize` keeps on this CPU, `Compute::prefers_one_copy`)
 //!     --compare-tfs A.json B.json   no optimization: the distance between two saved TFs
 //!                                   (`--reference-tf` files of two runs, e.g. f32 and bf16, or
 //!                                   1 and 2 threads): opacity and colour RMS and the PSNR of
@@ -276,6 +278,10 @@ fn main() -> anyhow::Result<()> {
         }
         None => Precision::F32,
     };
+    let copies = list::<usize>(&args, "--copies").map_err(err)?.map(|c| c[0]);
+    if copies.is_some_and(|c| c != 1 && c != 2) {
+        return Err(err("--copies takes 1 or 2".into()));
+    }
     let compare: Option<(PathBuf, PathBuf)> = args
         .iter()
         .position(|a| a == "--compare-tfs")
@@ -372,7 +378,10 @@ fn main() -> anyhow::Result<()> {
     if let Some((a, b)) = &compare {
         return compare_tfs(&volume, a, b);
     }
-    let mut clip = Clip::from_source_with(cfg, &RandomSource::new(7), Compute::new(precision))?;
+    let compute = Compute::new(precision);
+    let one_copy = copies.map_or(compute.prefers_one_copy(), |c| c == 1);
+    let compute = compute.with_one_copy(one_copy);
+    let mut clip = Clip::from_source_with(cfg, &RandomSource::new(7), compute)?;
     clip.set_tokenizer(ClipTokenizer::from_file(
         &root.join("data/clip/tokenizer.json"),
         context,
@@ -383,7 +392,11 @@ fn main() -> anyhow::Result<()> {
         load_avg()
     );
     // `describe` names the kernel, the precision and the CPU's features.
-    println!("CLIP: {}", clip.compute().describe());
+    println!(
+        "CLIP: {}; image tower weights: {}",
+        clip.compute().describe(),
+        if one_copy { "one copy" } else { "two copies" }
+    );
 
     let pool = CaptionPool::builtin();
     let user = captions::user_negatives(&[])?;

@@ -149,7 +149,12 @@ class _Qt:
         if not cls.looked_up:
             cls.looked_up = True
             try:
-                lib = ctypes.CDLL(None)
+                # PyDLL: the GIL stays held through processEvents. The events run ParaView's
+                # own Python (the Abort button's observers, the progress bar) on this thread;
+                # with the GIL released (CDLL) that code ran while the thread reading t2tf's
+                # output held the GIL, and Python aborted ("PyThreadState_Get: ... the GIL is
+                # released"). The reader only waits ≤ 50 ms for it.
+                lib = ctypes.PyDLL(None)
                 cls.instance = ctypes.c_void_p.in_dll(lib, "_ZN16QCoreApplication4selfE")
                 # static void processEvents(QEventLoop::ProcessEventsFlags, int maxtime)
                 cls.process = getattr(

@@ -33,8 +33,8 @@ enum Weight {
     /// the micro-kernel's panel layout. `bwd` is `W` (k = out, n = in) for the backward
     /// `dX = dY · W`, unless the layer is built for the forward only (the text tower) or with
     /// [`Compute::one_copy`]: an f32 backward then reads `fwd`'s panels transposed
-    /// (`packed::gemm_t`), 350 MB less for ViT-B/32's image tower for backward products about
-    /// 1.35× slower (`examples/bench_memory.rs --backward`). A bf16 panel
+    /// (`packed::gemm_t`), 350 MB less for ViT-B/32's image tower for backward products
+    /// 1.15–1.35× slower (`Kernel::fast_one_copy`). A bf16 panel
     /// pairs k = in, and `vdpbf16ps` would need out paired for the backward: a bf16 layer with
     /// a backward always keeps `bwd` (two bf16 copies take the bytes of one f32 copy).
     Packed { fwd: PackedB, bwd: Option<PackedB> },

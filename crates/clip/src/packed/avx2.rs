@@ -94,3 +94,87 @@ pub(super) unsafe fn tile(
         unsafe { t.store_scalar(&acc, crow, ldc) }
     }
 }
+
+/// The 6 × 16 kernel of a transposed product (`gemm_t`) with its left operand read in place
+/// from a forward's packed panels: the 6 rows of one 16-step chunk are 16 floats apart and
+/// the chunk's k steps contiguous (row r, step p at `a + r·16 + p`), the next chunk
+/// `kstride` floats on; `a` is the first chunk's start, which the block enters at step `off`.
+/// Copying that operand into the interleaved `[k][6]` layout instead cost as much as the
+/// product on Zen 3 (the whole weight is gathered element by element on every call). The same
+/// broadcasts, loads and FMAs as [`tile`], in the same order, so the sums are those of a
+/// packed operand bit for bit. `V` is the tile's width in vectors of 8: 2 (16 columns), or 1
+/// for a last panel of at most 8 columns (m = 150 tokens: 152 columns instead of 160). The
+/// tile `[6][8·V]` is written to (`add`: added to) `out`'s rows, `ldo` floats apart.
+///
+/// # Safety
+/// AVX2 and FMA present; `V` is 1 or 2; `off < 16`; for every chunk the block touches, the 6
+/// rows × 16 floats readable; `b` readable for `kc·NR` floats and 32-byte aligned; `out`
+/// writable (and with `add` readable) for 6 rows of `8·V` floats at stride `ldo`.
+#[target_feature(enable = "avx2,fma")]
+// A transposed product's arguments: the in-place operand's address, entry step and chunk
+// stride, the packed panel, and where the tile goes.
+#[allow(clippy::too_many_arguments)]
+pub(super) unsafe fn tile_t<const V: usize>(
+    kc: usize,
+    a: *const f32,
+    off: usize,
+    kstride: usize,
+    b: *const f32,
+    out: *mut f32,
+    ldo: usize,
+    add: bool,
+) {
+    debug_assert!(off < NR && (V == 1 || V == 2));
+    let mut c = [_mm256_setzero_ps(); 2 * MR];
+    // One k step: V loads of B, six broadcasts from the chunk's rows, 6·V FMAs.
+    // SAFETY (of every call): step `p` < kc of the panels the caller guarantees: B lines are
+    // 32-byte aligned, and the chunk's 6 rows hold 16 floats each.
+    let step = |c: &mut [__m256; 2 * MR], chunk: *const f32, s: usize, p: usize| unsafe {
+        let mut bv = [_mm256_setzero_ps(); 2];
+        for (v, bv) in bv.iter_mut().enumerate().take(V) {
+            *bv = _mm256_load_ps(b.add(p * NR + 8 * v));
+        }
+        for r in 0..MR {
+            let av = _mm256_broadcast_ss(&*chunk.add(r * NR + s));
+            for v in 0..V {
+                c[2 * r + v] = _mm256_fmadd_ps(av, bv[v], c[2 * r + v]);
+            }
+        }
+    };
+    let (mut p, mut chunk, mut first) = (0, a, off);
+    while p < kc {
+        // The next chunk's six lines (48 KiB on for a 768-row B): not in a stream the
+        // hardware prefetcher follows. Prefetches are hints: they never fault.
+        let next = chunk.wrapping_add(kstride);
+        for r in 0..MR {
+            _mm_prefetch::<_MM_HINT_T0>(next.wrapping_add(r * NR).cast());
+        }
+        let steps = (NR - first).min(kc - p);
+        if steps == NR {
+            // A whole chunk: a constant trip count the compiler unrolls.
+            for s in 0..NR {
+                step(&mut c, chunk, s, p + s);
+            }
+        } else {
+            for s in 0..steps {
+                step(&mut c, chunk, first + s, p + s);
+            }
+        }
+        p += steps;
+        first = 0;
+        chunk = next;
+    }
+    for r in 0..MR {
+        for v in 0..V {
+            // SAFETY: row r of `out` holds 8·V floats (the caller's guarantee).
+            unsafe {
+                let dst = out.add(r * ldo + 8 * v);
+                let mut x = c[2 * r + v];
+                if add {
+                    x = _mm256_add_ps(_mm256_loadu_ps(dst), x);
+                }
+                _mm256_storeu_ps(dst, x);
+            }
+        }
+    }
+}

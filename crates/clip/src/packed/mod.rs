@@ -243,6 +243,18 @@ impl Kernel {
         }
     }
 
+    /// Whether the input backward that reads the forward's panels transposed ([`gemm_t`],
+    /// one copy of each weight) runs close to the product with a second packed copy on this
+    /// kernel, by `bench_memory --backward` (BENCHMARKS.md, "Memory of a default run"): the
+    /// AVX2 kernel reads the panels in place, 1.14–1.16× the two-copy time on Zen 3 (ViT-B/32's
+    /// backward shapes); the AVX-512 one measured 1.35× on Zen 4, the scalar one copies the
+    /// panels per call. A table from the benchmarks rather than a calibration at load: the
+    /// two differ by ~15 %, less than a few milliseconds' timing on a shared machine tells
+    /// apart reliably. Where it is fast, pipelines keep one copy by default.
+    pub fn fast_one_copy(self) -> bool {
+        matches!(self, Kernel::Avx2Fma)
+    }
+
     /// `None` where this CPU can run the kernel, else what it lacks.
     pub fn missing(self) -> Option<&'static str> {
         #[cfg(target_arch = "x86_64")]
@@ -318,11 +330,12 @@ pub struct Compute {
     /// [`Compute::with_kernel`]); `None`: chosen by them.
     pub kernel: Option<Kernel>,
     /// Whether f32 layers keep one packed copy of each weight: the input backward then reads
-    /// the forward's panels transposed ([`gemm_t`]), which takes the memory of a second copy
-    /// (350 MB for ViT-B/32's image tower) but makes the backward products about 1.35× slower
-    /// (`examples/bench_memory.rs --backward`; the image pass's backward ~1.35× in
-    /// `t2tf optimize`'s timings). `false`: a second copy `W` for the backward, the faster
-    /// product. Results agree to float rounding either way.
+    /// the forward's panels transposed ([`gemm_t`]), which saves the memory of a second copy
+    /// (350 MB for ViT-B/32's image tower) but makes the backward products slower: 1.15× with
+    /// the AVX2 kernel on Zen 3, 1.35× with the AVX-512 one on Zen 4
+    /// (`examples/bench_memory.rs --backward`; see [`Kernel::fast_one_copy`]). `false`: a
+    /// second copy `W` for the backward, the faster product. Results agree to float rounding
+    /// either way (bit for bit with the AVX2 and scalar kernels).
     pub one_copy: bool,
 }
 
@@ -347,6 +360,12 @@ impl Compute {
     /// The same keeping one copy of each weight or not ([`Compute::one_copy`]).
     pub fn with_one_copy(self, one_copy: bool) -> Compute {
         Compute { one_copy, ..self }
+    }
+
+    /// Whether its layers' kernel reads one copy of each weight about as fast as two
+    /// ([`Kernel::fast_one_copy`]): where it does, pipelines keep one copy by default.
+    pub fn prefers_one_copy(&self) -> bool {
+        self.layer_kernel().is_some_and(Kernel::fast_one_copy)
     }
 
     /// The same with `engine` (tests and benchmarks compare the two engines).
@@ -866,6 +885,18 @@ fn transposed_product(
     // SAFETY: as in `PackedB::flat`.
     let atflat: &[f32] =
         unsafe { std::slice::from_raw_parts(at.as_ptr().cast::<f32>(), at.len() * 16) };
+    #[cfg(target_arch = "x86_64")]
+    if kernel == Kernel::Avx2Fma {
+        let shape = Transposed {
+            rows_c,
+            c0,
+            k,
+            m,
+            panels_m,
+            threads,
+        };
+        return transposed_avx2(c, bflat, atflat, &blocks, shape);
+    }
     let cp = SendPtr(c.as_mut_ptr());
     let blocks = &blocks;
     // B[i][col].
@@ -978,6 +1009,117 @@ fn transposed_product(
                             }
                         }
                     }
+                }
+            }
+        }
+    };
+    if threads > 1 {
+        (0..threads).into_par_iter().for_each(run);
+    } else {
+        run(0);
+    }
+}
+
+/// The shape of a transposed product (`transposed_product`): C is `m × rows_c`, B's columns
+/// `c0 .. c0 + k` are summed over, and `threads` threads split the `panels_m` row tiles of Cᵀ.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+struct Transposed {
+    rows_c: usize,
+    c0: usize,
+    k: usize,
+    m: usize,
+    panels_m: usize,
+    threads: usize,
+}
+
+/// `transposed_product` with the AVX2 kernel: the left operand is read in place from B's
+/// panels (`avx2::tile_t`; a last row tile past B's rows from a copy with zero rows), and a
+/// thread's rows of Cᵀ are summed over the k-blocks in a buffer laid out as Cᵀ (vector adds,
+/// as `gemm` sums C), then written into C transposed once. Writing each block's tile into C
+/// transposed (as the other kernels do) cost ≈ 10 % of the product on Zen 3. The blocks and
+/// the order of every sum are those of the other kernels.
+#[cfg(target_arch = "x86_64")]
+fn transposed_avx2(
+    c: &mut [f32],
+    bflat: &[f32],
+    atflat: &[f32],
+    blocks: &[Range<usize>],
+    shape: Transposed,
+) {
+    const NR: usize = avx2::NR;
+    let Transposed {
+        rows_c,
+        c0,
+        k,
+        m,
+        panels_m,
+        threads,
+    } = shape;
+    let panels_n = m.div_ceil(NR);
+    let ldo = panels_n * NR;
+    let cp = SendPtr(c.as_mut_ptr());
+    let per_block = MC / MR;
+    let run = |t: usize| {
+        let (i0, i1) = (t * panels_m / threads, (t + 1) * panels_m / threads);
+        // Cᵀ's rows of one row block, `[rows][ldo]`: 168 × 160 floats for m = 150.
+        let mut buf = vec![0.0f32; per_block.min(i1 - i0) * MR * ldo];
+        // A last partial row tile, as chunks `[chunks][MR][NR]` with zero rows.
+        let mut tail: Vec<f32> = Vec::new();
+        for ib in (i0..i1).step_by(per_block) {
+            let i_end = (ib + per_block).min(i1);
+            for (bi, block) in blocks.iter().enumerate() {
+                let (kc, off) = (block.len(), block.start % NR);
+                let partial = i_end * MR > rows_c;
+                if partial {
+                    let (i, first) = (i_end - 1, block.start - off);
+                    tail.clear();
+                    tail.resize((off + kc).div_ceil(NR) * MR * NR, 0.0);
+                    for r in 0..rows_c - i * MR {
+                        for col in block.clone() {
+                            let q = (col - first) / NR;
+                            tail[(q * MR + r) * NR + (col - first) % NR] =
+                                bflat[((col / NR) * rows_c + i * MR + r) * NR + col % NR];
+                        }
+                    }
+                }
+                for jb in 0..panels_n {
+                    let bpanel = &atflat[(jb * k + block.start - c0) * NR..][..kc * NR];
+                    for i in ib..i_end {
+                        let (first, kstride) = if (i + 1) * MR <= rows_c {
+                            // Rows i·MR .. of B in place: 16 floats apart, the next panel
+                            // `rows_c · 16` floats on.
+                            let at = ((block.start / NR) * rows_c + i * MR) * NR;
+                            (bflat[at..].as_ptr(), rows_c * NR)
+                        } else {
+                            (tail.as_ptr(), MR * NR)
+                        };
+                        let out =
+                            &mut buf[((i - ib) * MR) * ldo + jb * NR..][..(MR - 1) * ldo + NR];
+                        let (o, b) = (out.as_mut_ptr(), bpanel.as_ptr());
+                        // SAFETY: the kernel was checked against this CPU when B was packed;
+                        // every chunk the block touches holds MR rows of NR floats (B's panels
+                        // for a full tile, `tail` otherwise); the Aᵀ panel holds kc·NR floats,
+                        // 64-byte aligned; `out` holds MR rows of NR floats at stride ldo.
+                        unsafe {
+                            if m - jb * NR <= NR / 2 {
+                                avx2::tile_t::<1>(kc, first, off, kstride, b, o, ldo, bi > 0)
+                            } else {
+                                avx2::tile_t::<2>(kc, first, off, kstride, b, o, ldo, bi > 0)
+                            }
+                        }
+                    }
+                }
+            }
+            let (x0, x1) = (ib * MR, (i_end * MR).min(rows_c));
+            for j in 0..m {
+                // SAFETY: row j < m of the m × rows_c matrix C, columns x0 .. x1 < rows_c:
+                // threads own disjoint row tiles i0..i1 of Cᵀ, hence disjoint columns of C.
+                let row = unsafe {
+                    std::slice::from_raw_parts_mut(cp.get().add(j * rows_c + x0), x1 - x0)
+                };
+                for (x, v) in row.iter_mut().enumerate() {
+                    *v = buf[x * ldo + j];
                 }
             }
         }

@@ -95,6 +95,14 @@ impl CpuBackend {
 /// 2048³ `t2tf optimize` (whose preview renders level 0) under 3 GiB (BENCHMARKS.md).
 const BRICK_CACHE_MAX: u64 = 1 << 30;
 
+/// Largest whole copy made of a level whose samples the volume holds (`Level::is_materialized`,
+/// a coarse level the load kept: a 512³ level 1 of a 1024³ volume is 256 MiB in 16 bits, its
+/// whole copy 364 MiB). Above it the level gets a brick cache, which reads bricks from those
+/// samples as views sample them: the same images and gradients bit for bit, no second copy of
+/// the level, a forward as fast and a backward that replays the forward's record as a whole
+/// copy's does (BENCHMARKS.md, "Memory of a default run": the 1 GiB volume).
+const HELD_WHOLE_MAX: u64 = 128 << 20;
+
 /// A level in the renderer's layout: what the cache holds. `dims` and `grid` are those the
 /// bricks were built from, so the march's unchecked indexing always agrees with the data.
 struct CpuLevel {
@@ -175,8 +183,14 @@ fn whole_bytes(counts: [usize; 3], encoding: Encoding) -> u64 {
 }
 
 /// `level` in the renderer's layout: the whole bricked copy when it takes at most `budget`
-/// bytes, else a brick cache of at most `cache_budget` bytes.
-fn build(level: &Level, budget: u64, cache_budget: u64) -> Result<CpuLevel, RenderError> {
+/// bytes and, for a level whose samples are held, at most `held_max` bytes; else a brick cache
+/// of at most `cache_budget` bytes.
+fn build(
+    level: &Level,
+    budget: u64,
+    cache_budget: u64,
+    held_max: u64,
+) -> Result<CpuLevel, RenderError> {
     let dims = level.dims;
     // The level's own ranges when they are those of its dims (always, unless a caller
     // changed the public fields); rebuilt otherwise, since the march trusts them.
@@ -194,7 +208,11 @@ fn build(level: &Level, budget: u64, cache_budget: u64) -> Result<CpuLevel, Rend
     let slabs = rayon::current_num_threads() as u64
         * (BRICK_POINTS * dims[0] * dims[1]) as u64
         * std::mem::size_of::<f32>() as u64;
-    let store = if whole_bytes(counts, encoding).saturating_add(slabs) <= budget {
+    let whole = whole_bytes(counts, encoding);
+    // A level the volume holds already (a coarse level kept by the load) is read from its
+    // samples; a whole copy beside it would hold the level twice.
+    let duplicate = level.is_materialized() && whole > held_max;
+    let store = if whole.saturating_add(slabs) <= budget && !duplicate {
         // Each read is a slab of bricks; the mapped file's pages it touched are released
         // behind it (`Level::release_source`), so a level read from a memory-mapped file adds
         // its bricked copy to the process's memory, not the file.
@@ -262,7 +280,8 @@ fn cached(backend: &CpuBackend, level: &Level) -> Result<Arc<CpuLevel>, RenderEr
         return Ok(l.clone());
     }
     let budget = backend.budget.available();
-    let built = Arc::new(build(level, budget, (budget / 2).min(BRICK_CACHE_MAX))?);
+    let cache_budget = (budget / 2).min(BRICK_CACHE_MAX);
+    let built = Arc::new(build(level, budget, cache_budget, HELD_WHOLE_MAX)?);
     *entry = Some(built.clone());
     Ok(built)
 }
@@ -271,7 +290,8 @@ impl CpuBackend {
     /// Prepare level `level` of `volume` within `budget` bytes: its whole bricked copy when
     /// that fits with the f32 slabs it is built from (one per thread), else a brick cache of
     /// at most `budget` bytes (arena and tables). Not shared with [`Backend::prepare`]'s
-    /// cache of levels, whose budget is the backend's.
+    /// cache of levels, whose budget is the backend's, and a whole copy even of a large level
+    /// the volume holds (which `prepare` reads through a brick cache).
     pub fn prepare_within(
         &self,
         volume: &Volume,
@@ -279,7 +299,11 @@ impl CpuBackend {
         budget: u64,
     ) -> Result<CpuPrepared, RenderError> {
         let l = level_of(volume, level)?;
-        Ok(prepared(volume, level, Arc::new(build(l, budget, budget)?)))
+        Ok(prepared(
+            volume,
+            level,
+            Arc::new(build(l, budget, budget, u64::MAX)?),
+        ))
     }
 }
 
@@ -497,12 +521,15 @@ fn tiles((width, height): (usize, usize)) -> Vec<(usize, usize)> {
 
 /// `per_tile` of every tile of a `size` view of `prepared`, in tile order (tiles run in
 /// parallel; through a brick cache, batch by batch, `cache.rs`).
+// The view's arguments, whether `per_tile` samples the level, and `per_tile`.
+#[allow(clippy::too_many_arguments)]
 fn each_tile<R: Send>(
     prepared: &CpuPrepared,
     lut: &Lut,
     camera: &Camera,
     size: (usize, usize),
     opts: &RenderOptions,
+    samples: bool,
     per_tile: impl Fn(&View, (usize, usize)) -> R + Sync,
 ) -> Result<Vec<R>, RenderError> {
     let blocks = view_blocks(prepared, lut, opts);
@@ -511,6 +538,12 @@ fn each_tile<R: Send>(
     match &prepared.data.store {
         Store::Whole(b) => {
             let grid = Grid::new(dims, (b.values(), b.scale()), None, &blocks);
+            let v = View::new(prepared, lut, camera, size, opts, grid);
+            Ok(tiles.par_iter().map(|&t| per_tile(&v, t)).collect())
+        }
+        Store::Cache(_) if !samples => {
+            // No brick is read: a grid without values, and no brick loaded for it.
+            let grid = Grid::new(dims, (BrickValues::F32(&[]), 1.0), None, &blocks);
             let v = View::new(prepared, lut, camera, size, opts, grid);
             Ok(tiles.par_iter().map(|&t| per_tile(&v, t)).collect())
         }
@@ -612,7 +645,7 @@ fn forward_recorded(
     // depend on the schedule, the results do not).
     let recorded = AtomicUsize::new(0);
     // Per tile: (pixel, rgb, T) triples, the sample count and the record.
-    let done = each_tile(prepared, lut, camera, size, opts, |v, tile| {
+    let done = each_tile(prepared, lut, camera, size, opts, true, |v, tile| {
         let mut out: Vec<(usize, [f32; 3], f32)> = Vec::with_capacity(TILE * TILE);
         let mut samples = 0u64;
         let mut rec = record.then(|| TileRecord {
@@ -775,7 +808,10 @@ fn backward_recorded(
             });
         }
     }
-    let grads = each_tile(prepared, lut, camera, (w, h), opts, |v, tile| {
+    // Replayed tiles read the record, not the level: a brick cache then loads nothing.
+    let replayed = matches!(fin, Final::Rendered(_))
+        && recorded.is_some_and(|r| r.iter().all(Option::is_some));
+    let grads = each_tile(prepared, lut, camera, (w, h), opts, !replayed, |v, tile| {
         let mut grad = vec![[0.0f64; 4]; n];
         let rec = recorded.and_then(|r| r[tile.1 / TILE * tiles_x + tile.0 / TILE].as_ref());
         if let (Some(rec), Final::Rendered(r)) = (rec, fin) {
@@ -926,5 +962,81 @@ mod tests {
             backend.prepare(&w, 99),
             Err(RenderError::Level { level: 99, .. })
         ));
+    }
+
+    /// A level the volume holds, above the size of whole copy made of such a level, is read
+    /// through a brick cache: the same images and gradients as a whole copy, bit for bit, and
+    /// a backward that replays the forward's record loads no brick.
+    #[test]
+    fn held_levels_above_the_limit_are_read_through_a_cache() {
+        let v = volume_of([80, 72, 66], |i, j, k| {
+            ((i as f64 * 0.15).sin() * (j as f64 * 0.1).cos() + k as f64 / 66.0).abs()
+        });
+        let level = &v.levels[1];
+        assert!(
+            level.is_materialized(),
+            "from_buffer holds the coarse levels"
+        );
+        let whole = prepared(
+            &v,
+            1,
+            Arc::new(build(level, u64::MAX, 1 << 30, u64::MAX).unwrap()),
+        );
+        // A cache of about 3/4 of the level's bricks: the forward evicts, so a backward that
+        // walked the bricks would load some again.
+        let part = whole.memory_bytes() as u64 * 3 / 4;
+        let cached = prepared(&v, 1, Arc::new(build(level, u64::MAX, part, 0).unwrap()));
+        assert!(whole.cache_stats().is_none());
+        assert!(cached.cache_stats().is_some());
+        // Level 0 is not held: a whole copy whatever the limit.
+        let l0 = build(&v.levels[0], u64::MAX, 1 << 30, 0).unwrap();
+        assert!(matches!(l0.store, Store::Whole(_)));
+
+        let lut = Lut {
+            entries: (0..32)
+                .map(|i| {
+                    let x = i as f32 / 31.0;
+                    [20.0 * x * x, x, 1.0 - x, 0.5]
+                })
+                .collect(),
+        };
+        let bg = Image::new(64, 56);
+        let (d_image, d_t) = (vec![0.25f32; 3 * 64 * 56], vec![-0.5f32; 64 * 56]);
+        let backend = CpuBackend::default();
+        let mut bits = Vec::new();
+        for p in [&whole, &cached] {
+            let mut got = Vec::new();
+            for yaw in [0.3f64, 2.0, 4.1] {
+                let orbit = crate::camera::Orbit {
+                    yaw,
+                    pitch: 0.4,
+                    distance: 2.4,
+                    up: crate::camera::UpAxis::Z,
+                };
+                let camera = Camera::orbit(&v.geometry, orbit).unwrap();
+                let opts = RenderOptions::default();
+                let shot = Shot {
+                    camera: &camera,
+                    background: &bg,
+                    options: &opts,
+                    cast: (64, 56),
+                };
+                let (r, tape) = backend.forward(p, &lut, &shot).unwrap();
+                let loads = p.cache_stats().map(|s| s.loads);
+                let g = backend
+                    .backward(p, &lut, &shot, &tape, &d_image, &d_t)
+                    .unwrap();
+                assert_eq!(
+                    p.cache_stats().map(|s| s.loads),
+                    loads,
+                    "the backward loaded"
+                );
+                got.extend(r.image.data.iter().map(|x| u64::from(x.to_bits())));
+                got.extend(g.entries.iter().flatten().map(|x| x.to_bits()));
+            }
+            bits.push(got);
+        }
+        assert!(cached.cache_stats().unwrap().evictions > 0);
+        assert_eq!(bits[0], bits[1]);
     }
 }

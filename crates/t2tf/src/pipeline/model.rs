@@ -85,7 +85,7 @@ impl Model {
             "choose a smaller model",
         )?;
         let compute = compute.with_one_copy(
-            compute.one_copy || !backward_copy_fits(&config, compute, budget.available()),
+            compute.one_copy || !keep_backward_copy(&config, compute, budget.available()),
         );
         let clip = Clip::load_files_with(files, compute)?;
         let weights_hash = captions::hash_files(&files.weights)?;
@@ -144,8 +144,16 @@ fn backward_copy_bytes(config: &ClipConfig) -> u64 {
     4 * (v.tower.num_layers as u64 * per_layer + patch + projection)
 }
 
-/// Whether the image tower's f32 layers keep a second copy of their weights for the backward
-/// (the faster backward products, [`Compute::one_copy`]): when the weights with that copy take
+/// Whether the image tower's f32 layers keep a second copy of their weights for the backward:
+/// where it fits ([`backward_copy_fits`]) and the layers' kernel is markedly slower without it
+/// (not [`Kernel::fast_one_copy`]: with the AVX2 kernel one copy costs ≈ 4 % of a step and
+/// saves 351 MB with ViT-B/32, BENCHMARKS.md).
+fn keep_backward_copy(config: &ClipConfig, compute: Compute, available: u64) -> bool {
+    !compute.prefers_one_copy() && backward_copy_fits(config, compute, available)
+}
+
+/// Whether the image tower's f32 layers have room for a second copy of their weights for the
+/// backward (the faster backward products, [`Compute::one_copy`]): when the weights with that copy take
 /// at most half of `available`, leaving the other half to the volume, the renderer and the
 /// activations. With ViT-B/32 (605 MB of weights, 351 MB more with the copy) that is any
 /// budget from 1.9 GB; below it the run keeps one copy, at a slower backward (BENCHMARKS.md,
@@ -164,6 +172,7 @@ fn backward_copy_fits(config: &ClipConfig, compute: Compute, available: u64) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::clip::Kernel;
 
     #[test]
     fn the_backward_copy_is_kept_when_the_weights_with_it_take_half_the_budget() {
@@ -176,5 +185,25 @@ mod tests {
         assert!(!backward_copy_fits(&c, f32, 2 * with_copy - 1));
         assert!(!backward_copy_fits(&c, f32, 1 << 30));
         assert!(backward_copy_fits(&c, f32, 4 << 30));
+    }
+
+    #[test]
+    fn one_copy_is_kept_where_its_kernel_reads_it_fast() {
+        let c = ClipConfig::vit_b32();
+        let f32 = Compute::new(Precision::F32);
+        let kernels = Kernel::ALL.into_iter();
+        for kernel in kernels.filter(|k| k.available() && k.precision() == Precision::F32) {
+            let compute = f32.with_kernel(kernel).unwrap();
+            let keep = keep_backward_copy(&c, compute, 64 << 30);
+            assert_eq!(keep, !kernel.fast_one_copy(), "{}", kernel.name());
+            // Never where the copy does not fit.
+            assert!(
+                !keep_backward_copy(&c, compute, 1 << 30),
+                "{}",
+                kernel.name()
+            );
+        }
+        assert!(Kernel::Avx2Fma.fast_one_copy());
+        assert!(!Kernel::Avx512F.fast_one_copy());
     }
 }
