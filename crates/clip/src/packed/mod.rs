@@ -833,10 +833,10 @@ fn pack_transposed(a: &[f32], ld: usize, k: usize, n: usize, nr: usize) -> Vec<L
 /// every column panel: `nr` floats, one panel's columns), A m × k at stride `lda`. Computed
 /// as `cᵀ = B · Aᵀ` in tiles of `cᵀ` written transposed.
 ///
-/// The AVX-512 kernel here is 12 × 32 (`avx512::tile_f32_t`): the right operand has m = 150
+/// The AVX-512 kernel here is 4 × 80 (`avx512::tile_f32_t`): the right operand has m = 150
 /// columns (3 views × 50 tokens), which 6 × 64 tiles would pad to 192 (28 % of the products
-/// wasted), 32-column ones to 160. The AVX2 and scalar kernels keep their 6 × 16 tiles, with
-/// the left operand packed per call.
+/// wasted), 80-column ones to 160. The AVX2 kernel keeps its 6 × 16 tiles with the left
+/// operand read in place (`transposed_avx2`); the scalar one packs it per call.
 ///
 /// k-blocks never cross a B panel except at its start: a block starts at a column of B that
 /// is a multiple of `NR_MAX` and spans up to `kc` columns (whole panels: the AVX-512 kernel
