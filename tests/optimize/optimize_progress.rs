@@ -111,6 +111,15 @@ fn json_progress_is_one_object_per_line() {
     assert!(engine.contains("engine"), "{report}");
     // And what else it takes to reproduce the run.
     assert_eq!(report["render"]["clip_precision"], "f32", "{report}");
+    // One copy of the image tower's weights where the f32 kernel reads it fast (AVX2), else
+    // two (this small model fits any budget twice).
+    let compute = t2tf::clip::Compute::default();
+    let copies = if compute.prefers_one_copy() {
+        1
+    } else {
+        compute.backward_weight_copies()
+    };
+    assert_eq!(report["render"]["clip_weight_copies"], copies, "{report}");
     assert_eq!(report["render"]["threads"], 2, "{report}");
     assert!(report["settings"]["seed"].is_u64(), "{report}");
     assert_eq!(report["version"], env!("CARGO_PKG_VERSION"));

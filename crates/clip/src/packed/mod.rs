@@ -362,6 +362,17 @@ impl Compute {
         Compute { one_copy, ..self }
     }
 
+    /// Packed copies of each weight a layer with a backward (the image tower's) keeps: one
+    /// for the `gemm` crate and for f32 kernels with [`Compute::one_copy`], else two (the
+    /// forward's `Wᵀ` and the backward's `W`; bf16 layers always keep both).
+    pub fn backward_weight_copies(&self) -> usize {
+        match self.layer_kernel() {
+            None => 1,
+            Some(k) if k.precision() == Precision::F32 && self.one_copy => 1,
+            Some(_) => 2,
+        }
+    }
+
     /// Whether its layers' kernel reads one copy of each weight about as fast as two
     /// ([`Kernel::fast_one_copy`]): where it does, pipelines keep one copy by default.
     pub fn prefers_one_copy(&self) -> bool {

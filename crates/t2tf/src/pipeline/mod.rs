@@ -526,6 +526,8 @@ pub fn optimize(
         // Which matrix kernel CLIP runs on this CPU (chosen at run time).
         "clip_engine": clip.compute().describe(),
         "clip_precision": clip.compute().precision.name(),
+        // One or two packed copies of the image tower's weights (memory against backward speed).
+        "clip_weight_copies": clip.compute().backward_weight_copies(),
     });
     finished.fill_report(&mut report);
     report.init = j.init.as_ref().map(InitTf::describe);
