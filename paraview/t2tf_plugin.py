@@ -151,9 +151,9 @@ class _Qt:
             try:
                 # PyDLL: the GIL stays held through processEvents. The events run ParaView's
                 # own Python (the Abort button's observers, the progress bar) on this thread;
-                # with the GIL released (CDLL) that code ran while the thread reading t2tf's
-                # output held the GIL, and Python aborted ("PyThreadState_Get: ... the GIL is
-                # released"). The reader only waits ≤ 50 ms for it.
+                # with the GIL released (CDLL) that code can run while the thread reading
+                # t2tf's output holds the GIL, and Python aborts ("PyThreadState_Get: ... the
+                # GIL is released"). The reader only waits ≤ 50 ms for it.
                 lib = ctypes.PyDLL(None)
                 cls.instance = ctypes.c_void_p.in_dll(lib, "_ZN16QCoreApplication4selfE")
                 # static void processEvents(QEventLoop::ProcessEventsFlags, int maxtime)

@@ -99,22 +99,21 @@ pub(super) unsafe fn tile(
 /// from a forward's packed panels: the 6 rows of one 16-step chunk are 16 floats apart and
 /// the chunk's k steps contiguous (row r, step p at `a + r·16 + p`), the next chunk
 /// `kstride` floats on; `a` is the first chunk's start, which the block enters at step `off`.
-/// Copying that operand into the interleaved `[k][6]` layout instead cost as much as the
-/// product on Zen 3 (the whole weight is gathered element by element on every call). The same
-/// broadcasts, loads and FMAs as [`tile`], in the same order, so the sums are those of a
-/// packed operand bit for bit. `V` is the tile's width in vectors of 8: 2 (16 columns), or 1
-/// for a last panel of at most 8 columns (m = 150 tokens: 152 columns instead of 160). The
-/// tile `[6][8·V]` is written to (`add`: added to) `out`'s rows, `ldo` floats apart.
+/// Gathering that operand into the interleaved `[k][6]` layout on every call instead made the
+/// product 1.85× the time of one with a second packed copy on Zen 3. The same broadcasts,
+/// loads and FMAs as [`tile`], in the same order, so the sums are those of a packed operand
+/// bit for bit. The tile `[6][16]` is written to (`add`: added to) `out`'s rows, `ldo` floats
+/// apart.
 ///
 /// # Safety
-/// AVX2 and FMA present; `V` is 1 or 2; `off < 16`; for every chunk the block touches, the 6
-/// rows × 16 floats readable; `b` readable for `kc·NR` floats and 32-byte aligned; `out`
-/// writable (and with `add` readable) for 6 rows of `8·V` floats at stride `ldo`.
+/// AVX2 and FMA present; `off < 16`; for every chunk the block touches, the 6 rows × 16
+/// floats readable; `b` readable for `kc·NR` floats and 32-byte aligned; `out` writable (and
+/// with `add` readable) for 6 rows of 16 floats at stride `ldo`.
 #[target_feature(enable = "avx2,fma")]
 // A transposed product's arguments: the in-place operand's address, entry step and chunk
 // stride, the packed panel, and where the tile goes.
 #[allow(clippy::too_many_arguments)]
-pub(super) unsafe fn tile_t<const V: usize>(
+pub(super) unsafe fn tile_t(
     kc: usize,
     a: *const f32,
     off: usize,
@@ -124,21 +123,18 @@ pub(super) unsafe fn tile_t<const V: usize>(
     ldo: usize,
     add: bool,
 ) {
-    debug_assert!(off < NR && (V == 1 || V == 2));
+    debug_assert!(off < NR);
     let mut c = [_mm256_setzero_ps(); 2 * MR];
-    // One k step: V loads of B, six broadcasts from the chunk's rows, 6·V FMAs.
+    // One k step: two loads of B, six broadcasts from the chunk's rows, twelve FMAs.
     // SAFETY (of every call): step `p` < kc of the panels the caller guarantees: B lines are
     // 32-byte aligned, and the chunk's 6 rows hold 16 floats each.
     let step = |c: &mut [__m256; 2 * MR], chunk: *const f32, s: usize, p: usize| unsafe {
-        let mut bv = [_mm256_setzero_ps(); 2];
-        for (v, bv) in bv.iter_mut().enumerate().take(V) {
-            *bv = _mm256_load_ps(b.add(p * NR + 8 * v));
-        }
+        let b0 = _mm256_load_ps(b.add(p * NR));
+        let b1 = _mm256_load_ps(b.add(p * NR + 8));
         for r in 0..MR {
             let av = _mm256_broadcast_ss(&*chunk.add(r * NR + s));
-            for v in 0..V {
-                c[2 * r + v] = _mm256_fmadd_ps(av, bv[v], c[2 * r + v]);
-            }
+            c[2 * r] = _mm256_fmadd_ps(av, b0, c[2 * r]);
+            c[2 * r + 1] = _mm256_fmadd_ps(av, b1, c[2 * r + 1]);
         }
     };
     let (mut p, mut chunk, mut first) = (0, a, off);
@@ -165,16 +161,16 @@ pub(super) unsafe fn tile_t<const V: usize>(
         chunk = next;
     }
     for r in 0..MR {
-        for v in 0..V {
-            // SAFETY: row r of `out` holds 8·V floats (the caller's guarantee).
-            unsafe {
-                let dst = out.add(r * ldo + 8 * v);
-                let mut x = c[2 * r + v];
-                if add {
-                    x = _mm256_add_ps(_mm256_loadu_ps(dst), x);
-                }
-                _mm256_storeu_ps(dst, x);
+        // SAFETY: row r of `out` holds 16 floats (the caller's guarantee).
+        unsafe {
+            let dst = out.add(r * ldo);
+            let (mut v0, mut v1) = (c[2 * r], c[2 * r + 1]);
+            if add {
+                v0 = _mm256_add_ps(_mm256_loadu_ps(dst), v0);
+                v1 = _mm256_add_ps(_mm256_loadu_ps(dst.add(8)), v1);
             }
+            _mm256_storeu_ps(dst, v0);
+            _mm256_storeu_ps(dst.add(8), v1);
         }
     }
 }

@@ -246,7 +246,7 @@ impl Kernel {
     /// Whether the input backward that reads the forward's panels transposed ([`gemm_t`],
     /// one copy of each weight) runs close to the product with a second packed copy on this
     /// kernel, by `bench_memory --backward` (BENCHMARKS.md, "Memory of a default run"): the
-    /// AVX2 kernel reads the panels in place, 1.14–1.16× the two-copy time on Zen 3 (ViT-B/32's
+    /// AVX2 kernel reads the panels in place, 1.15–1.17× the two-copy time on Zen 3 (ViT-B/32's
     /// backward shapes); the AVX-512 one measured 1.35× on Zen 4, the scalar one copies the
     /// panels per call. A table from the benchmarks rather than a calibration at load: the
     /// two differ by ~15 %, less than a few milliseconds' timing on a shared machine tells
@@ -331,7 +331,7 @@ pub struct Compute {
     pub kernel: Option<Kernel>,
     /// Whether f32 layers keep one packed copy of each weight: the input backward then reads
     /// the forward's panels transposed ([`gemm_t`]), which saves the memory of a second copy
-    /// (350 MB for ViT-B/32's image tower) but makes the backward products slower: 1.15× with
+    /// (350 MB for ViT-B/32's image tower) but makes the backward products slower: 1.16× with
     /// the AVX2 kernel on Zen 3, 1.35× with the AVX-512 one on Zen 4
     /// (`examples/bench_memory.rs --backward`; see [`Kernel::fast_one_copy`]). `false`: a
     /// second copy `W` for the backward, the faster product. Results agree to float rounding
@@ -911,7 +911,7 @@ fn transposed_product(
     let cp = SendPtr(c.as_mut_ptr());
     let blocks = &blocks;
     // B[i][col].
-    let at_b = |i: usize, col: usize| bflat[((col / nr) * rows_c + i) * nr + col % nr];
+    let at_b = |i: usize, col: usize| bflat[panel_index(rows_c, nr, i, col)];
     let run = |t: usize| {
         let (i0, i1) = (t * panels_m / threads, (t + 1) * panels_m / threads);
         // The left operand where it is copied: `[tiles][kc][MR]` for the interleaved kernels;
@@ -989,8 +989,7 @@ fn transposed_product(
                                     let (first, kstride) = if rows == tr {
                                         // Rows i·tr .. of B in place: 64 floats apart, the
                                         // next panel `rows_c · 64` floats on.
-                                        let at = ((block.start / nr) * rows_c + i * tr) * nr
-                                            + block.start % nr;
+                                        let at = panel_index(rows_c, nr, i * tr, block.start);
                                         (bflat[at..].as_ptr(), rows_c * nr)
                                     } else {
                                         // A last partial row panel: copied as chunks of
@@ -1031,6 +1030,12 @@ fn transposed_product(
     }
 }
 
+/// Where B's element (row `i`, column `col`) is in its packed panels (`PackedB`'s layout:
+/// `nr`-column panels of `rows` rows each).
+fn panel_index(rows: usize, nr: usize, i: usize, col: usize) -> usize {
+    ((col / nr) * rows + i) * nr + col % nr
+}
+
 /// The shape of a transposed product (`transposed_product`): C is `m × rows_c`, B's columns
 /// `c0 .. c0 + k` are summed over, and `threads` threads split the `panels_m` row tiles of Cᵀ.
 #[cfg(target_arch = "x86_64")]
@@ -1047,8 +1052,8 @@ struct Transposed {
 /// `transposed_product` with the AVX2 kernel: the left operand is read in place from B's
 /// panels (`avx2::tile_t`; a last row tile past B's rows from a copy with zero rows), and a
 /// thread's rows of Cᵀ are summed over the k-blocks in a buffer laid out as Cᵀ (vector adds,
-/// as `gemm` sums C), then written into C transposed once. Writing each block's tile into C
-/// transposed (as the other kernels do) cost ≈ 10 % of the product on Zen 3. The blocks and
+/// as `gemm` sums C), then written into C transposed once (writing each block's tile into C
+/// transposed, as the other kernels do, took ≈ 3 % more on Zen 3). The blocks and
 /// the order of every sum are those of the other kernels.
 #[cfg(target_arch = "x86_64")]
 fn transposed_avx2(
@@ -1090,7 +1095,7 @@ fn transposed_avx2(
                         for col in block.clone() {
                             let q = (col - first) / NR;
                             tail[(q * MR + r) * NR + (col - first) % NR] =
-                                bflat[((col / NR) * rows_c + i * MR + r) * NR + col % NR];
+                                bflat[panel_index(rows_c, NR, i * MR + r, col)];
                         }
                     }
                 }
@@ -1100,7 +1105,7 @@ fn transposed_avx2(
                         let (first, kstride) = if (i + 1) * MR <= rows_c {
                             // Rows i·MR .. of B in place: 16 floats apart, the next panel
                             // `rows_c · 16` floats on.
-                            let at = ((block.start / NR) * rows_c + i * MR) * NR;
+                            let at = panel_index(rows_c, NR, i * MR, block.start - off);
                             (bflat[at..].as_ptr(), rows_c * NR)
                         } else {
                             (tail.as_ptr(), MR * NR)
@@ -1112,13 +1117,7 @@ fn transposed_avx2(
                         // every chunk the block touches holds MR rows of NR floats (B's panels
                         // for a full tile, `tail` otherwise); the Aᵀ panel holds kc·NR floats,
                         // 64-byte aligned; `out` holds MR rows of NR floats at stride ldo.
-                        unsafe {
-                            if m - jb * NR <= NR / 2 {
-                                avx2::tile_t::<1>(kc, first, off, kstride, b, o, ldo, bi > 0)
-                            } else {
-                                avx2::tile_t::<2>(kc, first, off, kstride, b, o, ldo, bi > 0)
-                            }
-                        }
+                        unsafe { avx2::tile_t(kc, first, off, kstride, b, o, ldo, bi > 0) }
                     }
                 }
             }

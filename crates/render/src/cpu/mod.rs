@@ -535,42 +535,42 @@ fn each_tile<R: Send>(
     let blocks = view_blocks(prepared, lut, opts);
     let tiles = tiles(size);
     let dims = prepared.data.dims;
-    match &prepared.data.store {
-        Store::Whole(b) => {
-            let grid = Grid::new(dims, (b.values(), b.scale()), None, &blocks);
+    let cache = match &prepared.data.store {
+        Store::Cache(cache) if samples => cache,
+        store => {
+            let values = match store {
+                Store::Whole(b) => (b.values(), b.scale()),
+                // No brick is read: a grid without values, and no brick loaded for it.
+                Store::Cache(_) => (BrickValues::F32(&[]), 1.0),
+            };
+            let grid = Grid::new(dims, values, None, &blocks);
             let v = View::new(prepared, lut, camera, size, opts, grid);
-            Ok(tiles.par_iter().map(|&t| per_tile(&v, t)).collect())
+            return Ok(tiles.par_iter().map(|&t| per_tile(&v, t)).collect());
         }
-        Store::Cache(_) if !samples => {
-            // No brick is read: a grid without values, and no brick loaded for it.
-            let grid = Grid::new(dims, (BrickValues::F32(&[]), 1.0), None, &blocks);
-            let v = View::new(prepared, lut, camera, size, opts, grid);
-            Ok(tiles.par_iter().map(|&t| per_tile(&v, t)).collect())
-        }
-        Store::Cache(cache) => cache.run(
-            |r| {
-                let v = resident_view(prepared, lut, camera, size, opts, (r, &blocks));
-                tiles
-                    .par_iter()
-                    .map(|&t| {
-                        let mut bricks = Vec::new();
-                        for (px, py) in v.tile_pixels(t) {
-                            if let Some(ray) = v.ray(px, py) {
-                                bricks_touched(&v.params.grid, &ray, |b| bricks.push(b as u32));
-                            }
+    };
+    cache.run(
+        |r| {
+            let v = resident_view(prepared, lut, camera, size, opts, (r, &blocks));
+            tiles
+                .par_iter()
+                .map(|&t| {
+                    let mut bricks = Vec::new();
+                    for (px, py) in v.tile_pixels(t) {
+                        if let Some(ray) = v.ray(px, py) {
+                            bricks_touched(&v.params.grid, &ray, |b| bricks.push(b as u32));
                         }
-                        bricks.sort_unstable();
-                        bricks.dedup();
-                        bricks
-                    })
-                    .collect()
-            },
-            |r, range| {
-                let v = resident_view(prepared, lut, camera, size, opts, (r, &blocks));
-                tiles[range].par_iter().map(|&t| per_tile(&v, t)).collect()
-            },
-        ),
-    }
+                    }
+                    bricks.sort_unstable();
+                    bricks.dedup();
+                    bricks
+                })
+                .collect()
+        },
+        |r, range| {
+            let v = resident_view(prepared, lut, camera, size, opts, (r, &blocks));
+            tiles[range].par_iter().map(|&t| per_tile(&v, t)).collect()
+        },
+    )
 }
 
 /// A view of `prepared` sampling a brick cache's resident bricks `r`, with block tables

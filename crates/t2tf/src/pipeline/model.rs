@@ -146,8 +146,8 @@ fn backward_copy_bytes(config: &ClipConfig) -> u64 {
 
 /// Whether the image tower's f32 layers keep a second copy of their weights for the backward:
 /// where it fits ([`backward_copy_fits`]) and the layers' kernel is markedly slower without it
-/// (not [`Kernel::fast_one_copy`]: with the AVX2 kernel one copy costs ≈ 4 % of a step and
-/// saves 351 MB with ViT-B/32, BENCHMARKS.md).
+/// (not [`Kernel::fast_one_copy`]: with the AVX2 kernel one copy saves 351 MB with ViT-B/32
+/// and the default run's step measured the same, BENCHMARKS.md).
 fn keep_backward_copy(config: &ClipConfig, compute: Compute, available: u64) -> bool {
     !compute.prefers_one_copy() && backward_copy_fits(config, compute, available)
 }
