@@ -208,6 +208,29 @@ impl Linear {
         (y, Some(pre))
     }
 
+    /// `forward` (`act` None) or `forward_act` without the pre-activation (`act` Some) into
+    /// `out`, reusing its memory (`packed::gemm_into_post`); the same bits.
+    pub(crate) fn forward_into(
+        &self,
+        x: &[f32],
+        rows: usize,
+        act: Option<Activation>,
+        out: &mut Vec<f32>,
+    ) {
+        let Weight::Packed { fwd, .. } = &self.w else {
+            *out = self.forward(x, rows);
+            if let Some(act) = act {
+                activation_forward(act, out);
+            }
+            return;
+        };
+        let k = self.in_dim;
+        let post = act.map(|act| move |_: usize, _: usize, v: &mut [f32]| act_forward_any(act, v));
+        let post: Option<packed::Post> = post.as_ref().map(|p| p as packed::Post);
+        let bias = self.b.as_deref();
+        packed::gemm_into_post(out, x, k, rows, fwd, 0..k, 0..self.out_dim, bias, post);
+    }
+
     /// The input gradient through an activation before this layer: `(dy W) ⊙ act'(pre)`,
     /// `pre: [rows, in]` being the activation's input (fused into the product as in
     /// `forward_act`; same bits as `backward` followed by `activation_backward`).
@@ -323,9 +346,21 @@ impl LayerNorm {
     /// after the parallel normalisation (with two threads, serial work costs twice its share
     /// of the image pass).
     pub fn forward(&self, x: &[f32], save: bool) -> (Vec<f32>, Option<LnSaved>) {
+        let mut y = Vec::new();
+        let saved = self.forward_to(x, save, &mut y);
+        (y, saved)
+    }
+
+    /// `forward` without the saved state, into `y` (its memory reused).
+    pub(crate) fn forward_into(&self, x: &[f32], y: &mut Vec<f32>) {
+        self.forward_to(x, false, y);
+    }
+
+    fn forward_to(&self, x: &[f32], save: bool, y: &mut Vec<f32>) -> Option<LnSaved> {
         let d = self.dim();
         let rows = x.len() / d;
-        let mut y = vec![0.0; x.len()];
+        y.clear();
+        y.resize(x.len(), 0.0);
         let mut rstd = vec![0.0; rows];
         let mut xhat = if save { vec![0.0; x.len()] } else { Vec::new() };
         let rows_per_task = (CHUNK / d).max(1);
@@ -359,8 +394,7 @@ impl LayerNorm {
                 .with_min_len(rows_per_task)
                 .for_each(|((yr, xr), rs)| row(xr, yr, None, rs));
         }
-        let saved = save.then_some(LnSaved { xhat, rstd });
-        (y, saved)
+        save.then_some(LnSaved { xhat, rstd })
     }
 
     /// `dy: [rows, dim]` → `dx`. With x̂ the normalized input and g = dy·γ:

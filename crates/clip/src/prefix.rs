@@ -144,9 +144,24 @@ pub(crate) fn attend(
     heads: usize,
     d: usize,
 ) -> Vec<f32> {
+    let mut ctx = Vec::new();
+    attend_into(q, nodes, kv, tree, (heads, d), &mut ctx);
+    ctx
+}
+
+/// `attend` into `ctx`, its memory reused.
+fn attend_into(
+    q: (&[f32], usize),
+    nodes: &[usize],
+    kv: &KeyValues<'_>,
+    tree: &PrefixTree,
+    (heads, d): (usize, usize),
+    ctx: &mut Vec<f32>,
+) {
     let (q, q_ld) = q;
     let dh = d / heads;
-    let mut ctx = vec![0.0f32; nodes.len() * d];
+    ctx.clear();
+    ctx.resize(nodes.len() * d, 0.0);
     ctx.par_chunks_mut(d)
         .zip(nodes.par_iter().enumerate())
         .with_min_len(ROWS_PER_TASK)
@@ -174,31 +189,51 @@ pub(crate) fn attend(
                 }
             }
         });
-    ctx
+}
+
+/// The buffers of one layer on a tree, kept from layer to layer and tree to tree: fresh
+/// buffers per product faulted in and zeroed their pages every time (`packed::gemm_into_post`).
+#[derive(Default)]
+pub(crate) struct Scratch {
+    n1: Vec<f32>,
+    qkv: Vec<f32>,
+    ctx: Vec<f32>,
+    proj: Vec<f32>,
+    n2: Vec<f32>,
+    m: Vec<f32>,
 }
 
 /// One encoder layer on every node of `tree`, `x: [nodes, D]` updated in place (as
-/// `EncoderLayer::forward` on packed sequences).
-pub(crate) fn layer_forward(layer: &EncoderLayer, x: &mut [f32], tree: &PrefixTree) {
+/// `EncoderLayer::forward` on packed sequences), with `scratch`'s buffers.
+pub(crate) fn layer_forward(
+    layer: &EncoderLayer,
+    x: &mut [f32],
+    tree: &PrefixTree,
+    scratch: &mut Scratch,
+) {
     let (d, t, heads) = (layer.ln1.dim(), tree.len(), layer.attn.num_heads);
     let scale = ((d / heads) as f32).powf(-0.5);
-    let (n1, _) = layer.ln1.forward(x, false);
-    let mut qkv = layer.attn.qkv.forward(&n1, t);
-    qkv.par_chunks_mut(3 * d)
+    let s = scratch;
+    layer.ln1.forward_into(x, &mut s.n1);
+    layer.attn.qkv.forward_into(&s.n1, t, None, &mut s.qkv);
+    s.qkv
+        .par_chunks_mut(3 * d)
         .with_min_len(ROWS_PER_TASK)
         .for_each(|row| row[..d].iter_mut().for_each(|v| *v *= scale));
     let all: Vec<usize> = (0..t).collect();
     let kv = KeyValues {
-        kv: &qkv,
+        kv: &s.qkv,
         ld: 3 * d,
         k_at: d,
         v_at: 2 * d,
     };
-    let ctx = attend((&qkv, 3 * d), &all, &kv, tree, heads, d);
-    add_assign(x, &layer.attn.out.forward(&ctx, t));
-    let (n2, _) = layer.ln2.forward(x, false);
-    let (m, _) = layer.fc1.forward_act(&n2, t, layer.act, false);
-    add_assign(x, &layer.fc2.forward(&m, t));
+    attend_into((&s.qkv, 3 * d), &all, &kv, tree, (heads, d), &mut s.ctx);
+    layer.attn.out.forward_into(&s.ctx, t, None, &mut s.proj);
+    add_assign(x, &s.proj);
+    layer.ln2.forward_into(x, &mut s.n2);
+    layer.fc1.forward_into(&s.n2, t, Some(layer.act), &mut s.m);
+    layer.fc2.forward_into(&s.m, t, None, &mut s.proj);
+    add_assign(x, &s.proj);
 }
 
 /// The last layer at the `ends` nodes only (keys and values from every node): `x: [nodes, D]`

@@ -123,6 +123,7 @@ impl TextModel {
         let prefixes = self.pooled_prefixes(captions)?;
         let p = self.projection.out_dim;
         let mut out = vec![Vec::new(); captions.len()];
+        let mut scratch = prefix::Scratch::default();
         for part in prefix::forest(&prefixes, prefix::MAX_ROWS) {
             let tree = &part.tree;
             let mut x = self.embed(
@@ -136,7 +137,7 @@ impl TextModel {
             let pooled = match self.tower.layers.split_last() {
                 Some((last, body)) => {
                     for l in body {
-                        prefix::layer_forward(l, &mut x, tree);
+                        prefix::layer_forward(l, &mut x, tree, &mut scratch);
                     }
                     prefix::layer_forward_ends(last, &x, tree, &ends)
                 }
