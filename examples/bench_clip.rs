@@ -466,10 +466,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let img_peak = peak.max(peak_after);
     let img_peak_cpu = peak_cpu.max(peak_cpu_after);
+    let peaks = if image_only {
+        "GEMM peak not measured (--image-only): no % of peak".to_string()
+    } else {
+        format!(
+            "GEMM peak before {peak:.0}, after {peak_after:.0} GFLOPS: % of the higher, \
+             {img_peak:.0} (by CPU time: {peak_cpu:.0} / {peak_cpu_after:.0}, % of \
+             {img_peak_cpu:.0})"
+        )
+    };
     println!(
-        "ViT-B/32 image, 3 views at 224², forward + input backward, {:.1} GFLOP; GEMM peak \
-         before {peak:.0}, after {peak_after:.0} GFLOPS: % of the higher, {img_peak:.0} (by CPU \
-         time: {peak_cpu:.0} / {peak_cpu_after:.0}, % of {img_peak_cpu:.0})",
+        "ViT-B/32 image, 3 views at 224², forward + input backward, {:.1} GFLOP; {peaks}",
         flops / 1e9
     );
     println!(
@@ -497,13 +504,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (tb, tm) = best_and_median(r.tot);
         println!(
             "| {} | {} | {fb:.3} s ({fm:.3}) | {bb:.3} s ({bm:.3}) | **{tb:.3} s** ({tm:.3}) | {:.0} | \
-             {:.0} % | {img_cpu:.3} ({:.3}) | {:.0} % | {:.2}× | {:.2}× |",
+             {} | {img_cpu:.3} ({:.3}) | {} | {:.2}× | {:.2}× |",
             setup.name(),
             setup.precision().name(),
             flops / tb / 1e9,
-            100.0 * flops / tb / 1e9 / img_peak,
+            percent(flops / tb / 1e9 / img_peak),
             img_cpu / threads as f64,
-            100.0 * flops / (img_cpu / threads as f64) / 1e9 / img_peak_cpu,
+            percent(flops / (img_cpu / threads as f64) / 1e9 / img_peak_cpu),
             tb / best_f32,
             img_cpu / best_f32_cpu,
         );
@@ -716,4 +723,13 @@ fn pool_flop(ids: &[Vec<u32>], cfg: &ClipConfig) -> (usize, f64) {
     let last_ends: f64 = ends.iter().map(|p| row(p.len()) - 2.0 * 2.0 * d * d).sum();
     let projection = ends.len() as f64 * 2.0 * d * cfg.projection_dim as f64;
     (prefixes.len(), body + last_kv + last_ends + projection)
+}
+
+/// A share as "NN %", or "—" where the peak it divides by was not measured.
+fn percent(share: f64) -> String {
+    if share.is_finite() {
+        format!("{:.0} %", 100.0 * share)
+    } else {
+        "—".to_string()
+    }
 }
