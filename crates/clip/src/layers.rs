@@ -826,6 +826,51 @@ mod tests {
         }
     }
 
+    /// The into-buffer forwards the caption pool uses give the allocating forwards' bits,
+    /// whatever the buffer held before (longer, shorter, NaN-filled) and on both engines.
+    #[test]
+    fn forwards_into_a_reused_buffer_give_the_same_bits() {
+        let val = |i: usize, s: usize| ((((i + s) * 2654435761usize) % 2001) as f32 / 1000.0) - 1.0;
+        for engine in [Engine::Packed, Engine::Crate] {
+            let c = Compute::default().with_engine(engine);
+            let (inp, out) = (37, 70);
+            let w: Vec<f32> = (0..inp * out).map(|i| val(i, 1)).collect();
+            let b: Vec<f32> = (0..out).map(|i| val(i, 2)).collect();
+            let l = Linear::new(w, Some(b), inp, out, &c);
+            let ln = LayerNorm {
+                gamma: (0..inp).map(|i| val(i, 5)).collect(),
+                beta: (0..inp).map(|i| val(i, 6)).collect(),
+                eps: 1e-5,
+            };
+            let (mut y, mut a, mut n) = (Vec::new(), Vec::new(), Vec::new());
+            for rows in [9, 3, 17, 1] {
+                let x: Vec<f32> = (0..rows * inp).map(|i| val(i, rows)).collect();
+                for buf in [&mut y, &mut a, &mut n] {
+                    buf.iter_mut().for_each(|v| *v = f32::NAN);
+                }
+                l.forward_into(&x, rows, None, &mut y);
+                assert_eq!(
+                    bits(&y),
+                    bits(&l.forward(&x, rows)),
+                    "{engine:?} {rows} rows"
+                );
+                l.forward_into(&x, rows, Some(Activation::QuickGelu), &mut a);
+                let (want, _) = l.forward_act(&x, rows, Activation::QuickGelu, false);
+                assert_eq!(bits(&a), bits(&want), "{engine:?} act {rows} rows");
+                ln.forward_into(&x, &mut n);
+                assert_eq!(
+                    bits(&n),
+                    bits(&ln.forward(&x, false).0),
+                    "layer norm {rows} rows"
+                );
+            }
+        }
+    }
+
+    fn bits(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
     /// Both engines against f64 on shapes that are not multiples of the tiles, including the
     /// parts of a stacked projection at unaligned offsets. Tolerance: an f32 dot product of
     /// length k has error ~√k · 6e-8 relative to Σ|x||w| for these O(1) values.
