@@ -209,7 +209,8 @@ impl Linear {
     }
 
     /// `forward` (`act` None) or `forward_act` without the pre-activation (`act` Some) into
-    /// `out`, reusing its memory (`packed::gemm_into_post`); the same bits.
+    /// `out`, the same bits. Packed weights reuse `out`'s memory (`packed::gemm_into_post`);
+    /// the `gemm` crate's path replaces it.
     pub(crate) fn forward_into(
         &self,
         x: &[f32],

@@ -191,8 +191,8 @@ fn attend_into(
         });
 }
 
-/// The buffers of one layer on a tree, kept from layer to layer and tree to tree: fresh
-/// buffers per product faulted in and zeroed their pages every time (`packed::gemm_into_post`).
+/// The buffers of one layer on a tree, kept from layer to layer and tree to tree, so that no
+/// product, layer norm or attention faults in fresh pages (`packed::gemm_into_post`).
 #[derive(Default)]
 pub(crate) struct Scratch {
     n1: Vec<f32>,

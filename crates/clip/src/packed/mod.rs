@@ -725,8 +725,8 @@ pub(crate) fn gemm_new_post(
 
 /// `gemm_new_post` into `c`, whose old contents are dropped and whose memory is reused: a
 /// caller that runs many products of one size (the caption pool's layers) touches no fresh
-/// pages after the first (a new buffer per product faulted and zeroed its pages: ≈ 15 % of
-/// the pool's wall time on Zen 3).
+/// pages after the first. A new buffer per product has its pages faulted in and zeroed each
+/// time: ≈ 15 % of the pool's wall time on Zen 3 (BENCHMARKS.md, "Caption pool first use").
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn gemm_into_post(
     c: &mut Vec<f32>,
@@ -1074,7 +1074,7 @@ struct Transposed {
 /// panels (`avx2::tile_t`; a last row tile past B's rows from a copy with zero rows), and a
 /// thread's rows of Cᵀ are summed over the k-blocks in a buffer laid out as Cᵀ (vector adds,
 /// as `gemm` sums C), then written into C transposed once (writing each block's tile into C
-/// transposed, as the other kernels do, took ≈ 3 % more on Zen 3). The blocks and
+/// transposed, as the other kernels do, measures ≈ 3 % slower on Zen 3). The blocks and
 /// the order of every sum are those of the other kernels.
 #[cfg(target_arch = "x86_64")]
 fn transposed_avx2(
