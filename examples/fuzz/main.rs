@@ -72,7 +72,13 @@ fn parse_args() -> Result<Options> {
 }
 
 /// Cap the address space, so a parser that believes a header's size aborts here (a finding)
+/// rather than take the machine's memory. Unix only: Windows has no such limit.
+#[cfg(not(unix))]
+fn cap_memory(_mib: u64) {}
+
+/// Cap the address space, so a parser that believes a header's size aborts here (a finding)
 /// rather than take the machine's memory.
+#[cfg(unix)]
 fn cap_memory(mib: u64) {
     let bytes = mib.saturating_mul(1 << 20);
     let lim = libc::rlimit {

@@ -132,11 +132,13 @@ fn a_full_stdout_is_one_error_line_not_a_panic() {
     }
 }
 
+#[cfg(unix)]
 fn optimize(out: &Path, cache: &Path) -> Command {
     let run = ["--prompt", "x", "--steps", "3", "--views", "1"];
     crate::hostile_cli::optimize_with_progress(out, cache, "lines", &run)
 }
 
+#[cfg(unix)]
 /// The run wrote its whole set: report.json and every file it lists.
 fn wrote_the_set(out: &Path) {
     let report: serde_json::Value =
@@ -148,6 +150,7 @@ fn wrote_the_set(out: &Path) {
     }
 }
 
+#[cfg(unix)]
 #[test]
 fn optimize_goes_on_when_its_progress_stream_fails() {
     let dir = tempfile::tempdir().unwrap();

@@ -8,7 +8,10 @@ mod cli_help;
 mod cli_info;
 mod cli_messages;
 mod cli_streams;
+#[cfg(unix)]
 mod hostile_cli;
+#[cfg(unix)]
 #[path = "../limits_util/mod.rs"]
 mod limits_util;
+#[cfg(unix)]
 mod special_inputs;

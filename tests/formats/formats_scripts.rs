@@ -126,6 +126,7 @@ fn write_all_writes_every_output_atomically() {
     assert_eq!(files.tf.opacity_points.first().unwrap().0, 0.0);
 }
 
+#[cfg(unix)]
 #[test]
 fn scripts_name_the_volume_by_its_canonical_path() {
     // `t2tf optimize ../shared/x.raw` run from a subfolder: the scripts name the file without

@@ -201,6 +201,7 @@ fn a_locked_range_stays_while_the_rest_changes() {
     }
 }
 
+#[cfg(unix)]
 #[test]
 fn a_batch_gives_each_prompt_the_tf_of_its_own_run_and_one_library() {
     let dir = tempfile::tempdir().unwrap();

@@ -2,6 +2,7 @@
 //! float64 data near ±f64::MAX normalizes to finite values, and spacings whose box single
 //! precision cannot hold are refused. Every file is made by the test.
 
+#[cfg(unix)]
 use crate::limits_util::info_within;
 use std::path::Path;
 
@@ -99,6 +100,7 @@ fn spacings_that_single_precision_cannot_hold_are_refused() {
     }
 }
 
+#[cfg(unix)]
 /// `t2tf info` on a 512³ uint8 file (128 MiB) under an address-space limit of
 /// 384 MiB, below the 512 MiB of its f32 copy alone: the file is streamed, nothing the size
 /// of the volume is allocated, and the statistics are those of the whole file.

@@ -5,11 +5,13 @@
 
 mod fuzz_replay;
 mod hostile_volumes;
+#[cfg(unix)]
 #[path = "../limits_util/mod.rs"]
 mod limits_util;
 mod volume_blocks;
 mod volume_errors;
 mod volume_fixtures;
+#[cfg(unix)]
 mod volume_large_cli;
 mod volume_shared;
 mod volume_stream;

@@ -475,6 +475,7 @@ fn named_arrays_read_like_the_whole_decode() {
     }
 }
 
+#[cfg(unix)]
 /// `t2tf info` on a 384³ uint16 zlib `.vti` (108 MiB of values, a few MiB of file) under an
 /// address-space limit of 100 MiB, which the decoded values alone exceed: the block source
 /// reads it in bounded memory (decoding the whole array would fail here).

@@ -198,7 +198,7 @@ impl Clip {
             TextModel::load(root, &config.text, config.projection_dim)?;
             TokenTable::for_ids(root, &config.text, &[])
         })?;
-        t2tf_core::memory::return_freed_memory();
+        t2tf_core::platform::return_freed_memory();
         let (vision, logit_scale) = with_root(&weights, files.layout, compute, |root| {
             Ok((
                 VisionModel::load(root, &config.vision, config.projection_dim)?,
@@ -212,7 +212,7 @@ impl Clip {
         };
         let mut clip = Clip::assemble(config, text, vision, logit_scale, compute);
         // The text tower and every tensor read for packing are freed.
-        t2tf_core::memory::return_freed_memory();
+        t2tf_core::platform::return_freed_memory();
         clip.tokenizer = Some(tok);
         if let Some(p) = prep {
             clip.set_preprocessing(p);
@@ -360,7 +360,7 @@ impl Clip {
     pub fn release_text(&self) {
         if let TextTower::FromFile { built, .. } = &self.text {
             built.lock().unwrap_or_else(PoisonError::into_inner).take();
-            t2tf_core::memory::return_freed_memory();
+            t2tf_core::platform::return_freed_memory();
         }
     }
 

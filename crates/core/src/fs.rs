@@ -9,12 +9,15 @@
 //! Linux's `protected_symlinks` reasons: a link someone else planted is refused, never written
 //! through. Inside a folder t2tf owns the names of (an output folder, the caption cache) no
 //! symlink is ever followed: a finished file is renamed over the name, so a link there is
-//! replaced, not its target; the lock file is opened with `O_NOFOLLOW`; temporaries are created
-//! with `O_CREAT|O_EXCL|O_NOFOLLOW` under random names; stale files are removed by name
+//! replaced, not its target; the lock file is opened without following a link (`O_NOFOLLOW`,
+//! on Windows `FILE_FLAG_OPEN_REPARSE_POINT`: [`platform::no_follow`]); temporaries are
+//! created new (`O_CREAT|O_EXCL`, never following) under random names; stale files are removed by name
 //! (`unlink` removes a link, never its target).
 
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
+
+use crate::platform;
 
 /// Why an output file or folder could not be written; every message names the file or
 /// folder. The system's error is part of the message and not a `source`: the CLI prints the
@@ -120,13 +123,6 @@ pub const MANIFEST: &str = "report.json";
 /// Symlinks followed before giving up (Linux's own limit).
 const MAX_LINKS: usize = 40;
 
-/// The effective uid of this process: the owner a followed symlink must have.
-#[cfg(unix)]
-fn euid() -> u32 {
-    // SAFETY: geteuid has no preconditions and cannot fail.
-    unsafe { libc::geteuid() }
-}
-
 /// The end of `path`'s chain of symlinks, following only links owned by the caller, and what
 /// is there (`None`: nothing). A link of another user is `FsError::ForeignLink`.
 fn resolve_own_links(path: &Path) -> Result<(PathBuf, Option<std::fs::Metadata>)> {
@@ -140,16 +136,13 @@ fn resolve_own_links(path: &Path) -> Result<(PathBuf, Option<std::fs::Metadata>)
         if !meta.file_type().is_symlink() {
             return Ok((target, Some(meta)));
         }
-        #[cfg(unix)]
-        {
-            use std::os::unix::fs::MetadataExt;
-            if meta.uid() != euid() {
-                return Err(FsError::ForeignLink {
-                    path: path.to_path_buf(),
-                    link: target,
-                    owner: meta.uid(),
-                });
-            }
+        let (own, owner) = platform::link_owned_by_caller(&meta);
+        if !own {
+            return Err(FsError::ForeignLink {
+                path: path.to_path_buf(),
+                link: target,
+                owner,
+            });
         }
         let link =
             std::fs::read_link(&target).map_err(FsError::io(path, "cannot read the symlink"))?;
@@ -278,12 +271,7 @@ fn temporary(path: &Path, dir: &Path) -> Result<tempfile::NamedTempFile> {
         .make_in(dir, |name| {
             let mut o = std::fs::OpenOptions::new();
             o.read(true).write(true).create_new(true);
-            #[cfg(unix)]
-            {
-                use std::os::unix::fs::OpenOptionsExt;
-                o.mode(0o644).custom_flags(libc::O_NOFOLLOW);
-            }
-            o.open(name)
+            platform::no_follow(&mut o).open(name)
         })
         // tempfile's error names its own temporary file, which the user never asked for: say
         // what went wrong with the folder instead.
@@ -320,16 +308,6 @@ pub fn check_writable(path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Whether process `pid` still runs (a PID that is not ours to signal counts as running).
-fn alive(pid: u32) -> bool {
-    let Ok(pid) = libc::pid_t::try_from(pid) else {
-        return false;
-    };
-    // SAFETY: kill with signal 0 only checks that the process exists; it sends nothing.
-    let r = unsafe { libc::kill(pid, 0) };
-    r == 0 || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
-}
-
 /// The PID in a name `PREFIX<pid>…`, if the name has that form.
 fn pid_after(name: &str, prefix: &str) -> Option<u32> {
     let rest = name.strip_prefix(prefix)?;
@@ -352,12 +330,13 @@ pub fn clean_stale(dir: &Path) -> Result<Vec<String>> {
         // The entry's own type: a symlink named like a staging folder is not ours to follow.
         let is_dir = entry.file_type().is_ok_and(|t| t.is_dir());
         if let Some(pid) = pid_after(&name, SET_PREFIX) {
-            if is_dir && !alive(pid) {
+            if is_dir && !platform::process_alive(pid) {
                 finish_or_drop_set(dir, &entry.path())?;
                 done.push(name);
             }
         } else if name.ends_with(PARTIAL_SUFFIX) {
-            let dead = pid_after(&name, PARTIAL_PREFIX).is_none_or(|pid| !alive(pid));
+            let dead =
+                pid_after(&name, PARTIAL_PREFIX).is_none_or(|pid| !platform::process_alive(pid));
             // unlink removes the name (a symlink itself, never its target).
             if dead && std::fs::remove_file(entry.path()).is_ok() {
                 done.push(name);
@@ -381,8 +360,9 @@ fn finish_or_drop_set(dir: &Path, staged: &Path) -> Result<()> {
     }
 }
 
-/// An exclusive lock on an output folder, held while a run writes into it (an advisory
-/// `flock` on `.t2tf.lock`, released by the kernel however the process ends, so a killed run
+/// An exclusive lock on an output folder, held while a run writes into it (a lock on
+/// `.t2tf.lock`: `flock` on Unix, `LockFileEx` on Windows, released by the system however the
+/// process ends, so a killed run
 /// never leaves the folder locked). The file holds the owner's PID for the error message, and
 /// is removed when the lock is dropped; a killed run leaves it behind, unlocked, and the next
 /// run takes it over.
@@ -433,7 +413,9 @@ impl OutputLock {
             let Some(mut file) = open_lock_file(&path, dir)? else {
                 continue;
             };
-            if lock_file(&file).is_err() {
+            let locked =
+                lock_file(&file).map_err(FsError::io(&path, "cannot lock the lock file"))?;
+            if !locked {
                 return Err(busy(dir, &mut file));
             }
             // The previous holder removes the file as it ends: a lock on a removed file locks
@@ -457,20 +439,14 @@ impl OutputLock {
     }
 }
 
-/// Open (or create) the lock file without following a symlink: `O_NOFOLLOW`, and `O_NONBLOCK`
-/// so a FIFO in its place cannot hang the open. A symlink or a hard link to some other file in
+/// Open (or create) the lock file without following a symlink ([`platform::no_follow_no_wait`]:
+/// `O_NOFOLLOW`, and `O_NONBLOCK` so a FIFO in its place cannot hang the open). A symlink or a hard link to some other file in
 /// its place is not ours: the name is removed (never what it leads to) and `None` asks the
 /// caller to try again. Anything else that is not a regular file is refused.
 fn open_lock_file(path: &Path, dir: &Path) -> Result<Option<std::fs::File>> {
     let mut o = std::fs::OpenOptions::new();
     o.read(true).write(true).create(true).truncate(false);
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::OpenOptionsExt;
-        o.mode(0o644)
-            .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
-    }
-    let file = match o.open(path) {
+    let file = match platform::no_follow_no_wait(&mut o).open(path) {
         Ok(f) => f,
         Err(e) => {
             let is_link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
@@ -490,15 +466,11 @@ fn open_lock_file(path: &Path, dir: &Path) -> Result<Option<std::fs::File>> {
             kind: kind_name(&meta.file_type()),
         });
     }
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::MetadataExt;
-        // A lock file t2tf made has one name; another is a hard link to someone's file.
-        if meta.nlink() > 1 {
-            drop(file);
-            remove_name(path)?;
-            return Ok(None);
-        }
+    // A lock file t2tf made has one name; another is a hard link to someone's file.
+    if platform::hard_links(&file, &meta) > 1 {
+        drop(file);
+        remove_name(path)?;
+        return Ok(None);
     }
     Ok(Some(file))
 }
@@ -512,36 +484,19 @@ fn remove_name(path: &Path) -> Result<()> {
     }
 }
 
-/// Whether `path` still names the open `file` (same device and inode).
-#[cfg(unix)]
+/// Whether `path` still names the open `file`.
 fn is_current(file: &std::fs::File, path: &Path) -> bool {
-    use std::os::unix::fs::MetadataExt;
-    match (file.metadata(), std::fs::symlink_metadata(path)) {
-        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
-        _ => false,
+    platform::same_file(file, path)
+}
+
+/// Take the exclusive lock of an open lock file without waiting (`flock` on Unix,
+/// `LockFileEx` on Windows); held until the file is closed, so a killed run's lock is gone.
+fn lock_file(file: &std::fs::File) -> Result<bool, std::io::Error> {
+    match file.try_lock() {
+        Ok(()) => Ok(true),
+        Err(std::fs::TryLockError::WouldBlock) => Ok(false),
+        Err(std::fs::TryLockError::Error(e)) => Err(e),
     }
-}
-
-#[cfg(not(unix))]
-fn is_current(_file: &std::fs::File, path: &Path) -> bool {
-    path.exists()
-}
-
-#[cfg(unix)]
-fn lock_file(file: &std::fs::File) -> std::io::Result<()> {
-    use std::os::fd::AsRawFd;
-    // SAFETY: flock on a descriptor this function borrows; no memory is shared.
-    let r = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
-    if r == 0 {
-        Ok(())
-    } else {
-        Err(std::io::Error::last_os_error())
-    }
-}
-
-#[cfg(not(unix))]
-fn lock_file(_file: &std::fs::File) -> std::io::Result<()> {
-    Ok(())
 }
 
 /// The error for a lock held by another run, naming it by the PID in the open lock file.
@@ -730,7 +685,7 @@ mod tests {
         let victim = victim(dir.path());
         let link = dir.path().join("out.json");
         std::os::unix::fs::symlink(&victim, &link).unwrap();
-        if euid() != 0 {
+        if unsafe { libc::geteuid() } != 0 {
             eprintln!("skipped: giving a symlink to another user needs root");
             return;
         }

@@ -6,14 +6,15 @@ use std::fs::File;
 use std::io::{self, Read};
 use std::path::Path;
 
+use crate::platform;
+
 /// Open `path` for reading if it is a regular file (symlinks followed). The open itself does
 /// not block (`O_NONBLOCK`, cleared again once the file is known to be regular), so a FIFO is
 /// refused rather than waited on.
 pub fn open(path: &Path) -> io::Result<File> {
-    let file = open_nonblocking(path)?;
+    let file = platform::open_without_waiting(path)?;
     regular(&file.metadata()?)?;
-    #[cfg(unix)]
-    clear_nonblocking(&file)?;
+    platform::set_blocking(&file)?;
     Ok(file)
 }
 
@@ -66,36 +67,6 @@ fn kind(meta: &std::fs::Metadata) -> &'static str {
     } else {
         "not a file"
     }
-}
-
-#[cfg(unix)]
-fn open_nonblocking(path: &Path) -> io::Result<File> {
-    use std::os::unix::fs::OpenOptionsExt;
-    std::fs::OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NONBLOCK)
-        .open(path)
-}
-
-#[cfg(not(unix))]
-fn open_nonblocking(path: &Path) -> io::Result<File> {
-    File::open(path)
-}
-
-#[cfg(unix)]
-fn clear_nonblocking(file: &File) -> io::Result<()> {
-    use std::os::unix::io::AsRawFd;
-    let fd = file.as_raw_fd();
-    // SAFETY: fcntl on a descriptor this function's caller owns, with integer arguments.
-    let flags = unsafe { libc::fcntl(fd, libc::F_GETFL) };
-    if flags < 0 {
-        return Err(io::Error::last_os_error());
-    }
-    // SAFETY: as above.
-    if unsafe { libc::fcntl(fd, libc::F_SETFL, flags & !libc::O_NONBLOCK) } < 0 {
-        return Err(io::Error::last_os_error());
-    }
-    Ok(())
 }
 
 #[cfg(test)]

@@ -1,4 +1,5 @@
-//! The ground every stage of t2tf stands on: the memory budget sizes are checked against before
+//! The ground every stage of t2tf stands on: what differs between operating systems
+//! ([`platform`]: the only module that calls the system directly), the memory budget sizes are checked against before
 //! they are allocated ([`memory`]), output files written atomically and only as regular files
 //! ([`fs`]), RGB images with PNG input and output ([`image`]: the currency between the renderer
 //! and CLIP), a fast `exp` for the hot loops ([`math`]) and byte sizes for people ([`units`]).
@@ -12,4 +13,5 @@ pub mod image;
 pub mod input;
 pub mod math;
 pub mod memory;
+pub mod platform;
 pub mod units;

@@ -3,24 +3,13 @@
 //! what is available and what to do, never in an allocation abort (exit 134).
 //!
 //! A [`Budget`] is a value: a fixed number of bytes (the CLI's `--max-memory`), or what the
-//! system can give this process — the smaller of the kernel's MemAvailable and the room left
-//! under the address-space limit (`ulimit -v`). Whoever reads sizes from a file or a caller
+//! system can give this process — the smaller of the available physical memory
+//! ([`platform::available_memory`]) and the room left under the address-space limit
+//! (`ulimit -v`, on Unix). Whoever reads sizes from a file or a caller
 //! takes one and checks against it.
 
+use crate::platform;
 use crate::units::human_bytes as human;
-
-/// Hand the memory this process has freed back to the system, after dropping something
-/// large (a model tower, a load's buffers). glibc's malloc keeps freed blocks of up to 32 MiB
-/// in its arenas once a block that size was freed (its mmap threshold adapts), and those
-/// pages stay counted as the process's memory: without this a dropped text tower would
-/// still count in a run's peak. Elsewhere (other C libraries) a no-op.
-pub fn return_freed_memory() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: malloc_trim only walks the allocator's own free lists.
-    unsafe {
-        libc::malloc_trim(0);
-    }
-}
 
 /// What the budget refused.
 #[derive(Debug, thiserror::Error)]
@@ -48,8 +37,8 @@ pub struct Budget {
 }
 
 impl Budget {
-    /// What the system can give this process when asked: the smaller of the kernel's
-    /// MemAvailable and the room left under the address-space limit (`ulimit -v`).
+    /// What the system can give this process when asked: the smaller of the available
+    /// physical memory and the room left under the address-space limit (`ulimit -v`, Unix).
     pub fn system() -> Budget {
         Budget { limit: None }
     }
@@ -136,50 +125,11 @@ pub fn parse_size(s: &str) -> Result<u64, SizeError> {
     Ok(bytes as u64)
 }
 
-/// MemAvailable, capped by the room under RLIMIT_AS; `u64::MAX` where neither is known.
+/// The memory the system can give, capped by the room under the address-space limit;
+/// `u64::MAX` where neither is known.
 fn system_available() -> u64 {
-    let mem = meminfo_available().unwrap_or(u64::MAX);
-    mem.min(address_space_left().unwrap_or(u64::MAX))
-}
-
-fn meminfo_available() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    kib.checked_mul(1024)
-}
-
-#[cfg(unix)]
-fn address_space_left() -> Option<u64> {
-    let mut lim = libc::rlimit {
-        rlim_cur: 0,
-        rlim_max: 0,
-    };
-    // SAFETY: getrlimit writes into the struct it is given.
-    if unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut lim) } != 0 {
-        return None;
-    }
-    if lim.rlim_cur == libc::RLIM_INFINITY {
-        return None;
-    }
-    // rlim_t is u64 on Linux but not on every Unix.
-    #[allow(clippy::useless_conversion)]
-    let limit = u64::try_from(lim.rlim_cur).ok()?;
-    Some(limit.saturating_sub(mapped_now().unwrap_or(0)))
-}
-
-#[cfg(not(unix))]
-fn address_space_left() -> Option<u64> {
-    None
-}
-
-/// Virtual memory mapped by this process (what RLIMIT_AS counts).
-fn mapped_now() -> Option<u64> {
-    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
-    let pages: u64 = statm.split_whitespace().next()?.parse().ok()?;
-    // SAFETY: sysconf only reads a constant.
-    let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
-    pages.checked_mul(u64::try_from(page).ok()?)
+    let mem = platform::available_memory().unwrap_or(u64::MAX);
+    mem.min(platform::address_space_left().unwrap_or(u64::MAX))
 }
 
 /// Worker threads for `requested`: at most the logical CPUs (more only adds switching and

@@ -40,25 +40,13 @@ pub(crate) fn check_finite(name: &str, values: &[f32]) -> Result<(), String> {
 }
 
 /// Stop counting the pages of `map` that `range` touches as this process's memory
-/// (`MADV_DONTNEED`). Whole pages around the range: a page it shares with a neighbouring
-/// tensor is read back from the file if that tensor is read later.
+/// (`MADV_DONTNEED` where the system has it). Whole pages around the range: a page it shares
+/// with a neighbouring tensor is read back from the file if that tensor is read later (also
+/// under a slice another thread is reading: a text tower built from the map while another
+/// call reads token rows).
 pub(crate) fn release(map: &memmap2::Mmap, range: std::ops::Range<usize>) {
-    // The system's page size (4 KiB on x86-64, 16/64 KiB on some ARM systems, where a 4 KiB
-    // aligned range would make madvise fail and nothing be released).
-    // SAFETY: sysconf only reads a system constant.
-    let page = match unsafe { libc::sysconf(libc::_SC_PAGESIZE) } {
-        p if p > 0 => p as usize,
-        _ => 4096,
-    };
+    let page = t2tf_core::platform::page_size();
     let first = range.start / page * page;
     let end = range.end.div_ceil(page).saturating_mul(page).min(map.len());
-    if end > first {
-        // SAFETY: the map is a read-only shared file mapping: after MADV_DONTNEED its pages
-        // read back from the file unchanged, also under a slice another thread is reading (a
-        // text tower built from the map while another call reads token rows). A failure
-        // only means the pages stay counted.
-        let _ = unsafe {
-            map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, first, end - first)
-        };
-    }
+    t2tf_core::platform::release_pages(map, first..end);
 }

@@ -204,12 +204,7 @@ impl RepoCache {
 pub(crate) fn read_ref(path: &Path) -> std::io::Result<Option<String>> {
     let mut options = fs::OpenOptions::new();
     options.read(true);
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::OpenOptionsExt;
-        options.custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
-    }
-    let file = match options.open(path) {
+    let file = match t2tf_core::platform::no_follow_no_wait(&mut options).open(path) {
         Ok(file) => file,
         // A symlink in a ref's place is not a ref Python or t2tf wrote.
         Err(_) if fs::symlink_metadata(path).is_ok_and(|m| m.is_symlink()) => return Ok(None),
@@ -240,9 +235,14 @@ fn place_link(_blob: &Path, target: &Path, pointer: &Path) -> Result<(), HubErro
     std::os::unix::fs::symlink(target, pointer).map_err(|e| HubError::io(pointer, e))
 }
 
-/// Where symlinks are not available, Python falls back to a copy of the blob; so do we.
-#[cfg(not(unix))]
-fn place_link(blob: &Path, _target: &Path, pointer: &Path) -> Result<(), HubError> {
+/// On Windows a symlink needs developer mode or an administrator: where the system refuses
+/// one, Python falls back to a copy of the blob, and so do we.
+#[cfg(windows)]
+fn place_link(blob: &Path, target: &Path, pointer: &Path) -> Result<(), HubError> {
+    if std::os::windows::fs::symlink_file(target, pointer).is_ok() && pointer.is_file() {
+        return Ok(());
+    }
+    let _ = fs::remove_file(pointer);
     fs::copy(blob, pointer)
         .map(|_| ())
         .map_err(|e| HubError::io(pointer, e))

@@ -360,21 +360,10 @@ impl Partial {
 fn open_own(path: &Path) -> std::io::Result<Option<File>> {
     let mut options = OpenOptions::new();
     options.read(true).append(true).create(true);
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::OpenOptionsExt;
-        options
-            .mode(0o644)
-            .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
-    }
-    let file = options.open(path)?;
+    let file = t2tf_core::platform::no_follow_no_wait(&mut options).open(path)?;
     let meta = file.metadata()?;
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::MetadataExt;
-        if meta.nlink() > 1 {
-            return Ok(None);
-        }
+    if t2tf_core::platform::hard_links(&file, &meta) > 1 {
+        return Ok(None);
     }
     Ok(meta.is_file().then_some(file))
 }

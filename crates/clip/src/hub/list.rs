@@ -202,6 +202,7 @@ mod tests {
         assert_eq!(parse_folder("models--"), None);
     }
 
+    #[cfg(unix)]
     #[test]
     fn refs_list_only_commit_ids_never_a_linked_files_contents() {
         let dir = tempfile::tempdir().unwrap();

@@ -115,9 +115,11 @@ pub struct VolumeInfo {
 /// the result.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct MachineInfo {
-    /// The CPU's model name (`/proc/cpuinfo`), where the system says.
+    /// The CPU's model name (`/proc/cpuinfo` on Linux, the system's name for it elsewhere),
+    /// where the system says.
     pub cpu_model: Option<String>,
-    /// The CPU's feature flags (`/proc/cpuinfo`), where the system says.
+    /// The CPU's feature flags (all of `/proc/cpuinfo`'s on Linux; elsewhere those the
+    /// kernels dispatch on, spelled as Linux does).
     pub cpu_flags: Vec<String>,
     /// Logical CPUs the process may use.
     pub logical_cpus: usize,
@@ -128,33 +130,14 @@ pub struct MachineInfo {
 impl MachineInfo {
     /// This machine.
     pub fn detect() -> MachineInfo {
-        let (cpu_model, cpu_flags) = std::fs::read_to_string("/proc/cpuinfo")
-            .map(|text| cpuinfo(&text))
-            .unwrap_or_default();
+        let cpu = t2tf_core::platform::cpu();
         MachineInfo {
-            cpu_model,
-            cpu_flags,
+            cpu_model: cpu.model,
+            cpu_flags: cpu.flags,
             logical_cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
             os: format!("{} {}", std::env::consts::OS, std::env::consts::ARCH),
         }
     }
-}
-
-/// The first processor's model name and flags from `/proc/cpuinfo`'s text (x86 says
-/// "model name" and "flags"; ARM "Features", often with no model name).
-fn cpuinfo(text: &str) -> (Option<String>, Vec<String>) {
-    let first = text.split("\n\n").next().unwrap_or("");
-    let field = |keys: &[&str]| {
-        first.lines().find_map(|l| {
-            let (k, v) = l.split_once(':')?;
-            keys.contains(&k.trim()).then(|| v.trim().to_string())
-        })
-    };
-    let model = field(&["model name", "Model"]).filter(|m| !m.is_empty());
-    let flags = field(&["flags", "Features"])
-        .map(|f| f.split_whitespace().map(str::to_string).collect())
-        .unwrap_or_default();
-    (model, flags)
 }
 
 /// Result of the density initialization.
@@ -254,23 +237,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn cpuinfo_gives_the_first_processors_model_and_flags() {
-        let text =
-            "processor\t: 0\nvendor_id\t: AuthenticAMD\nmodel name\t: AMD EPYC 9R14 96-Core \
-                    Processor\nflags\t\t: fpu avx2 avx512f avx512_bf16\n\nprocessor\t: 1\n\
-                    model name\t: other\nflags\t\t: fpu\n";
-        let (model, flags) = cpuinfo(text);
-        assert_eq!(model.as_deref(), Some("AMD EPYC 9R14 96-Core Processor"));
-        assert_eq!(flags, ["fpu", "avx2", "avx512f", "avx512_bf16"]);
-        assert_eq!(cpuinfo(""), (None, Vec::new()));
-        let arm = "processor\t: 0\nFeatures\t: fp asimd sve\n";
-        assert_eq!(
-            cpuinfo(arm),
-            (None, vec!["fp".into(), "asimd".into(), "sve".into()])
-        );
-    }
-
-    #[test]
     fn a_report_says_what_built_it_and_where_it_ran() {
         let r = Report::new(Settings::default());
         assert_eq!(r.version, env!("CARGO_PKG_VERSION"));
@@ -282,8 +248,7 @@ mod tests {
             r.commit
         );
         assert!(r.machine.logical_cpus >= 1);
-        if std::path::Path::new("/proc/cpuinfo").exists() && cfg!(target_arch = "x86_64") {
-            assert!(r.machine.cpu_model.is_some(), "{:?}", r.machine);
+        if cfg!(target_arch = "x86_64") {
             assert!(
                 r.machine.cpu_flags.iter().any(|f| f == "sse2"),
                 "{:?}",

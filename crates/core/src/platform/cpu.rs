@@ -1,0 +1,119 @@
+//! The CPU's model name and feature flags, for reports: what decides which kernels run and so
+//! the last bits of a result.
+
+/// The CPU as the system names it.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Cpu {
+    /// The model name ("AMD EPYC 9R14", "Apple M2"), where the system says.
+    pub model: Option<String>,
+    /// Feature flags, spelled as Linux's `/proc/cpuinfo` spells them (`avx2`, `avx512_bf16`,
+    /// `asimd`): all of them on Linux, the ones the kernels look at elsewhere.
+    pub flags: Vec<String>,
+}
+
+/// This machine's CPU.
+pub fn cpu() -> Cpu {
+    if let Ok(text) = std::fs::read_to_string("/proc/cpuinfo") {
+        let parsed = parse_cpuinfo(&text);
+        if parsed.model.is_some() || !parsed.flags.is_empty() {
+            return parsed;
+        }
+    }
+    Cpu {
+        model: brand(),
+        flags: detected_flags(),
+    }
+}
+
+/// The CPU's brand string from `sysinfo` (CPUID on x86, the system's name elsewhere).
+fn brand() -> Option<String> {
+    use sysinfo::{CpuRefreshKind, RefreshKind, System};
+    let sys =
+        System::new_with_specifics(RefreshKind::nothing().with_cpu(CpuRefreshKind::nothing()));
+    sys.cpus()
+        .first()
+        .map(|c| c.brand().trim().to_string())
+        .filter(|b| !b.is_empty())
+}
+
+/// The flags the kernels dispatch on, asked of the CPU itself.
+fn detected_flags() -> Vec<String> {
+    let mut flags: Vec<&str> = Vec::new();
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::is_x86_feature_detected as has;
+        let known = [
+            ("sse2", has!("sse2")),
+            ("avx", has!("avx")),
+            ("avx2", has!("avx2")),
+            ("fma", has!("fma")),
+            ("f16c", has!("f16c")),
+            ("avx512f", has!("avx512f")),
+            ("avx512bw", has!("avx512bw")),
+            ("avx512_bf16", has!("avx512bf16")),
+        ];
+        flags.extend(known.iter().filter(|(_, h)| *h).map(|(n, _)| *n));
+    }
+    #[cfg(target_arch = "aarch64")]
+    {
+        use std::arch::is_aarch64_feature_detected as has;
+        let known = [
+            ("asimd", has!("neon")),
+            ("fphp", has!("fp16")),
+            ("bf16", has!("bf16")),
+            ("i8mm", has!("i8mm")),
+            ("sve", has!("sve")),
+        ];
+        flags.extend(known.iter().filter(|(_, h)| *h).map(|(n, _)| *n));
+    }
+    flags.into_iter().map(str::to_string).collect()
+}
+
+/// The first processor's model name and flags from `/proc/cpuinfo`'s text (x86 says
+/// "model name" and "flags"; ARM "Features", often with no model name).
+fn parse_cpuinfo(text: &str) -> Cpu {
+    let first = text.split("\n\n").next().unwrap_or("");
+    let field = |keys: &[&str]| {
+        first.lines().find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            keys.contains(&k.trim()).then(|| v.trim().to_string())
+        })
+    };
+    Cpu {
+        model: field(&["model name", "Model"]).filter(|m| !m.is_empty()),
+        flags: field(&["flags", "Features"])
+            .map(|f| f.split_whitespace().map(str::to_string).collect())
+            .unwrap_or_default(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cpuinfo_gives_the_first_processors_model_and_flags() {
+        let text = "processor\t: 0\nmodel name\t: AMD EPYC\nflags\t\t: fpu sse2 avx2\n\n\
+                    processor\t: 1\nmodel name\t: other\nflags\t\t: fpu\n";
+        let cpu = parse_cpuinfo(text);
+        assert_eq!(cpu.model.as_deref(), Some("AMD EPYC"));
+        assert_eq!(cpu.flags, ["fpu", "sse2", "avx2"]);
+        assert_eq!(parse_cpuinfo(""), Cpu::default());
+        let arm = "processor\t: 0\nBogoMIPS\t: 50.00\nFeatures\t: fp asimd\n";
+        assert_eq!(parse_cpuinfo(arm).flags, ["fp", "asimd"]);
+        assert_eq!(parse_cpuinfo(arm).model, None);
+    }
+
+    #[test]
+    fn this_cpu_names_the_flags_its_kernels_dispatch_on() {
+        let cpu = cpu();
+        #[cfg(target_arch = "x86_64")]
+        assert!(cpu.flags.iter().any(|f| f == "sse2"), "{cpu:?}");
+        // The flags asked of the CPU agree with the system's list where both exist.
+        for f in detected_flags() {
+            if std::path::Path::new("/proc/cpuinfo").exists() {
+                assert!(cpu.flags.contains(&f), "{f} detected but not in {cpu:?}");
+            }
+        }
+    }
+}
