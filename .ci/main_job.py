@@ -150,6 +150,9 @@ def main():
     ap.add_argument("cmd", nargs="+", help="the t2tf to check, with its runner")
     a = ap.parse_args()
     label = a.label
+    # The commands run in folders of their own: paths given relative to here made absolute.
+    a.reference = os.path.abspath(a.reference)
+    a.cmd = [os.path.abspath(c) if os.path.exists(c) else c for c in a.cmd]
     base = tempfile.mkdtemp(prefix="t2tf-main-job-")
     try:
         ref, new = os.path.join(base, "ref"), os.path.join(base, "new dir")

@@ -154,6 +154,10 @@ class _Qt:
                 # with the GIL released (CDLL) that code can run while the thread reading
                 # t2tf's output holds the GIL, and Python aborts ("PyThreadState_Get: ... the
                 # GIL is released"). The reader only waits ≤ 50 ms for it.
+                # Windows has no handle for "this process" (PyDLL(None) is a TypeError) and
+                # MSVC mangles names otherwise: there, and wherever the symbol is not found
+                # (a Qt 6 build), the GUI is not pumped during a run (it repaints when the
+                # run ends) instead of failing.
                 lib = ctypes.PyDLL(None)
                 cls.instance = ctypes.c_void_p.in_dll(lib, "_ZN16QCoreApplication4selfE")
                 # static void processEvents(QEventLoop::ProcessEventsFlags, int maxtime)
@@ -162,7 +166,7 @@ class _Qt:
                          "ProcessEventsFlagEEi")
                 cls.process.argtypes = [ctypes.c_int, ctypes.c_int]
                 cls.process.restype = None
-            except (OSError, ValueError, AttributeError):
+            except (OSError, ValueError, AttributeError, TypeError):
                 cls.process = None
         if cls.process is None or not cls.instance.value:
             return False
@@ -556,7 +560,7 @@ class _PresetGroups:
                     get = cls._function("_ZN17pqApplicationCore7managerERK7QString",
                                         ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p)
                     cls.manager = get(core, cls._qstring("PRESET_GROUP_MANAGER")) or None
-            except (OSError, AttributeError, ValueError):
+            except (OSError, ValueError, AttributeError, TypeError):
                 cls.manager = None
         return cls.manager
 

@@ -35,7 +35,7 @@ pub enum CacheAction {
 
 /// The cache folder, or why there is none.
 fn folder() -> Result<PathBuf> {
-    cache_dir().context("no cache folder: neither XDG_CACHE_HOME nor HOME is set")
+    cache_dir().context("no cache folder: XDG_CACHE_HOME is not set and the system names no home folder for this user")
 }
 
 fn total(entries: &[CacheEntry]) -> String {

@@ -17,7 +17,7 @@ use crate::progress::{Progress, ProgressMode, StepReport};
 use crate::{flags, signals, ModelArgs, VolumeArgs};
 
 /// Output folder when `--out` is not given.
-const DEFAULT_OUT: &str = "t2tf-output";
+use crate::pipeline::naming::{batch_names, DEFAULT_OUT};
 
 /// Optimize a transfer function so renderings of VOLUME match a text prompt.
 #[derive(clap::Args, Debug, Clone)]
@@ -216,30 +216,17 @@ impl OptimizeArgs {
         self.prompts.len() > 1
     }
 
-    /// The TF base name: `--name`, or a slug of the prompt (or the reference image's stem).
-    /// A batch names each TF (and its sub-folder) from its prompt (`batch_names`).
+    /// The TF base name: `--name`, or a slug of the prompt (or the reference image's stem);
+    /// the library's rule ([`pipeline::naming::tf_name`]). A batch names each TF (and its
+    /// sub-folder) from its prompt (`batch_names`).
     pub fn tf_name(&self) -> Result<String> {
-        if let Some(n) = &self.name {
-            pipeline::check_name(n).map_err(|e| anyhow::anyhow!("--name: {e}"))?;
-            return Ok(n.clone());
-        }
-        // A folder the user named says what the run is for: `--out aneurism-tf` writes
-        // aneurism-tf.json, not files named after the prompt.
-        if self.out != Path::new(DEFAULT_OUT) {
-            let folder = self.out.file_name().map(|f| slug(&f.to_string_lossy()));
-            if let Some(f) = folder.filter(|f| !f.is_empty()) {
-                return Ok(f);
-            }
-        }
-        let source = match (self.prompts.first(), &self.reference_image) {
-            (Some(p), _) => p.clone(),
-            (None, Some(r)) => r
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            (None, None) => String::new(),
+        let target = match (self.prompts.first(), &self.reference_image) {
+            (Some(p), _) => pipeline::Target::Prompt(p.clone()),
+            (None, Some(r)) => pipeline::Target::Image(r.clone()),
+            (None, None) => pipeline::Target::Prompt(String::new()),
         };
-        Ok(slug(&source))
+        pipeline::naming::tf_name(self.name.as_deref(), Some(&self.out), &target)
+            .map_err(|e| anyhow::anyhow!("--name: {e}"))
     }
 
     /// Everything that can be checked before loading the volume and the model, checked once:
@@ -339,45 +326,6 @@ fn batch_folder(out: &Path, name: &str) -> Result<PathBuf> {
             dir.display()
         ),
         _ => Ok(dir),
-    }
-}
-
-/// One name per prompt of a batch: its slug, with -2, -3, … where two prompts give the same.
-pub fn batch_names(prompts: &[String]) -> Vec<String> {
-    let mut names: Vec<String> = Vec::with_capacity(prompts.len());
-    for p in prompts {
-        let base = slug(p);
-        let mut name = base.clone();
-        let mut n = 1;
-        while names.contains(&name) {
-            n += 1;
-            name = format!("{base}-{n}");
-        }
-        names.push(name);
-    }
-    names
-}
-
-/// Lower-case words of letters and digits joined by '-', at most 48 characters; "tf" if none.
-fn slug(text: &str) -> String {
-    let mut s = String::new();
-    for word in text
-        .split(|c: char| !c.is_alphanumeric())
-        .filter(|w| !w.is_empty())
-    {
-        let w = word.to_lowercase();
-        if s.len() + w.len() + 1 > 48 {
-            break;
-        }
-        if !s.is_empty() {
-            s.push('-');
-        }
-        s.push_str(&w);
-    }
-    if s.is_empty() {
-        "tf".into()
-    } else {
-        s
     }
 }
 
@@ -628,12 +576,5 @@ mod tests {
             .unwrap()
             .validate()
             .unwrap();
-    }
-
-    #[test]
-    fn slugs() {
-        assert_eq!(slug("The teeth of a CT head!"), "the-teeth-of-a-ct-head");
-        assert_eq!(slug("  ...  "), "tf");
-        assert!(slug(&"word ".repeat(40)).len() <= 48);
     }
 }

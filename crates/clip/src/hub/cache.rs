@@ -304,7 +304,12 @@ mod tests {
         #[cfg(unix)]
         assert_eq!(fs::read_link(&p).unwrap(), Path::new("../../../blobs/e"));
 
-        // A link whose blob vanished is not a cached file, and linking again repairs it.
+        // A link whose blob vanished is not a cached file, and linking again repairs it. (Where
+        // the system refused a symlink the entry is a copy, which outlives its blob, as
+        // Python's does.)
+        if !fs::symlink_metadata(&p).unwrap().file_type().is_symlink() {
+            return;
+        }
         fs::remove_file(cache.blob("e")).unwrap();
         assert_eq!(cache.lookup(COMMIT, "dir/f.txt"), Cached::Unknown);
         fs::write(cache.blob("e"), b"again").unwrap();

@@ -24,12 +24,12 @@ impl HubSettings {
     /// - offline: `HF_HUB_OFFLINE` (else `TRANSFORMERS_OFFLINE`) is 1, true, yes or on;
     /// - progress: unless `HF_HUB_DISABLE_PROGRESS_BARS` is true.
     ///
-    /// A leading `~` in a path is the home directory (`HOME`, else `USERPROFILE`).
+    /// A leading `~` in a path is the home directory, found as Python's `expanduser` finds it:
+    /// `HOME` on Unix; `USERPROFILE`, else `HOMEDRIVE` + `HOMEPATH`, on Windows (where Python
+    /// ignores `HOME`); else the system's record of the user.
     pub fn from_lookup(lookup: impl Fn(&str) -> Option<String>) -> HubSettings {
         let var = |name: &str| lookup(name).filter(|v| !v.trim().is_empty());
-        let home = var("HOME")
-            .or_else(|| var("USERPROFILE"))
-            .map(PathBuf::from);
+        let home = home_from(&var, cfg!(windows)).or_else(t2tf_core::platform::home_dir);
         let path = |v: String| expand_home(&v, home.as_deref());
         let hf_home = var("HF_HOME").map(path).unwrap_or_else(|| {
             let cache = var("XDG_CACHE_HOME")
@@ -60,6 +60,17 @@ impl HubSettings {
             progress: !is_true(var("HF_HUB_DISABLE_PROGRESS_BARS")),
         }
     }
+}
+
+/// The home folder from the environment as Python's `expanduser` reads it on Unix
+/// (`windows == false`) or on Windows.
+fn home_from(var: &impl Fn(&str) -> Option<String>, windows: bool) -> Option<PathBuf> {
+    if !windows {
+        return var("HOME").map(PathBuf::from);
+    }
+    var("USERPROFILE")
+        .or_else(|| Some(var("HOMEDRIVE")? + &var("HOMEPATH")?))
+        .map(PathBuf::from)
 }
 
 /// `huggingface_hub`'s truth values for flags.
@@ -96,6 +107,31 @@ mod tests {
         HubSettings::from_lookup(|k| map.get(k).cloned())
     }
 
+    #[test]
+    fn home_is_read_as_python_reads_it_on_each_system() {
+        let vars = |pairs: &'static [(&'static str, &'static str)]| {
+            move |k: &str| {
+                pairs
+                    .iter()
+                    .find(|(n, _)| *n == k)
+                    .map(|(_, v)| v.to_string())
+            }
+        };
+        let all = vars(&[
+            ("HOME", "/h"),
+            ("USERPROFILE", r"C:\Users\ann"),
+            ("HOMEDRIVE", "D:"),
+            ("HOMEPATH", r"\ann"),
+        ]);
+        assert_eq!(home_from(&all, false), Some(PathBuf::from("/h")));
+        assert_eq!(home_from(&all, true), Some(PathBuf::from(r"C:\Users\ann")));
+        let drive = vars(&[("HOME", "/h"), ("HOMEDRIVE", "D:"), ("HOMEPATH", r"\ann")]);
+        assert_eq!(home_from(&drive, true), Some(PathBuf::from(r"D:\ann")));
+        assert_eq!(home_from(&vars(&[("HOME", "/h")]), true), None);
+    }
+
+    // The variables of a Unix session (Windows reads USERPROFILE, not HOME).
+    #[cfg(unix)]
     #[test]
     fn defaults_follow_home_and_xdg() {
         // One (environment, expected cache) case after another: alike by design.

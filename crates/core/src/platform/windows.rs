@@ -59,8 +59,12 @@ pub fn link_owned_by_caller(_meta: &std::fs::Metadata) -> (bool, u32) {
 pub fn release_pages(_map: &memmap2::Mmap, _range: std::ops::Range<usize>) {}
 
 /// Whether `path` names the open `file`: same volume and file index (`same-file`). A
-/// reparse point at `path` is not the file.
+/// reparse point at `path` is not the file, nor is a file being deleted (Windows keeps a
+/// removed file's name until its last handle closes, where deletes are not POSIX-style).
 pub fn same_file(file: &std::fs::File, path: &std::path::Path) -> bool {
+    if delete_pending(file) {
+        return false;
+    }
     let is_link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
     if is_link {
         return false;
@@ -89,9 +93,15 @@ pub fn hard_links(file: &std::fs::File, _meta: &std::fs::Metadata) -> u64 {
     }
 }
 
-/// Open `path` for reading: opening a file never waits on Windows.
+/// Open `path` for reading: opening a file never waits on Windows. With
+/// `FILE_FLAG_BACKUP_SEMANTICS` a folder opens too (else "Access denied"), so the caller can
+/// say that it is a folder.
 pub fn open_without_waiting(path: &std::path::Path) -> std::io::Result<std::fs::File> {
-    std::fs::File::open(path)
+    use windows_sys::Win32::Storage::FileSystem::FILE_FLAG_BACKUP_SEMANTICS;
+    OpenOptions::new()
+        .read(true)
+        .custom_flags(FILE_FLAG_BACKUP_SEMANTICS)
+        .open(path)
 }
 
 /// Nothing to clear on Windows.
@@ -101,3 +111,23 @@ pub fn set_blocking(_file: &std::fs::File) -> std::io::Result<()> {
 
 /// Windows' heap returns large freed blocks to the system itself: nothing to do.
 pub fn return_freed_memory() {}
+
+/// Whether the open `file` was removed (its name waits for the last handle to close).
+fn delete_pending(file: &std::fs::File) -> bool {
+    use std::os::windows::io::AsRawHandle;
+    use windows_sys::Win32::Storage::FileSystem::{
+        FileStandardInfo, GetFileInformationByHandleEx, FILE_STANDARD_INFO,
+    };
+    // SAFETY: the handle is open while `file` is borrowed; the call writes at most the
+    // struct's size into it (a zeroed FILE_STANDARD_INFO is valid).
+    unsafe {
+        let mut info: FILE_STANDARD_INFO = std::mem::zeroed();
+        let ok = GetFileInformationByHandleEx(
+            file.as_raw_handle(),
+            FileStandardInfo,
+            (&mut info as *mut FILE_STANDARD_INFO).cast(),
+            std::mem::size_of::<FILE_STANDARD_INFO>() as u32,
+        );
+        ok != 0 && info.DeletePending
+    }
+}

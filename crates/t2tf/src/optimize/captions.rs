@@ -108,13 +108,16 @@ pub fn user_negatives(given: &[String]) -> Result<Vec<String>, OptimizeError> {
         .collect()
 }
 
-/// The cache directory of t2tf: `$XDG_CACHE_HOME/t2tf`, else `$HOME/.cache/t2tf`.
+/// The cache directory of t2tf: `$XDG_CACHE_HOME/t2tf` where that is set (on every system, as
+/// `huggingface_hub` honours it), else the platform's per-user cache folder
+/// ([`t2tf_core::platform::cache_dir`]: `~/.cache/t2tf` on Linux, `~/Library/Caches/t2tf` on
+/// macOS, `%LOCALAPPDATA%\t2tf\cache` on Windows).
 pub fn cache_dir() -> Option<PathBuf> {
-    let nonempty = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
-    if let Some(x) = nonempty("XDG_CACHE_HOME") {
-        return Some(PathBuf::from(x).join("t2tf"));
+    let xdg = std::env::var_os("XDG_CACHE_HOME").filter(|v| !v.is_empty());
+    match xdg {
+        Some(x) => Some(PathBuf::from(x).join("t2tf")),
+        None => t2tf_core::platform::cache_dir(),
     }
-    nonempty("HOME").map(|h| PathBuf::from(h).join(".cache").join("t2tf"))
 }
 
 /// Why the caption cache could not be listed or cleared. The system's error is part of the

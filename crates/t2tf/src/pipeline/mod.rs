@@ -22,6 +22,7 @@
 //! ```
 
 mod model;
+pub mod naming;
 mod outputs;
 mod start;
 
