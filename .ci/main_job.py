@@ -8,8 +8,8 @@ Runs `info`, `convert`, `render` and a short `optimize` with the tiny test model
 with the reference t2tf (this machine's) and once with the command after `--` (under wine or
 qemu-user), and checks that the second run's outputs are all there and agree with the first:
 the same volume summary, the same converted colour table, the same picture within 2/255 per
-channel, every file of the output folder, and a transfer function within 1e-4 (the CLIP
-kernels of the two builds may differ in their last bits). With `--windows-paths` the second
+channel, every file of the output folder, per-step losses within 1e-5 and a transfer
+function within the spread of this machine's own CLIP engines (TF_TOL). With `--windows-paths` the second
 run's output folder is given as a Windows path (drive letter, backslashes, a space) and the
 pvpython script it writes must name the volume as Windows opens it.
 
@@ -31,6 +31,13 @@ VOLUME = os.path.join(ROOT, "..", "shared", "data", "volumes", "neghip_64x64x64_
 PRESET = os.path.join(ROOT, "tests", "fixtures", "paraview", "colorspace_Lab.json")
 MODEL = os.path.join(ROOT, "tests", "fixtures", "clip", "quick_gelu")
 TOKENIZER = os.path.join(ROOT, "..", "shared", "data", "clip", "tokenizer.json")
+# Colour and opacity of the two builds' TFs, sampled over the data range: two SGD steps at
+# learning rate 10 carry the CLIP kernels' last bits into the TF. This machine's own engines
+# differ by up to this much on this run (tests/optimize/optimize_pipeline.rs,
+# the_engines_agree_on_the_cross_platform_run); the losses, before the steps amplify
+# anything, must agree far closer (LOSS_TOL, relative).
+TF_TOL = 2e-2
+LOSS_TOL = 1e-5
 OUTPUTS = ["report.json", "preview.png", "tf.png"]
 OUTPUT_SUFFIXES = [".json", ".xml", ".ct", "_paraview.py", "_visit.py"]
 
@@ -104,8 +111,27 @@ def same_picture(label, a, b):
 
 
 def tf_points(path):
-    preset = json.load(open(path))[0]
-    return preset["RGBPoints"], preset["Points"]
+    return json.load(open(path))[0]
+
+
+def sampled(points, channels, lo, hi, n=2048):
+    """A piecewise-linear TF's points (x, then `channels` values; opacity points also carry
+    midpoint and sharpness, which t2tf writes as 0.5 and 0: linear) at n data values."""
+    stride = 4
+    xs = points[0::stride]
+    out = []
+    for k in range(n):
+        x = lo + (hi - lo) * k / (n - 1)
+        j = 0
+        while j + 1 < len(xs) - 1 and xs[j + 1] < x:
+            j += 1
+        x0, x1 = xs[j], xs[min(j + 1, len(xs) - 1)]
+        t = 0.0 if x1 == x0 else min(1.0, max(0.0, (x - x0) / (x1 - x0)))
+        for c in range(1, channels + 1):
+            v0 = points[j * stride + c]
+            v1 = points[min(j + 1, len(xs) - 1) * stride + c]
+            out.append(v0 + t * (v1 - v0))
+    return out
 
 
 def close(label, what, a, b, tol):
@@ -172,10 +198,19 @@ def main():
         if open(os.path.join(ref, "lab.ct")).read() != open(os.path.join(new, "lab.ct")).read():
             fail(label, "convert wrote a different .ct")
         same_picture(label, os.path.join(ref, "render.png"), os.path.join(new, "render.png"))
-        rgb_a, op_a = tf_points(os.path.join(ref_out, "tf.json"))
-        rgb_b, op_b = tf_points(os.path.join(new_out, "tf.json"))
-        worst = max(close(label, "colour points", rgb_a, rgb_b, 1e-4),
-                    close(label, "opacity points", op_a, op_b, 1e-4))
+        # The curves, sampled over the data range: the exported points are simplified within
+        # a tolerance, so two builds whose curves agree may keep different points.
+        lo, hi = info_ref["range"]
+        worst = 0.0
+        for key, channels in (("RGBPoints", 3), ("Points", 1)):
+            curve_a = sampled(tf_points(os.path.join(ref_out, "tf.json"))[key], channels, lo, hi)
+            curve_b = sampled(tf_points(os.path.join(new_out, "tf.json"))[key], channels, lo, hi)
+            worst = max(worst, close(label, key, curve_a, curve_b, TF_TOL))
+        losses = [[s["total"] for s in json.load(open(os.path.join(d, "report.json")))["steps"]]
+                  for d in (ref_out, new_out)]
+        for step, (a_loss, b_loss) in enumerate(zip(*losses)):
+            if not abs(a_loss - b_loss) <= LOSS_TOL * abs(a_loss):
+                fail(label, f"step {step}: loss {b_loss!r}, the reference's {a_loss!r}")
         script = open(os.path.join(new_out, "tf_paraview.py")).read()
         compile(script, "tf_paraview.py", "exec")
         if a.windows_paths and "Z:\\\\" not in script and "Z:/" not in script and "Z:\\" not in script:
@@ -183,8 +218,8 @@ def main():
         report = json.load(open(os.path.join(new_out, "report.json")))
         machine = report.get("machine", {})
         print(f"main job [{label}]: info, convert, render and optimize agree with the reference "
-              f"(TF within {worst:.1e}); ran on {machine.get('os')}, CPU "
-              f"{machine.get('cpu_model')!r}, CLIP {report.get('model', {}).get('kernel', '?')}")
+              f"(losses within {LOSS_TOL:g}, TF within {worst:.1e}); ran on {machine.get('os')}, CPU "
+              f"{machine.get('cpu_model')!r}, CLIP: {report.get('render', {}).get('clip_engine', '?')}")
     finally:
         shutil.rmtree(base, ignore_errors=True)
 

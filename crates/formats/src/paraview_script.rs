@@ -37,8 +37,9 @@ pub(crate) fn source_path(volume: &Volume) -> Result<(String, &SourceFormat), Fo
         )
     })?;
     // Canonical where the file exists (no `..`, no symlinks: the script names the file the
-    // run read, from anywhere); else as given, made absolute.
-    let abs = std::fs::canonicalize(&src.path)
+    // run read, from anywhere); else as given, made absolute. On Windows a drive-letter path
+    // (`C:\data\head.vti`), not the `\\?\` form ParaView's readers do not open.
+    let abs = t2tf_core::platform::canonicalize(&src.path)
         .or_else(|_| std::path::absolute(&src.path))
         .unwrap_or_else(|_| src.path.clone());
     let text = abs.to_str().ok_or_else(|| {

@@ -48,6 +48,14 @@ pub fn available_memory() -> Option<u64> {
     }
 }
 
+/// `path` made absolute with links and `..` resolved (`std::fs::canonicalize`), on Windows
+/// as a drive-letter or UNC path (`C:\data\head.vti`) where one names it, not the
+/// `\\?\C:\…` form std returns, which many programs (ParaView's readers, VisIt) do not
+/// open (`dunce`).
+pub fn canonicalize(path: &std::path::Path) -> std::io::Result<PathBuf> {
+    dunce::canonicalize(path)
+}
+
 /// The folder for t2tf's own cached data where the platform keeps per-user caches:
 /// `$XDG_CACHE_HOME/t2tf` or `~/.cache/t2tf` on Linux, `~/Library/Caches/t2tf` on macOS,
 /// `%LOCALAPPDATA%\t2tf\cache` on Windows. `None` when the system names no home folder.
@@ -88,6 +96,27 @@ mod tests {
         assert!(mem > 1 << 20, "{mem} bytes");
         let page = page_size();
         assert!(page.is_power_of_two() && page >= 4096, "page size {page}");
+    }
+
+    #[test]
+    fn canonical_paths_are_absolute_and_in_the_form_other_programs_open() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("a b")).unwrap();
+        std::fs::write(dir.path().join("f.raw"), b"x").unwrap();
+        let messy = dir.path().join("a b").join("..").join("f.raw");
+        let clean = canonicalize(&messy).unwrap();
+        assert!(clean.is_absolute(), "{}", clean.display());
+        assert!(
+            !clean.to_string_lossy().starts_with(r"\\?\"),
+            "{}",
+            clean.display()
+        );
+        assert!(
+            !clean.to_string_lossy().contains(".."),
+            "{}",
+            clean.display()
+        );
+        assert_eq!(std::fs::read(&clean).unwrap(), b"x");
     }
 
     #[test]
