@@ -1185,6 +1185,8 @@ enum APacked<'a> {
     Interleaved { data: Vec<f32>, k: usize },
     /// Row panels of f32 read in place from A (`Avx512F`): full panels at `a[i·MR·lda..]`
     /// with stride `lda`, a last partial one copied into `tail` (`[MR][k]`, zero rows).
+    /// Read by the AVX-512 kernel only (x86-64).
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     Rows {
         a: &'a [f32],
         lda: usize,

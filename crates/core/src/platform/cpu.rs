@@ -29,7 +29,14 @@ pub fn cpu() -> Cpu {
     }
 }
 
+/// The CPU's brand string from the kernel (`sysctl`).
+#[cfg(target_vendor = "apple")]
+fn brand() -> Option<String> {
+    super::macos::cpu_brand()
+}
+
 /// The CPU's brand string from `sysinfo` (CPUID on x86, the system's name elsewhere).
+#[cfg(not(target_vendor = "apple"))]
 fn brand() -> Option<String> {
     use sysinfo::{CpuRefreshKind, RefreshKind, System};
     let sys =

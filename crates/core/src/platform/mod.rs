@@ -2,11 +2,12 @@
 //! here instead of calling the system itself. Linux, macOS and the other Unixes share
 //! `unix.rs`; Windows has `windows.rs`; what a well-kept crate answers the same way on every
 //! system (memory, processes, the CPU's name: `sysinfo`; the user's folders: `directories`)
-//! is answered here directly.
+//! is answered here directly. macOS asks its kernel itself (`macos.rs`): `sysinfo` links
+//! Apple frameworks that a build from Linux has no SDK for.
 //!
 //! | question | Unix | Windows |
 //! |---|---|---|
-//! | memory the system can give | `sysinfo` (Linux: MemAvailable), capped by `ulimit -v` | `sysinfo` (available physical memory) |
+//! | memory the system can give | Linux: `sysinfo` (MemAvailable); macOS: `host_statistics64` (`macos.rs`); capped by `ulimit -v` | `sysinfo` (available physical memory) |
 //! | does process PID run | `kill(pid, 0)` | `sysinfo`'s process table |
 //! | open a name, not what it links to | `O_NOFOLLOW` | `FILE_FLAG_OPEN_REPARSE_POINT` |
 //! | who owns a symlink | its uid against the effective uid | symlinks need a privilege to make: the caller's |
@@ -33,10 +34,20 @@ pub use os::{
     set_blocking,
 };
 
+#[cfg(target_vendor = "apple")]
+mod macos;
+
 mod cpu;
 pub use cpu::{cpu, Cpu};
 
 /// Physical memory the system can give this process now, in bytes (`None`: unknown).
+#[cfg(target_vendor = "apple")]
+pub fn available_memory() -> Option<u64> {
+    macos::available_memory()
+}
+
+/// Physical memory the system can give this process now, in bytes (`None`: unknown).
+#[cfg(not(target_vendor = "apple"))]
 pub fn available_memory() -> Option<u64> {
     use sysinfo::{MemoryRefreshKind, RefreshKind, System};
     let sys = System::new_with_specifics(

@@ -181,6 +181,8 @@ pub(crate) struct MarchParams<'a> {
     /// Stop once T falls below this (0 = never).
     pub(crate) stop_below: f32,
     /// Interpolate and classify with AVX2 (`simd::available()`); results are bit-identical.
+    /// Always false off x86-64.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     pub(crate) simd: bool,
 }
 

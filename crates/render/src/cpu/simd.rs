@@ -8,7 +8,9 @@
 //! fused multiply-add, the same order), so both paths give bit-identical results — a test
 //! checks it — and the result does not depend on which one the CPU takes.
 
-use super::sample::{interpolate_classify_scalar, Chunk, MarchParams, Ray, Slots, Voxel, CHUNK};
+#[cfg(any(target_arch = "x86_64", test))]
+use super::sample::CHUNK;
+use super::sample::{interpolate_classify_scalar, Chunk, MarchParams, Ray, Slots, Voxel};
 
 /// Whether this CPU can run [`interpolate_classify`].
 pub(crate) fn available() -> bool {
