@@ -49,7 +49,8 @@ pub struct OptimizeArgs {
     #[arg(long, value_name = "FILE")]
     pub init: Option<PathBuf>,
 
-    /// The preset of --init's file to start from (files with several); default: the first.
+    /// The preset of --init's file to start from: needed when the file holds several (`t2tf
+    /// convert --list FILE` lists them); a file of one preset needs none.
     #[arg(long, value_name = "NAME", requires = "init")]
     pub preset: Option<String>,
 
@@ -225,8 +226,12 @@ impl OptimizeArgs {
             (None, Some(r)) => pipeline::Target::Image(r.clone()),
             (None, None) => pipeline::Target::Prompt(String::new()),
         };
-        pipeline::naming::tf_name(self.name.as_deref(), Some(&self.out), &target)
-            .map_err(|e| anyhow::anyhow!("--name: {e}"))
+        pipeline::naming::tf_name(self.name.as_deref(), Some(&self.out), &target).map_err(|e| {
+            match &self.name {
+                Some(_) => anyhow::anyhow!("--name: {e}"),
+                None => anyhow::anyhow!("{e}; choose another --out or give --name"),
+            }
+        })
     }
 
     /// Everything that can be checked before loading the volume and the model, checked once:
@@ -261,7 +266,7 @@ impl OptimizeArgs {
                     "--name names one TF; with several --prompt each TF is named from its prompt"
                 );
             }
-            let names = batch_names(&self.prompts);
+            let names = batch_names(&self.prompts).map_err(flags::pipeline)?;
             for n in &names {
                 batch_folder(&self.out, n)?;
             }
@@ -332,6 +337,9 @@ fn batch_folder(out: &Path, name: &str) -> Result<PathBuf> {
 /// Load the volume and CLIP, run the optimization with progress and Ctrl-C handling, write
 /// every output.
 pub fn run(args: OptimizeArgs) -> Result<()> {
+    // First, so a SIGTERM at any later moment ends with a truthful account of what was
+    // written (a result, or nothing).
+    let stop = signals::stop_flag();
     if !Path::new(&args.volume).exists() {
         bail!("{}: volume file not found", args.volume.display());
     }
@@ -341,11 +349,22 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         .with_context(|| format!("t2tf optimize {}", volume_path.display()))?;
     let args = run.args();
     let lock = claim_output(&args.out)?;
-    // Installed now, so a SIGTERM while loading still ends with a written result.
-    let stop = signals::stop_flag();
+    // Every file the runs will write, checked before the volume and the model load: a
+    // folder or FIFO in the way would otherwise be found only after the last step.
+    for (_, name) in &run.runs {
+        let folder = if args.is_batch() {
+            batch_folder(&args.out, name)?
+        } else {
+            args.out.clone()
+        };
+        pipeline::check_outputs(&folder, name).map_err(flags::pipeline)?;
+    }
+    if args.is_batch() {
+        crate::fs::replaceable(&args.out.join("presets.json"))?;
+    }
     let budget = Budget::new(args.max_memory);
     let pool = crate::thread_pool(args.threads)?;
-    pool.install(|| -> Result<()> {
+    let sets_written = pool.install(|| -> Result<usize> {
         let volume = args
             .volume_args
             .load_within(&args.volume, budget)
@@ -389,16 +408,23 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
                 path.display()
             );
         }
-        Ok(())
+        Ok(written.len())
     })?;
     // Released (and its file removed) here: `exit` below runs no destructor.
     drop(lock);
     if let Some(sig) = signals::received() {
-        errln!(
-            "t2tf: stopped by {}: the TF of the last finished step was written to {}",
-            signals::name(sig),
-            args.out.display()
-        );
+        if sets_written == 0 {
+            errln!(
+                "t2tf: stopped by {} before a run started: nothing was written",
+                signals::name(sig)
+            );
+        } else {
+            errln!(
+                "t2tf: stopped by {}: the TF of the last finished step was written to {}",
+                signals::name(sig),
+                args.out.display()
+            );
+        }
         std::process::exit(128 + sig);
     }
     Ok(())

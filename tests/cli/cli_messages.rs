@@ -189,3 +189,28 @@ fn render_refuses_other_image_formats_before_rendering() {
         "PNG bytes"
     );
 }
+
+#[test]
+fn sizes_from_flags_are_refused_before_anything_is_allocated() {
+    // Each once aborted the process (allocation failure, capacity overflow) or grew to
+    // gigabytes; now one line names the flag and the limit, before the model loads.
+    let vol = "../shared/data/volumes/neghip_64x64x64_uint8.raw";
+    for (flag, value, limit) in [
+        ("--steps", "1000000000000", "at most 1000000"),
+        ("--steps", "18446744073709551615", "at most 1000000"),
+        ("--views", "100000", "at most 64"),
+        ("--control-points", "10000000", "between 2 and 4096"),
+    ] {
+        let start = std::time::Instant::now();
+        fails(
+            &["optimize", vol, "--prompt", "x", flag, value],
+            &[flag, limit],
+            &["panicked", "memory allocation"],
+        );
+        assert!(
+            start.elapsed().as_secs() < 10,
+            "{flag} {value} took {:?}",
+            start.elapsed()
+        );
+    }
+}

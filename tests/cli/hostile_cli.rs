@@ -502,3 +502,124 @@ fn threads_beyond_the_cpus_are_capped_with_a_warning() {
     // 10,000 threads took over a minute to start; the capped pool takes none of that.
     assert!(start.elapsed().as_secs() < 60, "took {:?}", start.elapsed());
 }
+
+/// Nothing of a run is left in `dir`'s subtree: no staging folder, temporary or lock.
+fn no_run_traces(dir: &Path) {
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).into_iter().flatten() {
+            let e = e.unwrap();
+            let n = e.file_name().to_string_lossy().into_owned();
+            assert!(!n.starts_with(".t2tf"), "{n} left in {}", d.display());
+            if e.file_type().unwrap().is_dir() {
+                stack.push(e.path());
+            }
+        }
+    }
+}
+
+#[test]
+fn every_output_name_is_checked_before_any_work() {
+    // Each case used to run every step (and every earlier prompt of a batch) before failing.
+    // `--steps 100000` would take minutes: a quick error shows nothing ran.
+    let long = ["--steps", "100000"];
+    let dir = tempfile::tempdir().unwrap();
+    let quick = |out: &Path, extra: &[&str]| {
+        let start = std::time::Instant::now();
+        let (code, err) = run(&mut optimize(out, dir.path(), &[&long[..], extra].concat()));
+        assert!(start.elapsed().as_secs() < 20, "{extra:?} ran: {err}");
+        assert_eq!(code, 1, "{extra:?}: {err}");
+        err
+    };
+    // A TF name that is the report's (from --out here; from a prompt in the batch below and
+    // in pipeline::naming's tests).
+    let err = quick(&dir.path().join("report"), &["--prompt", "x"]);
+    assert!(err.contains("report.json would be overwritten"), "{err}");
+    assert!(err.contains("--out") && err.contains("--name"), "{err}");
+    assert!(
+        !dir.path().join("report").exists(),
+        "an empty folder was left"
+    );
+    // A folder where a file of the set goes.
+    let o = dir.path().join("o");
+    std::fs::create_dir_all(o.join("o.json")).unwrap();
+    let err = quick(&o, &["--prompt", "x"]);
+    assert!(
+        err.contains("o.json") && err.contains("not a regular file"),
+        "{err}"
+    );
+    no_run_traces(&o);
+    // A batch: a prompt named like the report, a folder at presets.json, an obstacle in the
+    // second prompt's sub-folder; the first prompt's files are never written.
+    let b = dir.path().join("b");
+    let two = ["--prompt", "a tree", "--prompt", "a rock"];
+    let err = quick(&b, &["--prompt", "a tree", "--prompt", "Report"]);
+    assert!(err.contains("\"report\""), "{err}");
+    std::fs::create_dir_all(b.join("presets.json")).unwrap();
+    let err = quick(&b, &two);
+    assert!(err.contains("presets.json"), "{err}");
+    std::fs::remove_dir(b.join("presets.json")).unwrap();
+    make_fifo(&{
+        std::fs::create_dir_all(b.join("a-rock")).unwrap();
+        b.join("a-rock").join("preview.png")
+    });
+    let err = quick(&b, &two);
+    assert!(err.contains("preview.png") && err.contains("FIFO"), "{err}");
+    assert!(!b.join("a-tree").exists(), "the first prompt ran");
+    no_run_traces(&b);
+}
+
+#[test]
+fn a_symlink_at_presets_json_is_replaced_not_followed() {
+    let dir = tempfile::tempdir().unwrap();
+    let (victim, text) = victim(dir.path());
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    std::os::unix::fs::symlink(&victim, out.join("presets.json")).unwrap();
+    let (code, err) = run(&mut optimize(
+        &out,
+        dir.path(),
+        &["--steps", "1", "--prompt", "a tree", "--prompt", "a rock"],
+    ));
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), text);
+    assert!(is_regular(&out.join("presets.json")));
+    let presets: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("presets.json")).unwrap()).unwrap();
+    assert_eq!(presets.as_array().unwrap().len(), 2);
+}
+
+#[test]
+fn a_signal_before_any_step_says_nothing_was_written() {
+    // Whether the signal lands while loading or after the run began, the last line must say
+    // what is there: nothing (and no folder), or a complete set.
+    for delay_ms in [0u64, 20, 80] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let child = optimize(&out, dir.path(), &["--steps", "100000", "--prompt", "x"])
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        signal(&child, libc::SIGTERM);
+        let o = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        if o.status.code().is_none() {
+            // The signal came before the process installed its handlers: the system ended
+            // it, before any output could exist.
+            assert!(!out.join("report.json").exists());
+            continue;
+        }
+        assert_eq!(o.status.code(), Some(143), "{err}");
+        if err.contains("nothing was written") {
+            assert!(
+                !out.exists(),
+                "said nothing was written, but {} exists",
+                out.display()
+            );
+        } else {
+            assert!(err.contains("was written to"), "{err}");
+            one_complete_set(&out);
+        }
+    }
+}

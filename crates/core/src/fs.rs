@@ -11,8 +11,8 @@
 //! symlink is ever followed: a finished file is renamed over the name, so a link there is
 //! replaced, not its target; the lock file is opened without following a link (`O_NOFOLLOW`,
 //! on Windows `FILE_FLAG_OPEN_REPARSE_POINT`: [`platform::no_follow`]); temporaries are
-//! created new (`O_CREAT|O_EXCL`, never following) under random names; stale files are removed by name
-//! (`unlink` removes a link, never its target).
+//! created new (`O_CREAT|O_EXCL`, never following) under random names; stale files are
+//! removed by name (`unlink` removes a link, never its target).
 
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -172,8 +172,9 @@ pub fn output_target(path: &Path) -> Result<PathBuf> {
 }
 
 /// Check that the name `path` in a folder t2tf owns may be replaced by a file: free, a regular
-/// file or a symlink (the link itself is replaced, never followed).
-fn replaceable(path: &Path) -> Result<()> {
+/// file or a symlink (the link itself is replaced, never followed). Runs call it for every
+/// file of their set before any work, and again as they write.
+pub fn replaceable(path: &Path) -> Result<()> {
     match std::fs::symlink_metadata(path) {
         Ok(m) if !(m.file_type().is_file() || m.file_type().is_symlink()) => {
             Err(FsError::NotRegular {
@@ -362,10 +363,10 @@ fn finish_or_drop_set(dir: &Path, staged: &Path) -> Result<()> {
 
 /// An exclusive lock on an output folder, held while a run writes into it (a lock on
 /// `.t2tf.lock`: `flock` on Unix, `LockFileEx` on Windows, released by the system however the
-/// process ends, so a killed run
-/// never leaves the folder locked). The file holds the owner's PID for the error message, and
-/// is removed when the lock is dropped; a killed run leaves it behind, unlocked, and the next
-/// run takes it over.
+/// process ends, so a killed run never leaves the folder locked). The file holds the owner's
+/// PID for the error message (on Windows the lock keeps others from reading it: "another
+/// process"), and is removed when the lock is dropped; a killed run leaves it behind,
+/// unlocked, and the next run takes it over.
 #[derive(Debug)]
 pub struct OutputLock {
     /// Open (and locked) until the lock is dropped.

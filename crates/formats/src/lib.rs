@@ -190,7 +190,9 @@ pub fn write_library(path: &Path, tfs: &[ExportTf]) -> Result<(), FormatError> {
     for tf in tfs {
         check_range(path, tf)?;
     }
-    write_text(path, &paraview_json::to_paraview_library(tfs))
+    // A name in an output folder t2tf owns: a symlink there is replaced, never followed.
+    let text = paraview_json::to_paraview_library(tfs);
+    Ok(t2tf_core::fs::atomic_replace_bytes(path, text.as_bytes())?)
 }
 
 /// Write a TF file in the format its extension names (atomically).

@@ -121,9 +121,11 @@ impl PyTransferFunction {
     /// opacity 1 where the preset has no opacity points.
     #[pyo3(signature = (n = 256))]
     fn sample<'py>(&self, py: Python<'py>, n: usize) -> PyResult<Sampled<'py>> {
-        if n < 2 {
+        // A table ParaView or VTK could hold (their lookup tables stop at 2^24 entries).
+        const MAX_SAMPLES: usize = 1 << 24;
+        if !(2..=MAX_SAMPLES).contains(&n) {
             return Err(errors::settings(format!(
-                "sample needs at least 2 values, got {n}"
+                "sample needs between 2 and {MAX_SAMPLES} values, got {n}"
             )));
         }
         let (values, rgba) = self.preset.rgb_linear().sample(n);

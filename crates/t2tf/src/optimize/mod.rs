@@ -418,7 +418,8 @@ pub fn optimize<R: Renderer, E: ImageEncoder, P: Parameterization>(
     }
     let mut sgd = sgd::Sgd::new(params.len(), settings.momentum)?;
     let mut times = PhaseTimes::default();
-    let mut steps = Vec::with_capacity(settings.steps);
+    // Grows with the steps run, never sized by the step count alone.
+    let mut steps = Vec::new();
     let mut interrupted = false;
     for step in 0..settings.steps {
         if stop.load(Ordering::Relaxed) {

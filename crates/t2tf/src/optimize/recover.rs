@@ -32,7 +32,7 @@ pub fn descend<R: Renderer, P: Parameterization>(
     loss: &mut ImageLoss,
 ) -> Result<(Vec<f64>, Vec<f64>), OptimizeError> {
     let mut sgd = Sgd::new(params.len(), MOMENTUM)?;
-    let mut losses = Vec::with_capacity(steps);
+    let mut losses = Vec::new();
     for step in 0..steps {
         let cp = tf
             .control_points(&params)

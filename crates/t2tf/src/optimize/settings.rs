@@ -135,6 +135,19 @@ impl Default for Settings {
     }
 }
 
+/// The largest sizes a run accepts, so that a size from a flag or a caller is refused at once
+/// instead of being allocated: each is far above what a run needs (the paper: 300 steps, 3
+/// views, 32 control points) and small enough that what it sizes fits any machine.
+pub mod limits {
+    /// Steps of one run (a million default steps take days).
+    pub const STEPS: usize = 1_000_000;
+    /// Views per step: each is a render and a CLIP pass held until the step's backward.
+    pub const VIEWS: usize = 64;
+    /// Control points of the TF: ParaView's tables resolve about 16,000 entries over the data
+    /// range (README, "Output folder"), and the exported points keep 1/16000 apart.
+    pub const CONTROL_POINTS: usize = 4096;
+}
+
 impl Settings {
     /// Check every setting; the error names the setting. `steps = 0` is valid (the result is
     /// the initialization).
@@ -142,8 +155,20 @@ impl Settings {
         let bad =
             |name: &'static str, message: String| Err(OptimizeError::Setting { name, message });
         let finite_nonneg = |v: f64| v.is_finite() && v >= 0.0;
+        if self.steps > limits::STEPS {
+            return bad(
+                "steps",
+                format!("must be at most {}, got {}", limits::STEPS, self.steps),
+            );
+        }
         if self.views == 0 {
             return bad("views", "must be at least 1".into());
+        }
+        if self.views > limits::VIEWS {
+            return bad(
+                "views",
+                format!("must be at most {}, got {}", limits::VIEWS, self.views),
+            );
         }
         if !finite_nonneg(self.lr) {
             return bad("lr", format!("must be finite and ≥ 0, got {}", self.lr));
@@ -171,10 +196,14 @@ impl Settings {
         if !finite_nonneg(self.l2) {
             return bad("l2", format!("must be finite and ≥ 0, got {}", self.l2));
         }
-        if self.control_points < 2 {
+        if !(2..=limits::CONTROL_POINTS).contains(&self.control_points) {
             return bad(
                 "control-points",
-                format!("must be at least 2, got {}", self.control_points),
+                format!(
+                    "must be between 2 and {}, got {}",
+                    limits::CONTROL_POINTS,
+                    self.control_points
+                ),
             );
         }
         if !(self.rho > 0.0 && self.rho < 1.0) {
@@ -202,6 +231,33 @@ impl Settings {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sizes_beyond_the_limits_are_refused_naming_the_setting() {
+        for (name, change) in [
+            (
+                "steps",
+                (|s: &mut Settings| s.steps = 1_000_000_000_000) as fn(&mut Settings),
+            ),
+            ("steps", |s| s.steps = usize::MAX),
+            ("views", |s| s.views = 100_000),
+            ("control-points", |s| s.control_points = 10_000_000),
+        ] {
+            let mut s = Settings::default();
+            change(&mut s);
+            match s.validate() {
+                Err(OptimizeError::Setting { name: n, message }) => {
+                    assert_eq!(n, name, "{message}");
+                    assert!(message.contains("at most") || message.contains("between"));
+                }
+                other => panic!("{name}: {other:?}"),
+            }
+        }
+        let mut s = Settings::default();
+        (s.steps, s.views, s.control_points) =
+            (limits::STEPS, limits::VIEWS, limits::CONTROL_POINTS);
+        assert!(s.validate().is_ok());
+    }
 
     #[test]
     fn defaults_are_the_papers_and_valid() {

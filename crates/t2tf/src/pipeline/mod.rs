@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 pub use model::{Model, ModelOptions};
-pub use outputs::check_name;
+pub use outputs::{check_name, check_outputs, output_files};
 pub use start::{check_locks, InitTf, PARAVIEW_TABLE};
 
 use crate::camera::{Camera, Orbit, ParaViewCamera, UpAxis};

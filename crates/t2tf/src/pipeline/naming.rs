@@ -10,25 +10,31 @@ use super::{check_name, PipelineError, Target};
 /// The output folder when none is given.
 pub const DEFAULT_OUT: &str = "t2tf-output";
 
-/// The TF base name: `name` when given (checked), else the slug of the output folder's name
-/// when the user named one (`out` other than [`DEFAULT_OUT`]: `aneurism-tf` writes
-/// `aneurism-tf.json`), else the slug of the prompt or of the reference picture's stem.
+/// The TF base name: `name` when given, else the slug of the output folder's name when the
+/// user named one (`out` other than [`DEFAULT_OUT`]: `aneurism-tf` writes `aneurism-tf.json`),
+/// else the slug of the prompt or of the reference picture's stem. Checked either way
+/// ([`check_name`]): `--out report` would make `report.json` the TF's and the report's.
 pub fn tf_name(
     name: Option<&str>,
     out: Option<&Path>,
     target: &Target,
 ) -> Result<String, PipelineError> {
+    let name = derived_name(name, out, target);
+    check_name(&name)?;
+    Ok(name)
+}
+
+fn derived_name(name: Option<&str>, out: Option<&Path>, target: &Target) -> String {
     if let Some(n) = name {
-        check_name(n)?;
-        return Ok(n.to_string());
+        return n.to_string();
     }
     if let Some(out) = out.filter(|o| *o != Path::new(DEFAULT_OUT)) {
         let folder = out.file_name().map(|f| slug(&f.to_string_lossy()));
         if let Some(f) = folder.filter(|f| !f.is_empty()) {
-            return Ok(f);
+            return f;
         }
     }
-    Ok(match target {
+    match target {
         Target::Prompt(p) => slug(p),
         Target::Image(path) => slug(
             &path
@@ -36,11 +42,12 @@ pub fn tf_name(
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default(),
         ),
-    })
+    }
 }
 
-/// One name per prompt of a batch: its slug, with -2, -3, … where two prompts give the same.
-pub fn batch_names(prompts: &[String]) -> Vec<String> {
+/// One name per prompt of a batch: its slug, with -2, -3, … where two prompts give the same;
+/// each checked ([`check_name`]: a prompt "Report" would overwrite its folder's report).
+pub fn batch_names(prompts: &[String]) -> Result<Vec<String>, PipelineError> {
     let mut names: Vec<String> = Vec::with_capacity(prompts.len());
     for p in prompts {
         let base = slug(p);
@@ -50,9 +57,10 @@ pub fn batch_names(prompts: &[String]) -> Vec<String> {
             n += 1;
             name = format!("{base}-{n}");
         }
+        check_name(&name)?;
         names.push(name);
     }
-    names
+    Ok(names)
 }
 
 /// Lower-case words of letters and digits joined by '-', at most 48 characters; "tf" if none.
@@ -102,6 +110,9 @@ mod tests {
         );
         assert_eq!(tf_name(Some("y"), Some(out), &prompt).unwrap(), "y");
         assert!(tf_name(Some("report"), None, &prompt).is_err());
+        // Derived names are checked as given ones are.
+        assert!(tf_name(None, Some(Path::new("out/report")), &prompt).is_err());
+        assert!(tf_name(None, None, &Target::Prompt("Report".into())).is_err());
         let picture = Target::Image("pics/Red Car.png".into());
         assert_eq!(tf_name(None, None, &picture).unwrap(), "red-car");
     }
@@ -109,6 +120,10 @@ mod tests {
     #[test]
     fn prompts_that_slug_alike_get_numbers() {
         let prompts = ["a tree".to_string(), "A tree!".into(), "a rock".into()];
-        assert_eq!(batch_names(&prompts), ["a-tree", "a-tree-2", "a-rock"]);
+        assert_eq!(
+            batch_names(&prompts).unwrap(),
+            ["a-tree", "a-tree-2", "a-rock"]
+        );
+        assert!(batch_names(&["x".into(), "Report".into()]).is_err());
     }
 }

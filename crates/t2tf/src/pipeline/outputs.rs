@@ -58,12 +58,35 @@ pub fn check_name(name: &str) -> Result<(), PipelineError> {
     Ok(())
 }
 
+/// The files of the set whose TF files are named `name`, in no particular order.
+pub fn output_files(name: &str) -> Vec<String> {
+    let tf_files = crate::formats::FORMATS
+        .iter()
+        .map(|f| format!("{name}.{}", f.extensions()[0]));
+    let scripts = ["_paraview.py", "_visit.py"].map(|s| format!("{name}{s}"));
+    tf_files
+        .chain(scripts)
+        .chain(FIXED.iter().map(|f| f.to_string()))
+        .collect()
+}
+
+/// Check before any work that the set named `name` can be written into `out`: the name is
+/// valid ([`check_name`]) and nothing in `out` stands where one of its files goes (a folder,
+/// a FIFO, a device). A missing `out` holds nothing in the way.
+pub fn check_outputs(out: &Path, name: &str) -> Result<(), PipelineError> {
+    check_name(name)?;
+    for file in output_files(name) {
+        crate::fs::replaceable(&out.join(file))?;
+    }
+    Ok(())
+}
+
 impl Optimized {
     /// Write the output set into `out` (created if missing) as one set, the TF files named
     /// `name`. Returns the report as written (with the files listed). The caller keeps other
     /// runs out of `out` (`crate::fs::OutputLock`) if it may be shared.
     pub fn write(&self, out: &Path, name: &str) -> Result<Report, PipelineError> {
-        check_name(name)?;
+        check_outputs(out, name)?;
         std::fs::create_dir_all(out).map_err(|source| OutputError::Folder {
             path: out.to_path_buf(),
             source,
