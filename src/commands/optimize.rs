@@ -267,13 +267,21 @@ impl OptimizeArgs {
                 );
             }
             let names = batch_names(&self.prompts).map_err(flags::pipeline)?;
-            for n in &names {
-                batch_folder(&self.out, n)?;
-            }
+            crate::fs::replaceable(&self.out.join("presets.json"))?;
             names
         } else {
             vec![self.tf_name()?]
         };
+        // Every file the runs will write, checked before the volume and the model load: a
+        // folder or FIFO in the way would otherwise be found only after the last step.
+        for name in &names {
+            let folder = if self.is_batch() {
+                batch_folder(&self.out, name)?
+            } else {
+                self.out.clone()
+            };
+            pipeline::check_outputs(&folder, name).map_err(flags::pipeline)?;
+        }
         let jobs = self
             .jobs(init.as_ref())
             .into_iter()
@@ -349,19 +357,6 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         .with_context(|| format!("t2tf optimize {}", volume_path.display()))?;
     let args = run.args();
     let lock = claim_output(&args.out)?;
-    // Every file the runs will write, checked before the volume and the model load: a
-    // folder or FIFO in the way would otherwise be found only after the last step.
-    for (_, name) in &run.runs {
-        let folder = if args.is_batch() {
-            batch_folder(&args.out, name)?
-        } else {
-            args.out.clone()
-        };
-        pipeline::check_outputs(&folder, name).map_err(flags::pipeline)?;
-    }
-    if args.is_batch() {
-        crate::fs::replaceable(&args.out.join("presets.json"))?;
-    }
     let budget = Budget::new(args.max_memory);
     let pool = crate::thread_pool(args.threads)?;
     let sets_written = pool.install(|| -> Result<usize> {

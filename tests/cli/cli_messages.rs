@@ -192,8 +192,8 @@ fn render_refuses_other_image_formats_before_rendering() {
 
 #[test]
 fn sizes_from_flags_are_refused_before_anything_is_allocated() {
-    // Each once aborted the process (allocation failure, capacity overflow) or grew to
-    // gigabytes; now one line names the flag and the limit, before the model loads.
+    // Sizes that would abort an allocation (or overflow a capacity) or take gigabytes: one
+    // line names the flag and the limit, before the model loads.
     let vol = "../shared/data/volumes/neghip_64x64x64_uint8.raw";
     for (flag, value, limit) in [
         ("--steps", "1000000000000", "at most 1000000"),

@@ -520,8 +520,8 @@ fn no_run_traces(dir: &Path) {
 
 #[test]
 fn every_output_name_is_checked_before_any_work() {
-    // Each case used to run every step (and every earlier prompt of a batch) before failing.
-    // `--steps 100000` would take minutes: a quick error shows nothing ran.
+    // An obstacle must end the run before any step (and before an earlier prompt of a batch
+    // runs): with `--steps 100000` a run takes minutes, so a quick error shows nothing ran.
     let long = ["--steps", "100000"];
     let dir = tempfile::tempdir().unwrap();
     let quick = |out: &Path, extra: &[&str]| {

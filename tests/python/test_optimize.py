@@ -103,7 +103,7 @@ def test_ctrl_c_stops_the_run_then_raises_keyboard_interrupt(tmp_path):
     (dict(prompt=None), t2tf.SettingsError, "prompt"),
     (dict(prompt="x", reference_image="a.png"), t2tf.SettingsError, "not both"),
     (dict(prompt="x", views=0), t2tf.SettingsError, "views"),
-    # Sizes are bounded before anything is allocated (they used to abort the interpreter).
+    # Sizes are bounded before anything is allocated (an allocation this large aborts).
     (dict(prompt="x", steps=10**12), t2tf.SettingsError, "steps.*at most 1000000"),
     (dict(prompt="x", views=10**6), t2tf.SettingsError, "views.*at most 64"),
     (dict(prompt="x", prior_ab=-1.0), t2tf.SettingsError, "prior_ab"),

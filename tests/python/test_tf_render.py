@@ -25,7 +25,7 @@ def test_sample_gives_rgba_in_data_units():
         np.testing.assert_allclose(np.interp(x, values, rgba[:, 3]), o, atol=1e-2)
     with pytest.raises(t2tf.SettingsError):
         tf.sample(1)
-    # A size no table holds is refused, not allocated (it aborted the interpreter).
+    # A size no table holds is refused, not allocated (an allocation this large aborts).
     for n in (10**12, 2**62):
         with pytest.raises(t2tf.SettingsError, match="between 2 and 16777216"):
             tf.sample(n)

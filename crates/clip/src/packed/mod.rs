@@ -434,15 +434,12 @@ impl Compute {
 pub fn cpu_features() -> String {
     #[cfg(target_arch = "x86_64")]
     {
-        use std::arch::is_x86_feature_detected as has;
-        let flags = [
-            ("avx2", has!("avx2")),
-            ("fma", has!("fma")),
-            ("avx512f", has!("avx512f")),
-            ("avx512bw", has!("avx512bw")),
-            ("avx512_bf16", has!("avx512bf16")),
-            ("amx_bf16", amx_bf16()),
-        ];
+        let asked = ["avx2", "fma", "avx512f", "avx512bw", "avx512_bf16"];
+        let flags: Vec<(&str, bool)> = asked
+            .iter()
+            .map(|&f| (f, t2tf_core::platform::has_flag(f)))
+            .chain([("amx_bf16", amx_bf16())])
+            .collect();
         let (yes, no): (Vec<_>, Vec<_>) = flags.iter().partition(|(_, h)| *h);
         let names = |v: Vec<&(&str, bool)>| v.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(" ");
         format!("has {}; lacks {}", names(yes), names(no))

@@ -47,37 +47,68 @@ fn brand() -> Option<String> {
         .filter(|b| !b.is_empty())
 }
 
-/// The flags the kernels dispatch on, asked of the CPU itself.
-fn detected_flags() -> Vec<String> {
-    let mut flags: Vec<&str> = Vec::new();
+/// The flags asked of the CPU itself where `/proc/cpuinfo` does not say: those t2tf's
+/// kernels dispatch on, by their `/proc/cpuinfo` names.
+#[cfg(target_arch = "x86_64")]
+const ASKED: &[&str] = &[
+    "sse2",
+    "avx",
+    "avx2",
+    "fma",
+    "f16c",
+    "avx512f",
+    "avx512bw",
+    "avx512_bf16",
+];
+#[cfg(target_arch = "aarch64")]
+const ASKED: &[&str] = &["asimd", "fphp", "bf16", "i8mm", "sve"];
+#[cfg(not(any(target_arch = "x86_64", target_arch = "aarch64")))]
+const ASKED: &[&str] = &[];
+
+/// Whether this CPU has the feature `/proc/cpuinfo` calls `name`, asked of the CPU itself
+/// (std's run-time detection); `false` for a name this architecture does not ask about.
+pub fn has_flag(name: &str) -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::is_x86_feature_detected as has;
-        let known = [
-            ("sse2", has!("sse2")),
-            ("avx", has!("avx")),
-            ("avx2", has!("avx2")),
-            ("fma", has!("fma")),
-            ("f16c", has!("f16c")),
-            ("avx512f", has!("avx512f")),
-            ("avx512bw", has!("avx512bw")),
-            ("avx512_bf16", has!("avx512bf16")),
-        ];
-        flags.extend(known.iter().filter(|(_, h)| *h).map(|(n, _)| *n));
+        match name {
+            "sse2" => has!("sse2"),
+            "avx" => has!("avx"),
+            "avx2" => has!("avx2"),
+            "fma" => has!("fma"),
+            "f16c" => has!("f16c"),
+            "avx512f" => has!("avx512f"),
+            "avx512bw" => has!("avx512bw"),
+            "avx512_bf16" => has!("avx512bf16"),
+            _ => false,
+        }
     }
     #[cfg(target_arch = "aarch64")]
     {
         use std::arch::is_aarch64_feature_detected as has;
-        let known = [
-            ("asimd", has!("neon")),
-            ("fphp", has!("fp16")),
-            ("bf16", has!("bf16")),
-            ("i8mm", has!("i8mm")),
-            ("sve", has!("sve")),
-        ];
-        flags.extend(known.iter().filter(|(_, h)| *h).map(|(n, _)| *n));
+        match name {
+            "asimd" => has!("neon"),
+            "fphp" => has!("fp16"),
+            "bf16" => has!("bf16"),
+            "i8mm" => has!("i8mm"),
+            "sve" => has!("sve"),
+            _ => false,
+        }
     }
-    flags.into_iter().map(str::to_string).collect()
+    #[cfg(not(any(target_arch = "x86_64", target_arch = "aarch64")))]
+    {
+        let _ = name;
+        false
+    }
+}
+
+/// The flags of [`ASKED`] this CPU has.
+fn detected_flags() -> Vec<String> {
+    ASKED
+        .iter()
+        .filter(|f| has_flag(f))
+        .map(|f| f.to_string())
+        .collect()
 }
 
 /// The first processor's model name and flags from `/proc/cpuinfo`'s text (x86 says
@@ -125,5 +156,10 @@ mod tests {
         for f in detected_flags() {
             assert!(cpu.flags.contains(&f), "{f} detected but not in {cpu:?}");
         }
+        // Every name asked about is one `has_flag` answers (a typo would read as absent).
+        #[cfg(target_arch = "x86_64")]
+        assert!(has_flag("sse2"));
+        #[cfg(target_arch = "aarch64")]
+        assert!(has_flag("asimd"));
     }
 }

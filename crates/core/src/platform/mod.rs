@@ -38,7 +38,7 @@ pub use os::{
 mod macos;
 
 mod cpu;
-pub use cpu::{cpu, Cpu};
+pub use cpu::{cpu, has_flag, Cpu};
 
 /// Physical memory the system can give this process now, in bytes (`None`: unknown).
 #[cfg(target_vendor = "apple")]
