@@ -1,5 +1,5 @@
 //! Sampling one level: the bricked grid's index arithmetic, trilinear interpolation and LUT
-//! classification, in scalar code. The march (`march.rs`) and the AVX2 path (`simd.rs`) both
+//! classification, in scalar code. The march (`march.rs`) and the vector paths (`simd.rs`) both
 //! build on this module, which imports neither (so there is no import loop between them).
 
 use super::bricked::{BrickValues, BRICK_POINTS, BRICK_VALUES};
@@ -180,9 +180,12 @@ pub(crate) struct MarchParams<'a> {
     pub(crate) inv_l: f32,
     /// Stop once T falls below this (0 = never).
     pub(crate) stop_below: f32,
-    /// Interpolate and classify with AVX2 (`simd::available()`); results are bit-identical.
-    /// Always false off x86-64.
-    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    /// Interpolate and classify with AVX2 or NEON (`simd::available()`); results are
+    /// bit-identical. Always false off x86-64 and aarch64.
+    #[cfg_attr(
+        not(any(target_arch = "x86_64", target_arch = "aarch64")),
+        allow(dead_code)
+    )]
     pub(crate) simd: bool,
 }
 

@@ -1,6 +1,7 @@
 //! The sample loop's first half for 8 samples of one ray at once, in AVX2: trilinear
 //! interpolation (8 gathers of the bricked data) and LUT classification (8 gathers of the LUT),
-//! then e^(−τ). The second half, compositing, is a serial chain and stays scalar.
+//! then e^(−τ). The second half, compositing, is a serial chain and stays scalar. On aarch64
+//! the same arithmetic runs in NEON (`simd/neon.rs`).
 //!
 //! Why hand-written: LLVM does not vectorise the scalar loop on the default x86-64 target
 //! (SSE2, no gathers), and runtime dispatch needs the vector code in a `target_feature`
@@ -18,11 +19,19 @@ pub(crate) fn available() -> bool {
     {
         std::is_x86_feature_detected!("avx2")
     }
-    #[cfg(not(target_arch = "x86_64"))]
+    // NEON is part of the aarch64 baseline.
+    #[cfg(target_arch = "aarch64")]
+    {
+        true
+    }
+    #[cfg(not(any(target_arch = "x86_64", target_arch = "aarch64")))]
     {
         false
     }
 }
+
+#[cfg(target_arch = "aarch64")]
+mod neon;
 
 /// Interpolate and classify samples n … n + 7 of `ray` (values `d`, the grid's, bricks at
 /// `slots`) into `out` (see `Chunk`); without `p.simd` through the scalar code.
@@ -42,6 +51,11 @@ pub(crate) fn interpolate_classify<T: Voxel, S: Slots>(
         // `Grid::gathers_fit`; tests from there too); `p.grid` holds `Grid`'s invariants
         // and a `Lut` has at least two entries (`render::backend::validate`).
         unsafe { avx2::interpolate_classify(p, (d, slots), ray, n, delta_norm, out) };
+        return;
+    }
+    #[cfg(target_arch = "aarch64")]
+    if p.simd {
+        neon::interpolate_classify(p, (d, slots), ray, n, delta_norm, out);
         return;
     }
     interpolate_classify_scalar(p, (d, slots), ray, n, delta_norm, out);
@@ -267,12 +281,13 @@ mod tests {
     use t2tf_tf::Lut;
     use t2tf_volume::{Geometry, ScalarType, TypedBuffer, Volume};
 
-    /// The AVX2 path gives exactly the scalar path's values and classes, for every stored
-    /// type, on rays through all of a volume (partial bricks, NaN voxels for f32).
+    /// The vector path (AVX2 on x86-64, NEON on aarch64) gives exactly the scalar path's
+    /// values and classes, for every stored type, on rays through all of a volume (partial
+    /// bricks, NaN voxels for f32).
     #[test]
-    fn avx2_matches_scalar_bit_for_bit() {
+    fn vector_path_matches_scalar_bit_for_bit() {
         if !available() {
-            eprintln!("no AVX2 on this CPU: only the scalar path runs");
+            eprintln!("no vector path on this CPU: only the scalar path runs");
             return;
         }
         let dims = [21usize, 13, 10];
