@@ -26,9 +26,15 @@ macro t2tf_macro.py): it fetches a bounded ResampleToImage proxy of the data, op
 locally and applies the TF to the full data's display. The filter itself does not run on a
 pvserver (it says so once and fails).
 
-Errors (no binary, empty prompt, input that is not image data, t2tf failing) are one
-message in ParaView's output window, never a Python traceback, and the filter fails
-(RequestData returns 0); text_to_transfer_function raises T2tfError with that message.
+Errors (no binary, empty prompt, Steps below 1, input that is not image data, t2tf failing)
+are one message in ParaView's output window, in ParaView's words (properties, never t2tf's
+command-line flags), never a Python traceback; the input passes through unchanged and the
+next Apply runs again, whatever failed before. text_to_transfer_function raises T2tfError
+with that message.
+
+A result is reused (Undo, Redo, a loaded state) only for the same input and settings: the
+Refine start's functions, the reference image's bytes and the model's and tokenizer's files
+are part of the key, and a cancelled run's result is never reused as a finished one.
 """
 import ctypes
 import hashlib
@@ -72,8 +78,27 @@ def message(text, error=True):
         window.DisplayText(line)
 
 
+# t2tf's words for a setting (the binary's flags, the Python module's keywords) and the
+# property that sets it in ParaView, longest first.
+_PROPERTY_WORDS = (
+    ("give a --tokenizer", "set Tokenizer"), ("--reference-image PNG", "Reference Image"), ("--reference-image", "Reference Image"),
+    ("--model DIR", "Model"), ("--model", "Model"), ("--tokenizer", "Tokenizer"),
+    ("--steps", "Steps"), ("--views", "Views"), ("--seed", "Seed"),
+    ("--negative", "Negatives"), ("--lock", "Lock Ranges"), ("--array", "Array"),
+    ("--prompt", "Prompt"), ("`reference_image`", "Reference Image"), ("`model`", "Model"),
+    ("`tokenizer`", "Tokenizer"), ("`steps`", "Steps"), ("`views`", "Views"),
+    ("`seed`", "Seed"), ("`negatives`", "Negatives"), ("`lock`", "Lock Ranges"),
+    ("`prompt`", "Prompt"),
+)
+
+
 def with_advice(text):
-    """`text` (a t2tf error) with what to do in ParaView when the model could not be had."""
+    """`text` (a t2tf error) in ParaView's words: its settings named by the properties that
+    set them, without the command line's hints (the repository's test model), and what to do
+    in ParaView when the model could not be had."""
+    text = re.sub(r" \(offline, the test model of the repository[^)]*\)", "", text)
+    for words, prop in _PROPERTY_WORDS:
+        text = text.replace(words, prop)
     if "Hugging Face cache" in text or "cannot download" in text:
         # t2tf's own message says how to fetch the model; what ParaView adds is where.
         text += "; in ParaView, set Model (an advanced property) to a local model folder"
@@ -111,6 +136,57 @@ def find_binary():
     raise T2tfError(
         "the t2tf binary was not found: set T2TF_BIN, put t2tf on PATH, or copy it beside " + here
     )
+
+
+# ---- temporary folders ------------------------------------------------------------------
+
+# A run's files go to a temporary folder named after this process, removed after the run; a
+# ParaView killed mid-run leaves its folder, which the next start removes.
+_TEMP_PREFIX = "t2tf-plugin-%d-" % os.getpid()
+
+
+def _alive(pid):
+    """Whether process `pid` runs (a process we may not signal runs)."""
+    if os.name == "nt":
+        # os.kill on Windows terminates the process: ask the kernel instead.
+        kernel32 = ctypes.WinDLL("kernel32", use_last_error=True)
+        handle = kernel32.OpenProcess(0x1000, False, pid)  # PROCESS_QUERY_LIMITED_INFORMATION
+        if not handle:
+            return ctypes.get_last_error() == 5  # access denied: it exists
+        code = ctypes.c_ulong()
+        ok = kernel32.GetExitCodeProcess(handle, ctypes.byref(code))
+        kernel32.CloseHandle(handle)
+        return bool(ok) and code.value == 259  # STILL_ACTIVE
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def remove_stale_temporaries():
+    """Remove the temporary folders of runs whose process is gone (a ParaView killed while
+    t2tf ran); returns their names."""
+    removed = []
+    root = tempfile.gettempdir()
+    try:
+        names = os.listdir(root)
+    except OSError:
+        return removed
+    for name in names:
+        m = re.match(r"t2tf-plugin-(\d+)-", name)
+        if not m or int(m.group(1)) == os.getpid() or _alive(int(m.group(1))):
+            continue
+        path = os.path.join(root, name)
+        if os.path.isdir(path) and not os.path.islink(path):
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(name)
+    return removed
+
+
+remove_stale_temporaries()
 
 
 # ---- runs in progress: cancel, progress text, GUI events ------------------------------
@@ -407,6 +483,14 @@ def parse_locks(text):
 def write_current_tf(array, path, source=None):
     """Write the colour and opacity functions ParaView now uses for `array` (and the unit
     distance of `source`'s display) as a preset file: the start of a Refine."""
+    with open(path, "w") as f:
+        json.dump([current_tf(array, source)], f)
+    return path
+
+
+def current_tf(array, source=None):
+    """The colour and opacity functions ParaView now uses for `array` (and the unit distance
+    of `source`'s display), as a ParaView JSON preset."""
     import paraview.simple as pvs
 
     lut = pvs.GetColorTransferFunction(array)
@@ -421,9 +505,31 @@ def write_current_tf(array, path, source=None):
     if source is not None:
         disp = pvs.GetDisplayProperties(source)
         preset[UNIT_DISTANCE_KEY] = float(disp.ScalarOpacityUnitDistance)
-    with open(path, "w") as f:
-        json.dump([preset], f)
-    return path
+    return preset
+
+
+def _file_digest(path):
+    """The SHA-256 of a file's bytes; the text itself when it names no file (empty, or a
+    file that is not there: the run will say so)."""
+    if not path or not os.path.isfile(path):
+        return path
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _folder_digest(path):
+    """A local model folder by its files' names, sizes and modification times (weights are
+    large: not read); a Hub id as itself."""
+    if not path or not os.path.isdir(path):
+        return path
+    files = []
+    for name in sorted(os.listdir(path)):
+        st = os.stat(os.path.join(path, name))
+        files.append((name, st.st_size, st.st_mtime_ns))
+    return [os.path.abspath(path), files]
 
 
 def _script_list(text, name):
@@ -1205,19 +1311,22 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         return 1
 
     def _fail(self, text):
-        """One message, and a failed filter (ParaView marks it; pvpython's API raises)."""
+        """One message, the input passed through, and the error kept (pvpython's API raises
+        it). RequestData succeeds: after two failed updates in a row ParaView stops asking a
+        filter for data, so no later Apply would run t2tf again."""
         self.result = None
         self.error = text
         if text:
             message(text)
         self.SetAbortExecute(0)
-        return 0
+        return 1
 
     def _result_for(self, image):
         """The stored result when it was made from this input and these settings (a loaded
         state), else a new run's, stored."""
         array = self._array(image)
         settings = [getattr(self, k) for k in _KEYED] + [array, _input_key(image, array)]
+        settings += self._depends_on(array)
         key = hashlib.sha256(json.dumps(settings).encode()).hexdigest()
         stored = self._stored
         if stored and stored.get("key") == key and stored.get("result"):
@@ -1239,9 +1348,27 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         previous = (stored or {}).get("result", {}).get("name") or self._last_name
         result = self._run(image, array)
         result["replaces"] = previous
-        self._remember(key, result)
-        self._store({"key": key, "result": result})
+        if result["interrupted"]:
+            # Shown and saved, but never reused as the result of these settings.
+            self._store({"key": None, "result": result})
+        else:
+            self._remember(key, result)
+            self._store({"key": key, "result": result})
         return result
+
+    def _depends_on(self, array):
+        """What a run reads besides the settings and the input: the Refine start's functions,
+        and the reference image's, tokenizer's and local model's files (a Hub id stands for
+        its own files)."""
+        start = None
+        if self._refine:
+            proxy = _proxy_of(self)
+            try:
+                start = current_tf(array, proxy.Input if proxy is not None else None)
+            except T2tfError:
+                start = None  # the run will say why
+        return [start, _file_digest(self._reference), _file_digest(self._tokenizer),
+                _folder_digest(self._model)]
 
     def _remember(self, key, result):
         """Keep the last few results by key (a result is a few kilobytes)."""
@@ -1264,11 +1391,15 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         binary = None if module else find_binary()  # fail early, before writing anything
         if not self._prompt.strip() and not self._reference:
             raise T2tfError("the prompt is empty: type what the rendering should show (Prompt)")
+        # The panel's domains say at least 1; a typed 0 or -3 still reaches the setter.
+        for prop, value in (("Steps", self._steps), ("Views", self._views)):
+            if value < 1:
+                raise T2tfError("%s must be at least 1 (it is %d)" % (prop, value))
         locks = parse_locks(self._locks)
         progress = Progress(self)
         progress.show()
         # t2tf's files are read into memory and the folder removed, whatever happens.
-        out = tempfile.mkdtemp(prefix="t2tf-plugin-")
+        out = tempfile.mkdtemp(prefix=_TEMP_PREFIX)
         try:
             init = None
             if self._refine:

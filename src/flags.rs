@@ -28,7 +28,7 @@ const SETTING_FLAGS: [&str; 14] = [
 ];
 
 /// Options the library names in backticks, and the flags that set them.
-const OPTION_FLAGS: [(&str, &str); 10] = [
+const OPTION_FLAGS: [(&str, &str); 11] = [
     ("`rescale`", "--rescale MIN,MAX"),
     ("`dims`", "--dims"),
     ("`dtype`", "--dtype"),
@@ -39,6 +39,7 @@ const OPTION_FLAGS: [(&str, &str); 10] = [
     ("`tokenizer`", "--tokenizer"),
     ("`preset`", "--preset NAME"),
     ("`model`", "--model"),
+    ("`max_preset_size`", "--max-preset-size SIZE"),
 ];
 
 /// The library's advice for a model the cache lacks, and what the command line says instead.

@@ -13,12 +13,14 @@ mod out;
 mod commands;
 mod flags;
 mod model_args;
+mod preset_args;
 mod progress;
 mod signals;
 mod volume_args;
 
 pub use commands::optimize::OptimizeArgs;
 pub use model_args::ModelArgs;
+pub use preset_args::PresetFileArgs;
 pub use volume_args::VolumeArgs;
 
 use commands::{clip_score, convert, info, model};

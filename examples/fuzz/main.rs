@@ -8,6 +8,9 @@
 //! for coverage: the error's words) join the corpus; `--save-corpus` writes them to
 //! tests/fuzz_corpus/TARGET/, which tests/volume/fuzz_replay.rs replays in CI.
 //!
+//! The `*_large` targets start from presets of 10⁶ points made in code (too large to commit)
+//! and read them as `optimize --init` does.
+//!
 //! ```sh
 //! cargo run --release --example fuzz -- vti --iterations 1000000
 //! cargo run --release --example fuzz -- --all --iterations 20000 --save-corpus
@@ -190,6 +193,7 @@ fn fuzz(t: &Target, o: &Options, root: &Path, work: &Path) -> Result<Summary> {
     for s in t.seeds {
         corpus.push(std::fs::read(root.join(s)).with_context(|| format!("seed {s}"))?);
     }
+    corpus.extend(t.generated.map(|make| make()));
     let dir = corpus_dir(root, t);
     if let Ok(entries) = std::fs::read_dir(&dir) {
         for e in entries.flatten() {

@@ -9,6 +9,8 @@ pub struct Target {
     pub name: &'static str,
     /// Seed files: test fixtures of this format (relative to the repository root).
     pub seeds: &'static [&'static str],
+    /// Seeds made in code: inputs too large to commit (a preset of 10⁶ points).
+    pub generated: Option<fn() -> Vec<u8>>,
     /// File name the bytes are given (the extension picks the reader).
     pub file_name: &'static str,
     pub run: fn(&Path) -> Result<(), String>,
@@ -31,6 +33,45 @@ fn transfer_function(path: &Path) -> Result<(), String> {
     t2tf::formats::read_tf(path)
         .map(|_| ())
         .map_err(|e| e.to_string())
+}
+
+/// A preset as `optimize --init` takes it: read (with the file cap raised to 1 GiB, so that
+/// the parser sees the whole input), simplified, and held to the control-point limit.
+fn init_preset(path: &Path) -> Result<(), String> {
+    t2tf::pipeline::InitTf::read(path, None, 1 << 30)
+        .map(|_| ())
+        .map_err(|e| e.to_string())
+}
+
+/// Points of the generated presets.
+pub const LARGE_POINTS: usize = 1_000_000;
+
+/// A TF of [`LARGE_POINTS`] colour and opacity points whose opacity alternates 0, 1 (no point
+/// can be dropped) and whose colours cycle, so that neither simplification nor the limit of
+/// a start can shortcut the parse.
+fn large_tf() -> t2tf::formats::ExportTf {
+    let n = LARGE_POINTS;
+    let x = |i: usize| i as f64 / (n - 1) as f64;
+    t2tf::formats::ExportTf {
+        name: "large".into(),
+        rgb_points: (0..n)
+            .map(|i| (x(i), [(i % 7) as f64 / 7.0, (i % 3) as f64 / 3.0, 0.5]))
+            .collect(),
+        opacity_points: (0..n).map(|i| (x(i), (i % 2) as f64)).collect(),
+        unit_distance: None,
+    }
+}
+
+fn large_json() -> Vec<u8> {
+    t2tf::formats::to_paraview_json(&large_tf()).into_bytes()
+}
+
+fn large_xml() -> Vec<u8> {
+    t2tf::formats::to_paraview_xml(&large_tf()).into_bytes()
+}
+
+fn large_ct() -> Vec<u8> {
+    t2tf::formats::to_visit_ct(&large_tf()).into_bytes()
 }
 
 fn png(path: &Path) -> Result<(), String> {
@@ -74,6 +115,7 @@ pub const TARGETS: &[Target] = &[
             "tests/fixtures/fuzz_seeds/hostile_nul_in_header.vti",
             "tests/fixtures/fuzz_seeds/hostile_lzma_bomb.vti",
         ],
+        generated: None,
         file_name: "fuzz.vti",
         run: volume,
     },
@@ -87,12 +129,14 @@ pub const TARGETS: &[Target] = &[
             "tests/fixtures/fuzz_seeds/hostile_uint64_overflow.vtk",
             "tests/fixtures/fuzz_seeds/hostile_int64_overflow.vtk",
         ],
+        generated: None,
         file_name: "fuzz.vtk",
         run: volume,
     },
     Target {
         name: "raw",
         seeds: &["tests/fixtures/volumes/ramp_7x6x5_uint16.raw"],
+        generated: None,
         file_name: "ramp_7x6x5_uint16.raw",
         run: raw_named,
     },
@@ -102,6 +146,7 @@ pub const TARGETS: &[Target] = &[
             "tests/fixtures/paraview/paraview_written_preset.json",
             "tests/fixtures/fuzz_seeds/hostile_preset.json",
         ],
+        generated: None,
         file_name: "fuzz.json",
         run: transfer_function,
     },
@@ -111,14 +156,37 @@ pub const TARGETS: &[Target] = &[
             "tests/fixtures/fuzz_seeds/preset.xml",
             "tests/fixtures/fuzz_seeds/hostile_preset.xml",
         ],
+        generated: None,
         file_name: "fuzz.xml",
         run: transfer_function,
     },
     Target {
         name: "ct",
         seeds: &["tests/fixtures/fuzz_seeds/preset.ct"],
+        generated: None,
         file_name: "fuzz.ct",
         run: transfer_function,
+    },
+    Target {
+        name: "json_large",
+        seeds: &[],
+        generated: Some(large_json),
+        file_name: "fuzz.json",
+        run: init_preset,
+    },
+    Target {
+        name: "xml_large",
+        seeds: &[],
+        generated: Some(large_xml),
+        file_name: "fuzz.xml",
+        run: init_preset,
+    },
+    Target {
+        name: "ct_large",
+        seeds: &[],
+        generated: Some(large_ct),
+        file_name: "fuzz.ct",
+        run: init_preset,
     },
     Target {
         name: "png",
@@ -127,6 +195,7 @@ pub const TARGETS: &[Target] = &[
             "tests/fixtures/fuzz_seeds/hostile_1x1000000.png",
             "tests/fixtures/fuzz_seeds/hostile_100000x1.png",
         ],
+        generated: None,
         file_name: "fuzz.png",
         run: png,
     },
@@ -136,12 +205,14 @@ pub const TARGETS: &[Target] = &[
             "tests/fixtures/clip/quick_gelu/config.json",
             "tests/fixtures/clip/odd_shapes/config.json",
         ],
+        generated: None,
         file_name: "config.json",
         run: clip_config,
     },
     Target {
         name: "safetensors",
         seeds: &["tests/fixtures/fuzz_seeds/small.safetensors"],
+        generated: None,
         file_name: "model.safetensors",
         run: checkpoint,
     },
@@ -151,6 +222,7 @@ pub const TARGETS: &[Target] = &[
             "tests/fixtures/clip/torch/state_dict.bin",
             "tests/fixtures/clip/torch/deflated.bin",
         ],
+        generated: None,
         file_name: "pytorch_model.bin",
         run: checkpoint,
     },

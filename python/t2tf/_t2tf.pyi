@@ -98,8 +98,12 @@ class TransferFunction:
     """Colour and opacity points in data units, in the colour space their file gave."""
 
     @staticmethod
-    def load(path: _Path, preset: Optional[str] = None) -> "TransferFunction":
-        """Read a ParaView JSON preset (.json), ParaView XML (.xml) or VisIt table (.ct)."""
+    def load(
+        path: _Path, preset: Optional[str] = None, *, max_preset_size: int = 64 << 20
+    ) -> "TransferFunction":
+        """Read a ParaView JSON preset (.json), ParaView XML (.xml) or VisIt table (.ct).
+
+        Files larger than ``max_preset_size`` bytes are refused before they are read."""
     @staticmethod
     def from_points(
         rgb_points: npt.ArrayLike,
@@ -166,7 +170,7 @@ def load_model(
     a folder with config.json, tokenizer.json and weights; None: DEFAULT_MODEL."""
 
 class Result:
-    """What `optimize` returns."""
+    """What `optimize` returns. It holds about 3 MiB, nearly all of it the preview."""
 
     @property
     def transfer_function(self) -> TransferFunction:

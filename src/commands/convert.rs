@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::formats::{extension_list, format_of, list_presets, read_preset, write_preset};
+use crate::formats::{extension_list, format_of, list_presets, read_preset_within, write_preset};
 
 /// Convert a transfer function between ParaView JSON (.json), ParaView XML (.xml) and VisIt
 /// colour tables (.ct); the formats follow the file extensions.
@@ -40,6 +40,8 @@ pub struct ConvertArgs {
     /// Map the TF's data range linearly onto MIN,MAX (data units).
     #[arg(long, value_name = "MIN,MAX", value_parser = parse_range, allow_hyphen_values = true)]
     pub rescale: Option<Range>,
+    #[command(flatten)]
+    pub preset_file: crate::PresetFileArgs,
 }
 
 /// A data range given on the command line.
@@ -71,8 +73,8 @@ fn parse_range(s: &str) -> Result<Range, String> {
 
 /// `--list`: one line per preset (name, colour space and, where the format counts them,
 /// colour and opacity points).
-fn list(input: &std::path::Path) -> anyhow::Result<()> {
-    for s in list_presets(input)? {
+fn list(input: &std::path::Path, max_size: u64) -> anyhow::Result<()> {
+    for s in list_presets(input, max_size)? {
         let kind = s
             .space
             .unwrap_or_else(|| "categorical (not convertible)".into());
@@ -92,13 +94,14 @@ fn list(input: &std::path::Path) -> anyhow::Result<()> {
 /// Run `t2tf convert`: list, or read, optionally rescale, and write.
 pub fn run(args: ConvertArgs) -> anyhow::Result<()> {
     if args.list {
-        return list(&args.input);
+        return list(&args.input, args.preset_file.limit());
     }
     let output = args.output.expect("clap requires OUTPUT without --list");
     // Check the output's format before reading, so a typo fails fast.
     format_of(&output)?;
     crate::fs::check_writable(&output)?;
-    let mut preset = read_preset(&args.input, args.preset.as_deref())?;
+    let limit = args.preset_file.limit();
+    let mut preset = read_preset_within(&args.input, args.preset.as_deref(), limit)?;
     if let Some(r) = args.rescale {
         preset.tf = preset.tf.rescaled(r.min, r.max);
         // A width beyond f64 (e.g. -1e308,1e308) turns points into inf or NaN.

@@ -54,6 +54,9 @@ pub struct OptimizeArgs {
     #[arg(long, value_name = "NAME", requires = "init")]
     pub preset: Option<String>,
 
+    #[command(flatten)]
+    pub preset_file: crate::PresetFileArgs,
+
     /// Keep the TF over the data range MIN,MAX as it starts (repeatable): those points get
     /// no gradient while the rest is optimized.
     #[arg(long = "lock", value_name = "MIN,MAX", value_parser = parse_range, allow_hyphen_values = true)]
@@ -255,7 +258,7 @@ impl OptimizeArgs {
         }
         let init = match &self.init {
             Some(f) => Some(
-                pipeline::InitTf::read(f, self.preset.as_deref())
+                pipeline::InitTf::read(f, self.preset.as_deref(), self.preset_file.limit())
                     .map_err(|e| anyhow::anyhow!("--init: {}", flags::pipeline(e)))?,
             ),
             None => None,
@@ -372,6 +375,13 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         }
         let model = args.model.load(budget)?;
         let batch = args.is_batch();
+        // A batch's presets.json lists this run's finished prompts, rewritten after each: the
+        // previous run's goes first, so a run killed part way leaves no library that names
+        // sub-folders it did not write (checked replaceable in `validate`).
+        let library = args.out.join("presets.json");
+        if batch {
+            crate::fs::remove_name(&library)?;
+        }
         let mut written = Vec::with_capacity(run.runs.len());
         for (i, (job, name)) in run.runs.iter().enumerate() {
             if stop.load(std::sync::atomic::Ordering::SeqCst) {
@@ -393,14 +403,15 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
                 args.out.clone()
             };
             written.push(optimize_one(args, job, &volume, &model, stop, &out, name)?);
+            if batch {
+                crate::formats::write_library(&library, &written)?;
+            }
         }
         if batch && !written.is_empty() {
-            let path = args.out.join("presets.json");
-            crate::formats::write_library(&path, &written)?;
             errln!(
                 "wrote {} presets to {} (ParaView: Choose Preset > Import)",
                 written.len(),
-                path.display()
+                library.display()
             );
         }
         Ok(written.len())

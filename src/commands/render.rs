@@ -6,7 +6,7 @@ use anyhow::{bail, Context, Result};
 
 use crate::background;
 use crate::camera::{Camera, Orbit, UpAxis};
-use crate::formats::{preset_lut, read_preset, Sampling};
+use crate::formats::{preset_lut, read_preset_within, Sampling};
 use crate::memory::Budget;
 use crate::render::{CpuBackend, RenderOptions, FINAL_LEVEL, FINAL_STEP};
 use crate::VolumeArgs;
@@ -75,6 +75,8 @@ pub struct RenderArgs {
     /// system has available.
     #[arg(long, value_name = "SIZE", value_parser = crate::memory::parse_size)]
     pub max_memory: Option<u64>,
+    #[command(flatten)]
+    pub preset_file: crate::PresetFileArgs,
 }
 
 /// The images `--size` and `--orbit` ask for must fit the memory budget before any is made:
@@ -128,7 +130,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
         .map_err(crate::flags::volume)?;
     // Colours interpolated in the preset's own space (HSV, Lab, Diverging, …) become RGB
     // segments within the export tolerance, as the renderer's LUT needs.
-    let preset = read_preset(&args.tf, args.preset.as_deref())?;
+    let limit = args.preset_file.limit();
+    let preset = read_preset_within(&args.tf, args.preset.as_deref(), limit)?;
     let level = volume.levels.get(args.level).with_context(|| {
         format!(
             "--level {}: this volume has levels 0..={}",

@@ -623,3 +623,82 @@ fn a_signal_before_any_step_says_nothing_was_written() {
         }
     }
 }
+
+/// A write that fails part way through a set (a full disk; here a file-size limit, which
+/// fails the same `write`) ends the run with one line naming the file, and leaves no staged
+/// files, no half set and no folder the run created; the previous set in a folder stays.
+#[test]
+fn a_failed_write_leaves_no_staged_set() {
+    use crate::limits_util::limit_file_size;
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let fresh = dir.path().join("fresh");
+    // The TF files and scripts are a few KiB and the preview PNG over 100 KiB: some files of
+    // the set are written before one fails.
+    let mut cmd = optimize(&fresh, &cache, &["--steps", "1", "--prompt", "x"]);
+    let (code, err) = run(limit_file_size(&mut cmd, 64 << 10));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("File too large"), "{err}");
+    let errors: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("t2tf: error"))
+        .collect();
+    assert!(
+        errors.len() == 1 && errors[0].contains("writing failed"),
+        "{err}"
+    );
+    assert!(!fresh.exists(), "the run's own folder was left");
+    // Into a folder with a complete set: that set is kept as it was.
+    let kept = dir.path().join("kept");
+    let (code, err) = run(&mut optimize(
+        &kept,
+        &cache,
+        &["--steps", "1", "--prompt", "x"],
+    ));
+    assert_eq!(code, 0, "{err}");
+    let before = one_complete_set(&kept);
+    let mut cmd = optimize(&kept, &cache, &["--steps", "2", "--prompt", "x"]);
+    let (code, err) = run(limit_file_size(&mut cmd, 64 << 10));
+    assert_eq!(code, 1, "{err}");
+    no_run_traces(&kept);
+    assert_eq!(one_complete_set(&kept), before);
+}
+
+/// A batch killed between prompts leaves a presets.json of the prompts it finished, never the
+/// previous run's beside its new sub-folders.
+#[test]
+fn a_killed_batch_leaves_a_library_of_its_finished_prompts_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let library = |out: &Path| -> Vec<String> {
+        let v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("presets.json")).unwrap()).unwrap();
+        let names = v.as_array().unwrap().iter();
+        names
+            .map(|p| p["Name"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let before = ["--steps", "1", "--prompt", "old one", "--prompt", "old two"];
+    let (code, err) = run(&mut optimize(&out, dir.path(), &before));
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(library(&out).len(), 2);
+    // 3000 steps take seconds on the test model: killed as the second prompt starts, the
+    // first one's files and the library are written and the second's are not.
+    let mut child = optimize(&out, dir.path(), &["--steps", "3000", "--prompt", "new"])
+        .args(["--prompt", "newer"])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    for line in lines {
+        if line.unwrap().contains("prompt 2 of 2") {
+            break;
+        }
+    }
+    signal(&child, libc::SIGKILL);
+    child.wait().unwrap();
+    let names = library(&out);
+    assert_eq!(names.len(), 1, "{names:?}");
+    assert!(names[0].starts_with("new-"), "{names:?}");
+    one_complete_set(&out.join("new"));
+}

@@ -15,3 +15,4 @@ mod hostile_cli;
 mod limits_util;
 #[cfg(unix)]
 mod special_inputs;
+mod start_inputs;

@@ -44,3 +44,25 @@ pub fn info_within(path: &std::path::Path, bytes: u64, points: u64) -> serde_jso
     assert_eq!(counts, points, "{report}");
     report
 }
+
+/// `cmd` run with files limited to `bytes` (`RLIMIT_FSIZE`, as `ulimit -f` sets it) and
+/// SIGXFSZ ignored, so a write past it fails with EFBIG ("File too large") as a write to a
+/// full disk fails with ENOSPC: the same error path, without filling a disk.
+pub fn limit_file_size(cmd: &mut Command, bytes: u64) -> &mut Command {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: signal and setrlimit are async-signal-safe and touch no memory of the parent;
+    // an ignored signal stays ignored across exec.
+    unsafe {
+        cmd.pre_exec(move || {
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            let lim = libc::rlimit {
+                rlim_cur: bytes,
+                rlim_max: bytes,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        })
+    }
+}

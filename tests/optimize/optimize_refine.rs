@@ -310,7 +310,7 @@ fn bad_starts_and_locks_are_one_line_errors_before_any_work() {
     )
     .unwrap();
     let library = fixtures.join("paraview_library.json");
-    let categorical = t2tf::formats::list_presets(&library)
+    let categorical = t2tf::formats::list_presets(&library, t2tf::formats::DEFAULT_MAX_PRESET_SIZE)
         .unwrap()
         .into_iter()
         .find(|p| p.space.is_none())

@@ -413,11 +413,12 @@ fn a_batchs_library_imports_as_one_preset_per_prompt() {
     }
     quick_optimize(&neghip_path(), &args, dir.path());
     let library = out.join("presets.json");
-    let names: Vec<String> = t2tf::formats::list_presets(&library)
-        .unwrap()
-        .into_iter()
-        .map(|p| p.name)
-        .collect();
+    let names: Vec<String> =
+        t2tf::formats::list_presets(&library, t2tf::formats::DEFAULT_MAX_PRESET_SIZE)
+            .unwrap()
+            .into_iter()
+            .map(|p| p.name)
+            .collect();
     assert_eq!(names.len(), 3);
     let script = dir.path().join("library.py");
     std::fs::write(&script, LIBRARY_CHECK).unwrap();

@@ -293,7 +293,66 @@ elif mode in ("state_save", "state_load"):
         record(f, "ImageFile")
         res["reused"] = f.GetClientSideObject().reused
         res["saved_camera"] = camera
-if mode not in ("errors", "offline", "panel", "presets", "estimate"):
+elif mode == "recover":
+    # Failures, bad settings, a new Refine start and a cancelled run, each followed by the
+    # Render a property change brings (what the GUI's Apply does): which of them ran t2tf.
+    runs_log = os.path.join(os.path.dirname(out_json), "runs.log")
+
+    def runs():
+        try:
+            with open(runs_log) as fh:
+                return len(fh.read().splitlines())
+        except OSError:
+            return 0
+
+    f = tf_filter(raw_reader(volume), steps=2)
+    algo = f.GetClientSideObject()
+    pvs.Show(f, view)
+    steps_seen = []
+
+    def on_progress(obj, _event):
+        if "step " in (obj.GetProgressText() or ""):
+            steps_seen.append(1)
+            if len(steps_seen) == 6:
+                obj.SetAbortExecute(1)
+
+    algo.AddObserver("ProgressEvent", on_progress)
+    res["after"] = []
+
+    def apply(what, **props):
+        steps_seen.clear()
+        for k, v in props.items():
+            setattr(f, k, v)
+        pvs.Render(view)
+        res["after"].append({"what": what, "runs": runs(), "error": algo.error,
+                             "reused": algo.reused,
+                             "interrupted": (algo.result or {}).get("interrupted")})
+
+    apply("first")
+    apply("no tokenizer", Tokenizer="")
+    apply("steps 3, still no tokenizer", Steps=3)
+    apply("tokenizer back", Tokenizer=tokenizer)
+    apply("seed 4", Seed=4)
+    apply("steps 0", Steps=0)
+    apply("steps -3", Steps=-3)
+    apply("steps 2", Steps=2)
+    # Refine from two presets: each start is its own run (a run's result is the next start).
+    def choose(preset):
+        pvs.GetColorTransferFunction("ImageFile").ApplyPreset(preset, True)
+        pvs.GetOpacityTransferFunction("ImageFile").Points = [0, 0, 0.5, 0, 255, 1, 0.5, 0]
+
+    choose("X Ray")
+    apply("refine from X Ray", Refine=1)
+    choose("Inferno (matplotlib)")
+    apply("refine from Inferno", Seed=5)
+    apply("refine from its result", Seed=6)
+    choose("Inferno (matplotlib)")
+    apply("refine from Inferno again", Seed=5)
+    # A cancelled run (the observer aborts after 6 steps) is never reused.
+    apply("cancelled", Refine=0, Steps=300, Seed=4)
+    apply("steps 2 again", Steps=2)
+    apply("steps 300 again", Steps=300)
+if mode not in ("errors", "offline", "panel", "presets", "estimate", "recover"):
     pvs.SaveScreenshot(shot, view, ImageResolution=[size, size])
 with open(out_json, "w") as fh:
     json.dump(res, fh)

@@ -160,6 +160,26 @@ def test_save_errors_are_output_errors(volume, tmp_path):
         r.save(tmp_path / "out", name="a/b")
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="RLIMIT_FSIZE is POSIX")
+def test_a_failed_write_is_an_output_error_and_leaves_nothing(volume, tmp_path):
+    """A full disk fails `write` as a file-size limit does (EFBIG instead of ENOSPC)."""
+    import resource
+    import signal
+
+    r = t2tf.optimize(volume, "a protein molecule", **dict(QUICK, steps=0))
+    out = tmp_path / "out"
+    old_limit = resource.getrlimit(resource.RLIMIT_FSIZE)
+    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (16 << 10, old_limit[1]))
+    try:
+        with pytest.raises(t2tf.OutputError, match="File too large"):
+            r.save(out)
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, old_limit)
+        signal.signal(signal.SIGXFSZ, old_handler)
+    assert not out.exists(), list(out.iterdir())
+
+
 def test_names_follow_the_clis_rule_for_any_prompt(volume, tmp_path):
     r = t2tf.optimize(volume, "-x ray of a head", **dict(QUICK, steps=0))
     assert r.transfer_function.name.startswith("x-ray-of-a-head-")

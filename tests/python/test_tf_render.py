@@ -55,6 +55,18 @@ def test_format_errors_name_the_file(tmp_path):
         t2tf.TransferFunction.load(PRESET, preset="Other")
 
 
+def test_files_past_the_size_cap_are_refused_before_they_are_read(tmp_path):
+    big = tmp_path / "big.json"
+    with open(big, "wb") as f:
+        f.truncate(3 << 30)  # sparse: reading it would take 3 GiB
+    with pytest.raises(t2tf.FormatError, match=r"big\.json: is 3\.0 GiB, more than the 64\.0 MiB.*`max_preset_size`"):
+        t2tf.TransferFunction.load(big)
+    size = PRESET.stat().st_size
+    with pytest.raises(t2tf.FormatError, match="a transfer-function file may be"):
+        t2tf.TransferFunction.load(PRESET, max_preset_size=size - 1)
+    assert t2tf.TransferFunction.load(PRESET, max_preset_size=size).name == "ParaViewWritten"
+
+
 def test_render_is_t2tf_renders_picture(tmp_path):
     volume = t2tf.read_volume(NEGHIP)
     tf = t2tf.TransferFunction.load(PRESET)

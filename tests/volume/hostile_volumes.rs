@@ -59,11 +59,26 @@ fn ascii_64_bit_integers_are_checked_exactly() {
         ("Int64", "long", "-9223372036854775809"),
     ] {
         let values = format!("0 1 2 3 4 5 6 {value}");
+        // The value as written and the type's bounds exactly (not 2⁶⁴ for u64::MAX).
+        let bounds = match ty {
+            "UInt64" => "(0 to 18446744073709551615)",
+            _ => "(-9223372036854775808 to 9223372036854775807)",
+        };
+        let said =
+            format!("value 7 ({value}) is not an integer its declared type {ty} holds {bounds}");
         let e = load("a.vti", &vti(ty, &values)).unwrap_err();
-        assert!(e.contains(ty) && e.contains("value 7"), "{ty} {value}: {e}");
+        assert!(e.contains(&said), "{ty} {value}: {e}");
         let e = load("a.vtk", &legacy(legacy_ty, &values)).unwrap_err();
-        assert!(e.contains("value 7"), "{legacy_ty} {value}: {e}");
+        assert!(e.contains(&said), "{legacy_ty} {value}: {e}");
     }
+    // Other types: the bounds as integers, the value as short as it round-trips.
+    let e = load("a.vti", &vti("UInt32", "0 1 2 3 4 5 6 1e300")).unwrap_err();
+    assert!(
+        e.contains(
+            "value 7 (1e300) is not an integer its declared type UInt32 holds (0 to 4294967295)"
+        ),
+        "{e}"
+    );
     load(
         "a.vti",
         &vti(

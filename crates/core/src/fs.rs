@@ -482,8 +482,9 @@ fn open_lock_file(path: &Path, dir: &Path) -> Result<Option<std::fs::File>> {
     Ok(Some(file))
 }
 
-/// Remove the name `path` (for a symlink, the link; for a hard link, this one name).
-fn remove_name(path: &Path) -> Result<()> {
+/// Remove the name `path` (for a symlink, the link, never its target; for a hard link, this
+/// one name); a name that is not there is fine.
+pub fn remove_name(path: &Path) -> Result<()> {
     match std::fs::remove_file(path) {
         Ok(()) => Ok(()),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
@@ -562,9 +563,9 @@ impl OutputSet {
     }
 
     /// Move `names` (all staged) into the output folder, `report.json` last. Every target is
-    /// checked first, so a refused one leaves the previous set untouched and this one staged.
-    /// Each file is renamed over its name in the folder: a symlink there is replaced, never
-    /// followed.
+    /// checked first, so a refused one leaves the previous set untouched (and this one is
+    /// removed, as on any failure). Each file is renamed over its name in the folder: a
+    /// symlink there is replaced, never followed.
     pub fn commit(self, names: &[String]) -> Result<()> {
         let mut moves = Vec::with_capacity(names.len());
         for n in names.iter().filter(|n| n.as_str() != MANIFEST) {
@@ -584,6 +585,17 @@ impl OutputSet {
         }
         sync_dir(&self.out);
         std::fs::remove_dir_all(&self.staging).map_err(FsError::io(&self.staging, "cannot remove"))
+    }
+}
+
+/// A set that was not committed (its run failed: a full disk, a refused name) leaves nothing
+/// behind: the staged files are removed, so neither a hidden folder nor a half set stays in
+/// the output folder. (A process killed outright leaves its staging for [`clean_stale`].)
+impl Drop for OutputSet {
+    fn drop(&mut self) {
+        if std::fs::symlink_metadata(&self.staging).is_ok() {
+            let _ = std::fs::remove_dir_all(&self.staging);
+        }
     }
 }
 

@@ -1,4 +1,4 @@
-//! Quantities written for people: byte sizes in binary units.
+//! Quantities written for people: byte sizes in binary units, numbers in messages.
 
 /// Bytes as `512 B`, `1.5 KiB`, `577.0 MiB`, … `EiB` (one decimal; an exponent past 10⁴ EiB,
 /// which only absurd sizes from a broken header reach).
@@ -19,9 +19,35 @@ pub fn human_bytes(bytes: u128) -> String {
     }
 }
 
+/// A number for a message, exactly as it round-trips, and short: `0.25`, `45607`, `5e-324`
+/// (Rust's `{}` writes 5e-324 with 323 zeros, and 1e300 with 300 digits).
+pub fn number(v: f64) -> String {
+    let plain = format!("{v}");
+    if plain.len() <= 20 {
+        plain
+    } else {
+        format!("{v:e}")
+    }
+}
+
 #[cfg(test)]
 mod tests {
-    use super::human_bytes;
+    use super::{human_bytes, number};
+
+    #[test]
+    fn numbers_are_short_and_exact() {
+        for (v, text) in [
+            (0.0, "0"),
+            (45607.0, "45607"),
+            (0.25, "0.25"),
+            (5e-324, "5e-324"),
+            (1e300, "1e300"),
+            (-1.5e-20, "-1.5e-20"),
+        ] {
+            assert_eq!(number(v), text);
+            assert_eq!(number(v).parse::<f64>().unwrap(), v);
+        }
+    }
 
     #[test]
     fn sizes_read_well() {

@@ -29,6 +29,22 @@ pub enum FormatError {
     /// Writing an output failed (`t2tf_core::fs`'s error, which names the file).
     #[error(transparent)]
     Output(#[from] t2tf_core::fs::FsError),
+    /// A TF file larger than the cap on what is read ([`crate::DEFAULT_MAX_PRESET_SIZE`]),
+    /// refused before any of it is read.
+    #[error(
+        "{path}: is {}, more than the {} a transfer-function file may be \
+         (raise `max_preset_size` to read it)",
+        t2tf_core::units::human_bytes(*size as u128),
+        t2tf_core::units::human_bytes(*limit as u128)
+    )]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Its size in bytes.
+        size: u64,
+        /// The cap in bytes.
+        limit: u64,
+    },
 }
 
 impl FormatError {
@@ -51,12 +67,31 @@ impl FormatError {
     }
 }
 
-/// Read a text file with a clear error for a missing file, a directory or non-UTF-8 bytes.
-pub(crate) fn read_text(path: &Path) -> Result<String, FormatError> {
+/// Read a text file of at most `max_size` bytes, with a clear error for a missing file, a
+/// directory, a larger file (before reading it) or non-UTF-8 bytes.
+pub(crate) fn read_text(path: &Path, max_size: u64) -> Result<String, FormatError> {
+    use std::io::Read;
     if path.is_dir() {
         return Err(FormatError::file(path, "is a directory, not a file"));
     }
-    let bytes = t2tf_core::input::read(path).map_err(|e| FormatError::io(path, e))?;
+    let file = t2tf_core::input::open(path).map_err(|e| FormatError::io(path, e))?;
+    let size = file.metadata().map_err(|e| FormatError::io(path, e))?.len();
+    let too_large = |size| FormatError::TooLarge {
+        path: path.to_path_buf(),
+        size,
+        limit: max_size,
+    };
+    if size > max_size {
+        return Err(too_large(size));
+    }
+    // The file may grow while it is read: never past the cap.
+    let mut bytes = Vec::with_capacity(size as usize);
+    file.take(max_size.saturating_add(1))
+        .read_to_end(&mut bytes)
+        .map_err(|e| FormatError::io(path, e))?;
+    if bytes.len() as u64 > max_size {
+        return Err(too_large(bytes.len() as u64));
+    }
     String::from_utf8(bytes).map_err(|e| {
         FormatError::file(
             path,

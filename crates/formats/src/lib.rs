@@ -157,23 +157,39 @@ pub(crate) fn only_preset(
     }
 }
 
-/// Read a TF file of any supported format.
+/// The largest TF file read unless the caller raises the cap (`--max-preset-size`): a
+/// larger one is refused before it is read. ParaView's whole preset library is under 1 MiB;
+/// 64 MiB holds some 800,000 points of a JSON preset.
+pub const DEFAULT_MAX_PRESET_SIZE: u64 = 64 << 20;
+
+/// Read a TF file of any supported format (at most [`DEFAULT_MAX_PRESET_SIZE`]).
 pub fn read_tf(path: &Path) -> Result<ExportTf, FormatError> {
     let format = format_of(path)?;
-    format.read_tf(&read_text(path)?, path)
+    format.read_tf(&read_text(path, DEFAULT_MAX_PRESET_SIZE)?, path)
 }
 
 /// Read the preset `name` (or the file's only one) in its own colour space. XML and .ct
-/// files hold one map; `name` must then be absent or equal to it.
+/// files hold one map; `name` must then be absent or equal to it. At most
+/// [`DEFAULT_MAX_PRESET_SIZE`] bytes: [`read_preset_within`] takes another cap.
 pub fn read_preset(path: &Path, name: Option<&str>) -> Result<Preset, FormatError> {
-    let format = format_of(path)?;
-    format.read_preset(&read_text(path)?, path, name)
+    read_preset_within(path, name, DEFAULT_MAX_PRESET_SIZE)
 }
 
-/// The presets of a TF file, for `t2tf convert --list`.
-pub fn list_presets(path: &Path) -> Result<Vec<PresetSummary>, FormatError> {
+/// [`read_preset`] of a file of at most `max_size` bytes; a larger one is refused
+/// ([`FormatError::TooLarge`]) before it is read.
+pub fn read_preset_within(
+    path: &Path,
+    name: Option<&str>,
+    max_size: u64,
+) -> Result<Preset, FormatError> {
     let format = format_of(path)?;
-    format.list(&read_text(path)?, path)
+    format.read_preset(&read_text(path, max_size)?, path, name)
+}
+
+/// The presets of a TF file of at most `max_size` bytes, for `t2tf convert --list`.
+pub fn list_presets(path: &Path, max_size: u64) -> Result<Vec<PresetSummary>, FormatError> {
+    let format = format_of(path)?;
+    format.list(&read_text(path, max_size)?, path)
 }
 
 /// Write a preset in the format its extension names: JSON and XML keep its colour space,

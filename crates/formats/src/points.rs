@@ -53,10 +53,12 @@ pub(crate) fn merge(tf: &ExportTf, colors: &ColorMap, keep_jumps: bool) -> Vec<M
             })
             .collect();
     }
-    let only_opacity: Vec<f64> = xs
-        .into_iter()
-        .filter(|x| !tf.rgb_points.iter().any(|p| p.0 == *x))
-        .collect();
+    // The colour points ascend: a binary search per position (a preset may hold 10⁶).
+    let has_colour = |x: f64| {
+        let k = tf.rgb_points.partition_point(|p| p.0 < x);
+        tf.rgb_points.get(k).is_some_and(|p| p.0 == x)
+    };
+    let only_opacity: Vec<f64> = xs.into_iter().filter(|&x| !has_colour(x)).collect();
     let mut points: Vec<MergedPoint> = tf
         .rgb_points
         .iter()

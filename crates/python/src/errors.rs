@@ -91,8 +91,17 @@ pub fn pipeline(e: PipelineError) -> PyErr {
         PipelineError::Job(j) => SettingsError::new_err(j),
         PipelineError::Image(i) => SettingsError::new_err(message(&i)),
         PipelineError::Camera(c) => RenderError::new_err(message(&c)),
-        PipelineError::Format(f) => FormatError::new_err(message(&f)),
+        PipelineError::Format(f) => format(f),
         e @ (PipelineError::Output(_) | PipelineError::Fs(_)) => OutputError::new_err(message(&e)),
+    }
+}
+
+/// A TF file's error: one that could not be read is a `FormatError`, a failed write of an
+/// output (a full disk, a folder that refuses files) an `OutputError`.
+pub fn format(e: t2tf::formats::FormatError) -> PyErr {
+    match e {
+        t2tf::formats::FormatError::Output(_) => OutputError::new_err(message(&e)),
+        e => FormatError::new_err(message(&e)),
     }
 }
 

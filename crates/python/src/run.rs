@@ -9,6 +9,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use t2tf::clip::{Compute, Precision};
+use t2tf::formats;
 use t2tf::memory::Budget;
 use t2tf::optimize::settings::{defaults, Settings};
 use t2tf::pipeline::{self, Job, Model, ModelOptions, Target};
@@ -274,15 +275,15 @@ fn init_tf(
         return Ok(None);
     };
     if let Ok(tf) = init.cast::<PyTransferFunction>() {
-        return Ok(Some(pipeline::InitTf {
-            preset: tf.get().preset.clone(),
-            source: PathBuf::from("(a TransferFunction)"),
-        }));
+        let source = PathBuf::from("(a TransferFunction)");
+        return pipeline::InitTf::new(tf.get().preset.clone(), source)
+            .map(Some)
+            .map_err(errors::pipeline);
     }
     let path: PathBuf = init.extract().map_err(|_| {
         errors::settings("init must be a TF file's path or a t2tf.TransferFunction")
     })?;
-    pipeline::InitTf::read(&path, preset.as_deref())
+    pipeline::InitTf::read(&path, preset.as_deref(), formats::DEFAULT_MAX_PRESET_SIZE)
         .map(Some)
         .map_err(errors::pipeline)
 }

@@ -7,11 +7,14 @@ use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
 
 use t2tf::camera::{Camera, Orbit, UpAxis};
-use t2tf::formats::{preset_lut, read_preset, write_preset, ExportTf, Preset, Sampling};
+use t2tf::formats::{
+    preset_lut, read_preset_within, write_preset, ExportTf, Preset, Sampling,
+    DEFAULT_MAX_PRESET_SIZE,
+};
 use t2tf::memory::Budget;
 use t2tf::render::{CpuBackend, RenderOptions};
 
-use crate::errors::{self, FormatError, RenderError};
+use crate::errors::{self, RenderError};
 use crate::volume::PyVolume;
 
 /// A transfer function: colour and opacity points in data units, in the colour space its
@@ -38,11 +41,16 @@ impl PyTransferFunction {
 #[pymethods]
 impl PyTransferFunction {
     /// Read a ParaView JSON preset (.json), ParaView XML colour map (.xml) or VisIt colour
-    /// table (.ct); `preset` picks one of a file that holds several.
+    /// table (.ct); `preset` picks one of a file that holds several. Files larger than
+    /// `max_preset_size` bytes (default 64 MiB) are refused before they are read.
     #[staticmethod]
-    #[pyo3(signature = (path, preset = None))]
-    fn load(path: PathBuf, preset: Option<&str>) -> PyResult<PyTransferFunction> {
-        let preset = read_preset(&path, preset).map_err(format_error)?;
+    #[pyo3(signature = (path, preset = None, *, max_preset_size = DEFAULT_MAX_PRESET_SIZE))]
+    fn load(
+        path: PathBuf,
+        preset: Option<&str>,
+        max_preset_size: u64,
+    ) -> PyResult<PyTransferFunction> {
+        let preset = read_preset_within(&path, preset, max_preset_size).map_err(errors::format)?;
         Ok(PyTransferFunction { preset })
     }
 
@@ -66,14 +74,14 @@ impl PyTransferFunction {
             unit_distance,
             name,
         };
-        tf.validate(Path::new(&tf.name)).map_err(format_error)?;
+        tf.validate(Path::new(&tf.name)).map_err(errors::format)?;
         Ok(PyTransferFunction::rgb(tf))
     }
 
     /// Write it in the format the extension names (.json, .xml or .ct), as `t2tf convert`
     /// does (atomically).
     fn save(&self, path: PathBuf) -> PyResult<()> {
-        write_preset(&path, &self.preset).map_err(format_error)
+        write_preset(&path, &self.preset).map_err(errors::format)
     }
 
     /// The preset's name.
@@ -149,10 +157,6 @@ impl PyTransferFunction {
 /// What `TransferFunction.sample` returns: the values and the RGBA rows.
 type Sampled<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>);
 
-fn format_error(e: t2tf::formats::FormatError) -> PyErr {
-    FormatError::new_err(errors::message(&e))
-}
-
 /// One view of `volume` with `tf`, as `t2tf render` draws it: the exact TF through the
 /// renderer's LUT, the final-picture step and level, an orbit camera. Returns an array of
 /// uint8 (size, size, 3), row 0 at the top.
@@ -185,7 +189,7 @@ pub fn render<'py>(
     let v = &volume.volume;
     let name = Path::new(&tf.preset.tf.name);
     let lut =
-        preset_lut(&tf.preset, name, v, unit_distance, Sampling::Exact).map_err(format_error)?;
+        preset_lut(&tf.preset, name, v, unit_distance, Sampling::Exact).map_err(errors::format)?;
     let orbit = Orbit {
         yaw: yaw.to_radians(),
         pitch: pitch.to_radians(),

@@ -135,20 +135,41 @@ fn dense_curves(cp: &ControlPoints, ratio: f64, tol: f64, min_gap: f64) -> Dense
     out
 }
 
+/// Polylines of up to this many points are simplified whole (Douglas–Peucker's worst case,
+/// every split peeling one point, is then n²/2 = 1.3·10⁸ point checks); export curves spaced
+/// by [`MIN_GAP`] always are.
+const WHOLE: usize = 16384;
+
+/// Longer polylines (a preset file's 10⁶ points) are simplified in pieces of this many points
+/// whose ends are kept: at most `PIECE`/2 checks per point, so linear time, for a few more
+/// points kept than the whole curve would need.
+const PIECE: usize = 1024;
+
 /// Indices of the points to keep so that the polyline through them stays within `tol` (max
 /// abs, every channel) of the polyline through all points; the first and last are kept.
 ///
 /// Douglas–Peucker: both polylines are linear between the dense points, so the error is
-/// largest at one of them, and checking the dense points checks the whole curve.
+/// largest at one of them, and checking the dense points checks the whole curve. Past
+/// [`WHOLE`] points, piece by piece ([`PIECE`]), which bounds the time by n · `PIECE` / 2.
 pub fn simplify_polyline<const C: usize>(x: &[f64], v: &[[f64; C]], tol: f64) -> Vec<usize> {
     let n = x.len();
     if n <= 2 {
         return (0..n).collect();
     }
     let mut keep = vec![false; n];
-    keep[0] = true;
-    keep[n - 1] = true;
-    let mut stack = vec![(0, n - 1)];
+    let pieces: Vec<(usize, usize)> = if n <= WHOLE {
+        vec![(0, n - 1)]
+    } else {
+        (0..n - 1)
+            .step_by(PIECE - 1)
+            .map(|i| (i, (i + PIECE - 1).min(n - 1)))
+            .collect()
+    };
+    for &(i, j) in &pieces {
+        keep[i] = true;
+        keep[j] = true;
+    }
+    let mut stack = pieces;
     while let Some((i, j)) = stack.pop() {
         let (mut worst, mut at) = (0.0, 0);
         for m in i + 1..j {
@@ -428,5 +449,25 @@ mod tests {
             .map(|&t| [if t <= 0.5 { t } else { 1.0 - t }])
             .collect();
         assert_eq!(simplify_polyline(&x, &v, 1e-9), vec![0, 5, 10]);
+    }
+
+    /// A polyline of 10⁶ points (a hostile preset's) in linear time: every point of an
+    /// opacity alternating 0, 1 is needed (Douglas–Peucker on the whole would peel them one by
+    /// one, 5·10¹¹ checks), and a smooth curve of as many points keeps few and stays within
+    /// the tolerance at every point.
+    #[test]
+    fn a_million_points_simplify_in_linear_time() {
+        let n = 1_000_000;
+        let x: Vec<f64> = (0..n).map(|i| i as f64 / (n - 1) as f64).collect();
+        let alternating: Vec<[f64; 1]> = (0..n).map(|i| [(i % 2) as f64]).collect();
+        assert_eq!(simplify_polyline(&x, &alternating, 1e-3).len(), n);
+        let smooth: Vec<[f64; 1]> = x.iter().map(|&t| [(6.0 * t).sin()]).collect();
+        let kept = simplify_polyline(&x, &smooth, 1e-3);
+        assert!(kept.len() < 2_000, "{} points kept", kept.len());
+        let curve: Vec<(f64, [f64; 1])> = kept.iter().map(|&i| (x[i], smooth[i])).collect();
+        for (t, v) in x.iter().zip(&smooth).step_by(97) {
+            let e = (crate::interpolate(&curve, *t)[0] - v[0]).abs();
+            assert!(e <= 1e-3, "error {e} at {t}");
+        }
     }
 }

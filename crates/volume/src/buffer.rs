@@ -46,17 +46,23 @@ impl ScalarType {
         ScalarType::F64,
     ];
 
-    /// The smallest and largest value of an integer type (as f64); `None` for floats.
+    /// The smallest and largest value of an integer type (as f64, so u64::MAX reads as
+    /// 2⁶⁴); `None` for floats.
     pub fn integer_range(self) -> Option<(f64, f64)> {
+        self.integer_bounds().map(|(lo, hi)| (lo as f64, hi as f64))
+    }
+
+    /// The smallest and largest value of an integer type, exactly; `None` for floats.
+    pub fn integer_bounds(self) -> Option<(i128, i128)> {
         Some(match self {
-            ScalarType::U8 => (0.0, u8::MAX as f64),
-            ScalarType::I8 => (i8::MIN as f64, i8::MAX as f64),
-            ScalarType::U16 => (0.0, u16::MAX as f64),
-            ScalarType::I16 => (i16::MIN as f64, i16::MAX as f64),
-            ScalarType::U32 => (0.0, u32::MAX as f64),
-            ScalarType::I32 => (i32::MIN as f64, i32::MAX as f64),
-            ScalarType::U64 => (0.0, u64::MAX as f64),
-            ScalarType::I64 => (i64::MIN as f64, i64::MAX as f64),
+            ScalarType::U8 => (0, u8::MAX.into()),
+            ScalarType::I8 => (i8::MIN.into(), i8::MAX.into()),
+            ScalarType::U16 => (0, u16::MAX.into()),
+            ScalarType::I16 => (i16::MIN.into(), i16::MAX.into()),
+            ScalarType::U32 => (0, u32::MAX.into()),
+            ScalarType::I32 => (i32::MIN.into(), i32::MAX.into()),
+            ScalarType::U64 => (0, u64::MAX.into()),
+            ScalarType::I64 => (i64::MIN.into(), i64::MAX.into()),
             ScalarType::F32 | ScalarType::F64 => return None,
         })
     }
@@ -199,14 +205,14 @@ pub struct TypedBuffer {
 pub struct TextValueError {
     /// Position of the value in the array.
     pub index: usize,
-    /// The value as read.
-    pub value: f64,
+    /// The value as read (a 64-bit integer's own text; others as short as they round-trip).
+    pub value: String,
     /// The declared type's VTK XML name.
     pub type_name: &'static str,
-    /// Smallest value the type holds.
-    pub lo: f64,
-    /// Largest value the type holds.
-    pub hi: f64,
+    /// Smallest value the type holds, exactly.
+    pub lo: i128,
+    /// Largest value the type holds, exactly (u64::MAX, not 2⁶⁴).
+    pub hi: i128,
 }
 
 impl TypedBuffer {
@@ -229,8 +235,13 @@ impl TypedBuffer {
     /// Text values of an integer array must be integers its declared type holds (VTK would
     /// wrap 300 in a UInt8 array to 44; rendering the value 300 instead would disagree with
     /// ParaView silently). Float arrays take any value.
-    pub fn check_text_values(values: &[f64], declared: ScalarType) -> Result<(), TextValueError> {
-        let Some((lo, hi)) = declared.integer_range() else {
+    pub fn check_text_values(
+        values: &[f64],
+        declared: ScalarType,
+    ) -> Result<(), Box<TextValueError>> {
+        let (Some((lo, hi)), Some((lo_exact, hi_exact))) =
+            (declared.integer_range(), declared.integer_bounds())
+        else {
             return Ok(());
         };
         match values
@@ -238,13 +249,13 @@ impl TypedBuffer {
             .position(|&v| !(v.fract() == 0.0 && v >= lo && v <= hi))
         {
             None => Ok(()),
-            Some(i) => Err(TextValueError {
+            Some(i) => Err(Box::new(TextValueError {
                 index: i,
-                value: values[i],
+                value: t2tf_core::units::number(values[i]),
                 type_name: declared.vtk_xml_name(),
-                lo,
-                hi,
-            }),
+                lo: lo_exact,
+                hi: hi_exact,
+            })),
         }
     }
 
@@ -256,10 +267,11 @@ impl TypedBuffer {
         token: &str,
         index: usize,
         declared: ScalarType,
-    ) -> Result<(), TextValueError> {
+    ) -> Result<(), Box<TextValueError>> {
         let (lo, hi) = match declared {
-            ScalarType::U64 => (0i128, u64::MAX as i128),
-            ScalarType::I64 => (i64::MIN as i128, i64::MAX as i128),
+            ScalarType::U64 | ScalarType::I64 => {
+                declared.integer_bounds().expect("an integer type")
+            }
             _ => return Ok(()),
         };
         let digits = token.strip_prefix(['+', '-']).unwrap_or(token);
@@ -270,13 +282,13 @@ impl TypedBuffer {
         if fits {
             return Ok(());
         }
-        Err(TextValueError {
+        Err(Box::new(TextValueError {
             index,
-            value: token.parse().unwrap_or(f64::INFINITY),
+            value: token.to_string(),
             type_name: declared.vtk_xml_name(),
-            lo: lo as f64,
-            hi: hi as f64,
-        })
+            lo,
+            hi,
+        }))
     }
 
     /// Like [`TypedBuffer::from_f64`] but keeps the scalar type the file declared.

@@ -108,7 +108,7 @@ pub(crate) enum ReadError {
     NotANumber { index: usize, text: String },
     /// A value outside the declared type's range.
     #[error(transparent)]
-    TextValues(#[from] super::TextValueError),
+    TextValues(#[from] Box<super::TextValueError>),
     #[error("binary data of an unsupported type cannot be skipped")]
     BinaryUnsupported,
     #[error("byte count overflows")]

@@ -142,7 +142,7 @@ pub(crate) enum ArrayError {
     ValueCount { found: usize, needed: usize },
     /// A value outside the declared type's range.
     #[error(transparent)]
-    TextValues(#[from] super::buffer::TextValueError),
+    TextValues(#[from] Box<super::buffer::TextValueError>),
     /// Binary data that cannot be decoded.
     #[error(transparent)]
     Block(#[from] BlockError),

@@ -26,14 +26,41 @@ pub struct InitTf {
 }
 
 impl InitTf {
-    /// Read preset `name` (the first when `None`) of the TF file `path`.
-    pub fn read(path: &Path, name: Option<&str>) -> Result<InitTf, PipelineError> {
-        let preset = crate::formats::read_preset(path, name)?;
-        preset.tf.validate(path)?;
-        Ok(InitTf {
-            preset,
-            source: path.to_path_buf(),
-        })
+    /// Read preset `name` (the file's only one when `None`) of the TF file `path`, a file of
+    /// at most `max_size` bytes (`formats::DEFAULT_MAX_PRESET_SIZE` by default).
+    pub fn read(path: &Path, name: Option<&str>, max_size: u64) -> Result<InitTf, PipelineError> {
+        let preset = crate::formats::read_preset_within(path, name, max_size)?;
+        InitTf::new(preset, path.to_path_buf())
+    }
+
+    /// A start from `preset`, read from `source`: checked, and a preset of more points than a
+    /// run has control points (`limits::CONTROL_POINTS`) simplified first, each curve within
+    /// `tf::EXPORT_TOLERANCE`; one that still has more is refused, so that a start never costs
+    /// more than the largest run.
+    pub fn new(mut preset: Preset, source: PathBuf) -> Result<InitTf, PipelineError> {
+        preset.tf.validate(&source)?;
+        let limit = crate::optimize::settings::limits::CONTROL_POINTS;
+        let tf = &mut preset.tf;
+        let count = tf.rgb_points.len() + tf.opacity_points.len();
+        if count > limit {
+            let tol = crate::tf::EXPORT_TOLERANCE;
+            tf.opacity_points = simplified(&tf.opacity_points, |p| [p.1], tol);
+            // Colours interpolated in another space are not linear in RGB: kept as they are.
+            if preset.space == crate::tf::ColorSpace::Rgb {
+                tf.rgb_points = simplified(&tf.rgb_points, |p| p.1, tol);
+            }
+            let left = tf.rgb_points.len() + tf.opacity_points.len();
+            if left > limit {
+                return Err(PipelineError::Job(format!(
+                    "{}: preset \"{}\" has {count} colour and opacity points, {left} after \
+                     dropping those within {tol} of their neighbours' line; a start takes at \
+                     most {limit}",
+                    source.display(),
+                    tf.name
+                )));
+            }
+        }
+        Ok(InitTf { preset, source })
     }
 
     /// A colour map without opacity: the run takes its colours, spread over the data range
@@ -48,12 +75,28 @@ impl InitTf {
     }
 }
 
+/// The points of a curve that keep it within `tol` of all of them (`tf::simplify_polyline`).
+fn simplified<P: Copy, const C: usize>(
+    points: &[(f64, P)],
+    values: impl Fn(&(f64, P)) -> [f64; C],
+    tol: f64,
+) -> Vec<(f64, P)> {
+    let x: Vec<f64> = points.iter().map(|p| p.0).collect();
+    let v: Vec<[f64; C]> = points.iter().map(values).collect();
+    crate::tf::simplify_polyline(&x, &v, tol)
+        .into_iter()
+        .map(|i| points[i])
+        .collect()
+}
+
 /// The checks of `locks` that need no volume: finite, increasing, not overlapping.
 pub fn check_locks(locks: &[[f64; 2]]) -> Result<(), PipelineError> {
     for &[lo, hi] in locks {
         if !(lo.is_finite() && hi.is_finite() && lo < hi) {
             return Err(PipelineError::Job(format!(
-                "locked range {lo},{hi}: must be MIN,MAX with MIN < MAX"
+                "locked range {},{}: must be MIN,MAX with MIN < MAX",
+                crate::units::number(lo),
+                crate::units::number(hi)
             )));
         }
     }
@@ -62,7 +105,10 @@ pub fn check_locks(locks: &[[f64; 2]]) -> Result<(), PipelineError> {
     if let Some(w) = sorted.windows(2).find(|w| w[1][0] < w[0][1]) {
         return Err(PipelineError::Job(format!(
             "locked ranges {},{} and {},{} overlap",
-            w[0][0], w[0][1], w[1][0], w[1][1]
+            crate::units::number(w[0][0]),
+            crate::units::number(w[0][1]),
+            crate::units::number(w[1][0]),
+            crate::units::number(w[1][1])
         )));
     }
     Ok(())
@@ -76,10 +122,26 @@ pub fn check_against(
     locks: &[[f64; 2]],
 ) -> Result<(), PipelineError> {
     let [lo, hi] = volume.norm_range;
+    let n = crate::units::number;
     for &[a, b] in locks {
         if a < lo || b > hi {
             return Err(PipelineError::Job(format!(
-                "locked range {a},{b} is outside the data range {lo}..{hi}"
+                "locked range {},{} is outside the data range {}..{}",
+                n(a),
+                n(b),
+                n(lo),
+                n(hi)
+            )));
+        }
+        // As the run will see it: narrower than a double resolves within the range.
+        if normalized(b, [lo, hi]) <= normalized(a, [lo, hi]) {
+            return Err(PipelineError::Job(format!(
+                "locked range {},{} is narrower than the data range {}..{} resolves: \
+                 widen it",
+                n(a),
+                n(b),
+                n(lo),
+                n(hi)
             )));
         }
     }
@@ -87,13 +149,22 @@ pub fn check_against(
         let [a, b] = init.preset.tf.data_range();
         if b < lo || a > hi || (a == b && hi > lo) {
             return Err(PipelineError::Job(format!(
-                "{}: preset \"{}\" covers {a}..{b}, which misses the data range {lo}..{hi}",
+                "{}: preset \"{}\" covers {}..{}, which misses the data range {}..{}",
                 init.source.display(),
-                init.preset.tf.name
+                init.preset.tf.name,
+                n(a),
+                n(b),
+                n(lo),
+                n(hi)
             )));
         }
     }
     Ok(())
+}
+
+/// A data value as the run's normalized value, in [0, 1].
+fn normalized(v: f64, [lo, hi]: [f64; 2]) -> f64 {
+    ((v - lo) / (hi - lo)).clamp(0.0, 1.0)
 }
 
 /// A run's start: the control points, the parameterization (with the LUT it samples) and the
@@ -136,8 +207,7 @@ pub(crate) fn plan(
     min_points: usize,
 ) -> Result<Planned, PipelineError> {
     check_against(volume, init, locks)?;
-    let [lo, hi] = volume.norm_range;
-    let norm = |v: f64| ((v - lo) / (hi - lo)).clamp(0.0, 1.0);
+    let norm = |v: f64| normalized(v, volume.norm_range);
     let normalized: Vec<Lock> = locks
         .iter()
         .map(|&[a, b]| Lock {
@@ -181,7 +251,7 @@ pub(crate) fn plan(
             let mut xs: Vec<f64> = init.preset.tf.rgb_points.iter().map(|p| p.0).collect();
             xs.extend(tf.opacity_points.iter().map(|p| p.0));
             xs.sort_by(f64::total_cmp);
-            (cp, table_width(&xs, [lo, hi]), u)
+            (cp, table_width(&xs, volume.norm_range), u)
         }
         (None, Some(paper)) => (paper.clone(), PARAVIEW_TABLE, default_u),
         (None, None) => {
