@@ -1,4 +1,4 @@
-"""ParaView plugin: "Text to Transfer Function" (XML name TextToTransferFunction).
+"""ParaView plugin: "Text To Transfer Function" (XML name TextToTransferFunction).
 
 Load it with Tools > Manage Plugins > Load New (this file), with PV_PLUGIN_PATH naming its
 folder, or from pvpython with LoadPlugin(path, ns=globals()). The filter takes image data
@@ -6,7 +6,7 @@ and runs t2tf in this process when ParaView's Python can import the t2tf module 
 --user .` for the Python ParaView uses, or PYTHONPATH): the point array is handed over
 through vtk_to_numpy, no file is written. Otherwise (or when T2TF_BIN names a binary) it runs
 the t2tf binary (T2TF_BIN, else PATH, else beside this file) with --progress json. The output
-window says which. Either way the progress bar shows "Text to Transfer Function: step k/N,
+window says which. Either way the progress bar shows "Text To Transfer Function: step k/N,
 loss L, ETA s", the GUI keeps processing its events while t2tf runs, and the filter stops
 after the current step (keeping that step's TF) when its abort flag is set or
 t2tf_plugin.cancel() is called. The result is applied to the filter's own display: colour,
@@ -55,7 +55,11 @@ from paraview.util.vtkAlgorithm import VTKPythonAlgorithmBase, smhint, smpropert
 from vtkmodules.vtkCommonCore import vtkOutputWindow, vtkStringArray
 from vtkmodules.vtkCommonDataModel import vtkDataObject, vtkImageData
 
-TITLE = "Text to Transfer Function"
+# The t2tf release this plugin belongs to: a binary or module of another is refused.
+__version__ = "0.1.0"
+# ParaView names the pipeline item and the pvpython function after the label without its
+# spaces: TextToTransferFunction1, as ParaView's own "Resample To Image" gives ResampleToImage1.
+TITLE = "Text To Transfer Function"
 UNIT_DISTANCE_KEY = "t2tfScalarOpacityUnitDistance"
 DEFAULT_MODEL = "openai/clip-vit-base-patch32"
 # Default bound of the proxy fetched from a remote server (points per axis).
@@ -118,24 +122,69 @@ def t2tf_module():
     return t2tf
 
 
+# The binary found on PATH or beside this file, kept for the session (another t2tf put on
+# PATH later does not take over), and the binaries whose version was checked.
+_PINNED = {}
+_CHECKED = set()
+
+
 def find_binary():
-    """The t2tf executable: T2TF_BIN, then PATH, then beside this plugin."""
+    """The t2tf executable: T2TF_BIN, else the one found first on PATH, then beside this
+    plugin (kept for the session); of this plugin's version (said once per binary)."""
     env = os.environ.get("T2TF_BIN")
     if env:
         if os.path.isfile(env) and os.access(env, os.X_OK):
-            return env
+            return _checked(env)
         raise T2tfError("T2TF_BIN=%s is not an executable file" % env)
-    on_path = shutil.which("t2tf")
-    if on_path:
-        return on_path
+    pinned = _PINNED.get("binary")
+    if pinned and os.path.isfile(pinned):
+        return _checked(pinned)
+    found = shutil.which("t2tf")
     here = os.path.dirname(os.path.abspath(__file__))
     for name in ("t2tf", "t2tf.exe"):
         beside = os.path.join(here, name)
-        if os.path.isfile(beside) and os.access(beside, os.X_OK):
-            return beside
-    raise T2tfError(
-        "the t2tf binary was not found: set T2TF_BIN, put t2tf on PATH, or copy it beside " + here
-    )
+        if not found and os.path.isfile(beside) and os.access(beside, os.X_OK):
+            found = beside
+    if not found:
+        raise T2tfError(
+            "the t2tf binary was not found: set T2TF_BIN, put t2tf on PATH, or copy it beside "
+            + here)
+    _PINNED["binary"] = os.path.abspath(found)
+    return _checked(_PINNED["binary"])
+
+
+def _check_module(module):
+    """The t2tf module, once its version is this plugin's (said once)."""
+    if module.__version__ != __version__:
+        raise T2tfError(
+            "the t2tf module %s is version %s, but this plugin is %s: install t2tf %s in the "
+            "Python ParaView uses, or set T2TF_BIN to a t2tf %s binary"
+            % (module.__file__, module.__version__, __version__, __version__, __version__))
+    if "module" not in _CHECKED:
+        message("running t2tf %s in-process (%s)" % (module.__version__, module.__file__), False)
+        _CHECKED.add("module")
+
+
+def _checked(binary):
+    """`binary`, once its version is this plugin's (asked once per file and change)."""
+    st = os.stat(binary)
+    key = (os.path.abspath(binary), st.st_size, st.st_mtime_ns)
+    if key in _CHECKED:
+        return binary
+    try:
+        said = subprocess.run([binary, "--version"], capture_output=True, text=True,
+                              timeout=60).stdout.split()
+    except (OSError, subprocess.SubprocessError) as e:
+        raise T2tfError("the t2tf binary %s does not run: %s" % (binary, e))
+    version = said[-1] if len(said) == 2 and said[0] == "t2tf" else " ".join(said) or "unknown"
+    if version != __version__:
+        raise T2tfError(
+            "the t2tf binary %s is version %s, but this plugin is %s: install t2tf %s (from "
+            "the same release as this plugin), or set T2TF_BIN to it"
+            % (binary, version, __version__, __version__))
+    message("using the t2tf binary %s (t2tf %s)" % (binary, version), False)
+    _CHECKED.add(key)
+    return binary
 
 
 # ---- temporary folders ------------------------------------------------------------------
@@ -1036,7 +1085,7 @@ PROPERTIES_XML = """
 <Documentation short_help="Optimize a transfer function for a sentence with t2tf."
     long_help="Optimizes a volume-rendering transfer function (colour and opacity) so that
     renderings of the data match a sentence under CLIP, and shows the data with it.">
-  Text to Transfer Function runs t2tf on the input image data: it renders the volume from
+  Text To Transfer Function runs t2tf on the input image data: it renders the volume from
   random views, scores the renderings against the Prompt (and against the Negatives) with a
   CLIP model, and optimizes the colour and opacity functions by gradient descent. The result
   is applied to the output's display (colour, opacity, unit distance, no automatic
@@ -1133,10 +1182,11 @@ PROPERTIES_XML = """
   Prompt.</Documentation>
 </StringVectorProperty>
 <IntVectorProperty name="ApplyCamera" label="Apply Camera" command="SetApplyCamera"
-    number_of_elements="1" default_values="1" panel_visibility="advanced">
+    number_of_elements="1" default_values="0" panel_visibility="advanced">
   <BooleanDomain name="bool" />
   <Documentation>Also set the view's camera to t2tf's reference view after a run (not
-  when a saved result is restored).</Documentation>
+  when a saved result is restored). Off by default: like ParaView's own filters, an Apply
+  leaves your camera where it is.</Documentation>
 </IntVectorProperty>
 <StringVectorProperty name="Result" command="SetResult" number_of_elements="1"
     default_values="" panel_visibility="never">
@@ -1171,7 +1221,7 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self._model = DEFAULT_MODEL
         self._tokenizer = ""
         self._reference = ""
-        self._camera = 1
+        self._camera = 0
         self._refine = 0
         self._locks = ""
         self._stored = None  # the Result property, parsed
@@ -1407,8 +1457,7 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
                 source = proxy.Input if proxy is not None else None
                 init = write_current_tf(array, os.path.join(out, "start.json"), source)
             if module:
-                message("running t2tf %s in-process (%s)" % (module.__version__,
-                                                             module.__file__), False)
+                _check_module(module)
                 result = optimize_in_process(
                     module, image, array, os.path.join(out, "tf"), self._prompt,
                     self._negatives, self._steps, self._views, self._seed,
@@ -1416,7 +1465,6 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
                     progress=progress, aborted=self.GetAbortExecute, init=init, locks=locks)
                 volume = None
             else:
-                message("running the t2tf binary %s" % binary, False)
                 result, volume = self._run_binary(image, array, out, progress, init, locks)
         finally:
             shutil.rmtree(out, ignore_errors=True)
@@ -1549,18 +1597,18 @@ def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, v
 
 def _new_filter():
     """paraview.simple's constructor of the filter (named after its label:
-    TexttoTransferFunction). LoadPlugin(path, ns=globals()) puts it into the caller's
+    TextToTransferFunction). LoadPlugin(path, ns=globals()) puts it into the caller's
     namespace only, so it is made here from the proxy definitions when simple lacks it."""
     import paraview.simple as pvs
     from paraview import servermanager
 
-    make = getattr(pvs, "TexttoTransferFunction", None)
+    make = getattr(pvs, "TextToTransferFunction", None)
     if make is None:
         filters = servermanager.ActiveConnection.ProxiesNS.filters
-        if not hasattr(filters, "TexttoTransferFunction"):
+        if not hasattr(filters, "TextToTransferFunction"):
             raise T2tfError("the TextToTransferFunction filter is not loaded: "
                             "LoadPlugin(path to t2tf_plugin.py) first")
-        make = pvs._create_func("TexttoTransferFunction", filters)
+        make = pvs._create_func("TextToTransferFunction", filters)
     return make
 
 

@@ -1,4 +1,4 @@
-"""ParaView macro: "Text to Transfer Function" on the active source.
+"""ParaView macro: "Text To Transfer Function" on the active source.
 
 Add it with Macros > Import new macro... (this file). Run on the active source (image
 data), it optimizes a transfer function with t2tf and shows the source with it: in a builtin
@@ -22,7 +22,7 @@ import importlib.util
 import os
 import sys
 
-TITLE = "Text to Transfer Function"
+TITLE = "Text To Transfer Function"
 
 
 def _plugin_module():
@@ -158,7 +158,7 @@ def run(source=None, environ=None, view=None):
         return None
     _say("prompt %r from %s" % (prompt, origin))
     remote = servermanager.ActiveConnection.IsRemote()
-    if not remote and not hasattr(pvs, "TexttoTransferFunction"):
+    if not remote and not hasattr(pvs, "TextToTransferFunction"):
         # The filter runs in this process: load the plugin that defines it.
         pvs.LoadPlugin(getattr(plugin, "PLUGIN_FILE", plugin.__file__), remote=False,
                        ns=vars(pvs))

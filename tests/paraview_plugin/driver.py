@@ -43,8 +43,10 @@ def raw_reader(path):
 
 
 def tf_filter(source, prompt="a protein molecule", steps=5):
-    return TexttoTransferFunction(Input=source, Prompt=prompt, Negatives=["a blank image", "a cat"],
-                                  Steps=steps, Views=1, Seed=3, Model=model, Tokenizer=tokenizer)
+    # Apply Camera (off by default) on: the tests compare the view with t2tf's own renders.
+    return TextToTransferFunction(Input=source, Prompt=prompt, Negatives=["a blank image", "a cat"],
+                                  Steps=steps, Views=1, Seed=3, Model=model, Tokenizer=tokenizer,
+                                  ApplyCamera=1)
 
 
 def text(value):
@@ -206,7 +208,7 @@ elif mode == "panel":
         })
         it.Next()
     res["properties"] = props
-    f = TexttoTransferFunction(Input=pvs.Wavelet())
+    f = TextToTransferFunction(Input=pvs.Wavelet())
     res["negatives_default"] = list(f.Negatives)
     f.Steps = 0  # outside the domain: the panel refuses it, Python reports it
     res["steps_in_domain"] = bool(f.GetProperty("Steps").SMProperty.IsInDomains())
@@ -288,7 +290,7 @@ elif mode in ("state_save", "state_load"):
     else:
         pvs.LoadState(state)
         view = pvs.GetActiveViewOrCreate("RenderView")
-        f = pvs.FindSource("TexttoTransferFunction1")
+        f = pvs.FindSource("TextToTransferFunction1")
         pvs.Render(view)
         record(f, "ImageFile")
         res["reused"] = f.GetClientSideObject().reused
@@ -307,6 +309,7 @@ elif mode == "recover":
 
     f = tf_filter(raw_reader(volume), steps=2)
     algo = f.GetClientSideObject()
+    res["pipeline_name"] = [name for (name, _), p in pvs.GetSources().items() if p == f][0]
     pvs.Show(f, view)
     steps_seen = []
 
@@ -352,7 +355,42 @@ elif mode == "recover":
     apply("cancelled", Refine=0, Steps=300, Seed=4)
     apply("steps 2 again", Steps=2)
     apply("steps 300 again", Steps=300)
-if mode not in ("errors", "offline", "panel", "presets", "estimate", "recover"):
+elif mode == "binary":
+    # The binary found on PATH is kept for the session, said once with its version; a binary
+    # of another version is refused. The module route is closed, so the binary runs.
+    sys.modules["t2tf"] = None
+    work = os.path.dirname(out_json)
+    counting = os.environ.pop("T2TF_BIN")
+    first, second = os.path.join(work, "first"), os.path.join(work, "second")
+    for d in (first, second):
+        os.makedirs(d, exist_ok=True)
+    os.symlink(counting, os.path.join(first, "t2tf"))
+    os.environ["PATH"] = first + os.pathsep + os.environ["PATH"]
+    f = tf_filter(raw_reader(volume), steps=2)
+    algo = f.GetClientSideObject()
+    pvs.Show(f, view)
+    pvs.Render(view)
+    res["first_error"] = algo.error
+    # Another t2tf comes first on PATH: it must not take over.
+    with open(os.path.join(second, "t2tf"), "w") as fh:
+        fh.write("#!/bin/sh\necho taken-over >> '%s'\nexit 1\n" % os.path.join(work, "second.log"))
+    os.chmod(os.path.join(second, "t2tf"), 0o755)
+    os.environ["PATH"] = second + os.pathsep + os.environ["PATH"]
+    f.Seed = 4
+    pvs.Render(view)
+    res["second_error"] = algo.error
+    # A binary of another version, named by T2TF_BIN: refused before it runs.
+    other = os.path.join(work, "other-t2tf")
+    with open(other, "w") as fh:
+        fh.write("#!/bin/sh\n[ \"$1\" = --version ] && echo 't2tf 9.9.9' && exit 0\n"
+                 "echo ran >> '%s'\nexit 1\n" % os.path.join(work, "other.log"))
+    os.chmod(other, 0o755)
+    os.environ["T2TF_BIN"] = other
+    f.Seed = 5
+    pvs.Render(view)
+    res["other_error"] = algo.error
+    res["plugin_version"] = t2tf_plugin.__version__
+if mode not in ("errors", "offline", "panel", "presets", "estimate", "recover", "binary"):
     pvs.SaveScreenshot(shot, view, ImageResolution=[size, size])
 with open(out_json, "w") as fh:
     json.dump(res, fh)

@@ -56,7 +56,7 @@ try:
     reader.DataScalarType = "unsigned char"
     reader.DataExtent = [0, 63, 0, 63, 0, 63]
     reader.ScalarArrayName = "ImageFile"
-    f = TexttoTransferFunction(Input=reader, Prompt="a protein molecule", Steps=2, Views=1,
+    f = TextToTransferFunction(Input=reader, Prompt="a protein molecule", Steps=2, Views=1,
                                Seed=3, Model=env["T2TF_MODEL"], Tokenizer=env["T2TF_TOKENIZER"])
     pvs.Show(f)
     res["after_run"] = groups()

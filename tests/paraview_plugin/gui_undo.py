@@ -68,8 +68,9 @@ try:
     view.CameraViewAngle = 30.0
     pvs.Render(view)
     res["user_camera"] = camera(view)
-    f = TexttoTransferFunction(Input=reader, Prompt="a protein molecule", Steps=2, Views=1,
-                               Seed=3, Model=env["T2TF_MODEL"], Tokenizer=env["T2TF_TOKENIZER"])
+    f = TextToTransferFunction(Input=reader, Prompt="a protein molecule", Steps=2, Views=1,
+                               Seed=3, Model=env["T2TF_MODEL"], Tokenizer=env["T2TF_TOKENIZER"],
+                               ApplyCamera=1)
     algo = f.GetClientSideObject()
 
     def step(name):

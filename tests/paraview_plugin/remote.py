@@ -82,7 +82,7 @@ pvs.SaveScreenshot(proxy_png, view, ImageResolution=[size, size])
 # on no rank, and fails.
 pvs.LoadPlugin(plugin, remote=True, ns=globals())
 print("SERVER FILTER", flush=True)
-f = TexttoTransferFunction(Input=full, Prompt="a protein molecule", Steps=2, Views=1,
+f = TextToTransferFunction(Input=full, Prompt="a protein molecule", Steps=2, Views=1,
                            Model=model, Tokenizer=tokenizer)
 f.UpdatePipeline()
 res["server_filter_points"] = f.GetDataInformation().GetNumberOfPoints()
