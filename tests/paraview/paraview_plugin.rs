@@ -1176,6 +1176,56 @@ fn the_launcher_loads_the_plugin_without_load_plugin() {
         .collect();
     assert_eq!(listed, [("t2tf_plugin".to_string(), true, plugin)], "{res}");
     assert_eq!(res["filter"], true, "{res}");
+    assert_eq!(res["venv_module"], serde_json::Value::Null, "{res}");
+}
+
+/// `t2tf-paraview --venv DIR` puts a virtual environment's packages on ParaView's Python path
+/// (where Debian refuses `pip install --user`), and names a folder that is no environment.
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn the_launcher_adds_a_venvs_packages() {
+    require_paraview("the_launcher_adds_a_venvs_packages");
+    let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let venv = dir.path().join("venv");
+    let site = venv.join("lib/python3.99/site-packages");
+    std::fs::create_dir_all(&site).unwrap();
+    std::fs::write(site.join("t2tf_launcher_probe.py"), "").unwrap();
+    let json = dir.path().join("launcher.json");
+    let launch = |venv: &Path| {
+        Command::new("timeout")
+            .args(["300", "xvfb-run"])
+            .args(paraview_util::xvfb_display_args())
+            .arg(repo().join("paraview/bin/t2tf-paraview"))
+            .arg("--venv")
+            .arg(venv)
+            .args(["pvpython", "--dr"])
+            .arg(repo().join("tests/paraview_plugin/launcher.py"))
+            .arg(&json)
+            .env_remove("PYTHONPATH")
+            .env_remove("PV_PLUGIN_PATH")
+            .output()
+            .expect("run xvfb-run t2tf-paraview pvpython")
+    };
+    let out = launch(&venv);
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    let res: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let module = PathBuf::from(
+        res["venv_module"]
+            .as_str()
+            .unwrap_or_else(|| panic!("{res}")),
+    );
+    assert_eq!(module, site.join("t2tf_launcher_probe.py"), "{res}");
+    assert_eq!(res["filter"], true, "the plugin still loads: {res}");
+    let out = launch(dir.path());
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out));
+    assert!(
+        text(&out).contains("not a virtual environment (no lib/python3*/site-packages)"),
+        "{}",
+        text(&out)
+    );
 }
 
 /// The filter after failures, bad settings, a new Refine start and a cancel, as property

@@ -21,5 +21,10 @@ res = {
     "PV_PLUGIN_PATH": os.environ.get("PV_PLUGIN_PATH"),
     "PYTHONPATH": os.environ.get("PYTHONPATH"),
 }
+try:  # a module of the environment `--venv` named, when the test gave one
+    import t2tf_launcher_probe
+    res["venv_module"] = t2tf_launcher_probe.__file__
+except ImportError:
+    res["venv_module"] = None
 with open(sys.argv[1], "w") as fh:
     json.dump(res, fh)
