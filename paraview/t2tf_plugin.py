@@ -557,6 +557,16 @@ def current_tf(array, source=None):
     return preset
 
 
+def remember_model(model, tokenizer):
+    """Keep the Model and Tokenizer of a run that worked as the defaults of new filters, in
+    ParaView's user settings (saved at exit, read by the next session)."""
+    from paraview import servermanager
+
+    settings = servermanager.vtkSMSettings.GetInstance()
+    for prop, value in (("Model", model), ("Tokenizer", tokenizer)):
+        settings.SetSetting("filters.TextToTransferFunction." + prop, value or "")
+
+
 def _file_digest(path):
     """The SHA-256 of a file's bytes; the text itself when it names no file (empty, or a
     file that is not there: the run will say so)."""
@@ -1397,6 +1407,7 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self.reused = False
         previous = (stored or {}).get("result", {}).get("name") or self._last_name
         result = self._run(image, array)
+        remember_model(self._model, self._tokenizer)
         result["replaces"] = previous
         if result["interrupted"]:
             # Shown and saved, but never reused as the result of these settings.

@@ -1355,3 +1355,39 @@ fn the_binary_is_pinned_said_once_and_of_the_plugins_version() {
         "the other version ran"
     );
 }
+
+/// The Model and Tokenizer of a run that worked are the defaults of the filter in the next
+/// session (ParaView's user settings), as a ParaView user expects of a model folder chosen once.
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn model_and_tokenizer_are_remembered_for_the_next_session() {
+    require_paraview("model_and_tokenizer_are_remembered_for_the_next_session");
+    let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("settings.json");
+    let model = repo().join("tests/fixtures/clip/quick_gelu");
+    let tokenizer = repo().join("../shared/data/clip/tokenizer.json");
+    let session = |phase: &str| -> serde_json::Value {
+        // Without --dr: this session reads and writes its user settings (in `dir`).
+        let out = Command::new("timeout")
+            .args(["300", "xvfb-run"])
+            .args(paraview_util::xvfb_display_args())
+            .arg("pvpython")
+            .arg(repo().join("tests/paraview_plugin/settings.py"))
+            .arg(repo().join("paraview/t2tf_plugin.py"))
+            .arg(phase)
+            .args([&model, &tokenizer, &json])
+            .env("XDG_CONFIG_HOME", dir.path().join("config"))
+            .env("PYTHONPATH", repo().join("paraview/compat"))
+            .env("TMPDIR", dir.path())
+            .env("T2TF_BIN", env!("CARGO_BIN_EXE_t2tf"))
+            .output()
+            .expect("run pvpython");
+        assert!(out.status.success(), "{}", text(&out));
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap()
+    };
+    assert_eq!(session("run")["error"], serde_json::Value::Null);
+    let new = session("new");
+    assert_eq!(new["Model"], model.to_str().unwrap(), "{new}");
+    assert_eq!(new["Tokenizer"], tokenizer.to_str().unwrap(), "{new}");
+}
