@@ -28,7 +28,7 @@ const SETTING_FLAGS: [&str; 14] = [
 ];
 
 /// Options the library names in backticks, and the flags that set them.
-const OPTION_FLAGS: [(&str, &str); 11] = [
+const OPTION_FLAGS: [(&str, &str); 14] = [
     ("`rescale`", "--rescale MIN,MAX"),
     ("`dims`", "--dims"),
     ("`dtype`", "--dtype"),
@@ -40,6 +40,9 @@ const OPTION_FLAGS: [(&str, &str); 11] = [
     ("`preset`", "--preset NAME"),
     ("`model`", "--model"),
     ("`max_preset_size`", "--max-preset-size SIZE"),
+    ("`threads`", "--threads"),
+    ("`step_size`", "--step-size"),
+    ("`render_size`", "--render-size"),
 ];
 
 /// The library's advice for a model the cache lacks, and what the command line says instead.

@@ -63,21 +63,11 @@ pub enum Command {
 /// The thread pool a command runs in: `--threads` (at most the logical CPUs, with a warning
 /// when capped), else rayon's default of one per CPU.
 pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {
-    let n = match threads {
-        Some(t) => {
-            let (n, capped) = crate::memory::thread_count(t);
-            if capped {
-                errln!("t2tf: warning: --threads {t} is more than the {n} logical CPUs; using {n}");
-            }
-            n
-        }
-        None => 0,
-    };
-    use anyhow::Context;
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(n)
-        .build()
-        .context("--threads: cannot start the thread pool")
+    let w = pipeline::workers(threads).map_err(flags::pipeline)?;
+    if let Some((t, n)) = w.capped {
+        errln!("t2tf: warning: --threads {t} is more than the {n} logical CPUs; using {n}");
+    }
+    Ok(w.pool)
 }
 
 /// The whole program for `args` (the program name first): parse, run, print an error on one

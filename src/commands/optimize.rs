@@ -240,19 +240,9 @@ impl OptimizeArgs {
     /// Everything that can be checked before loading the volume and the model, checked once:
     /// the flags the library does not see, then the library's job.
     pub fn validate(self) -> Result<ValidArgs> {
-        if self.threads == Some(0) {
-            bail!("--threads must be at least 1");
-        }
-        if let Some(s) = self.step_size {
-            if !(s.is_finite() && s > 0.0) {
-                bail!("--step-size must be a positive number of voxels, got {s}");
-            }
-        }
-        if let Some(r) = self.render_size {
-            if !(8..=4096).contains(&r) {
-                bail!("--render-size must be 8 to 4096 pixels, got {r}");
-            }
-        }
+        // The settings' bounds (threads, step and render size, …) are the library's to check
+        // (`pipeline::check_threads`, `Job::validate`); here only what the flags add.
+        pipeline::check_threads(self.threads).map_err(flags::pipeline)?;
         if self.out.exists() && !self.out.is_dir() {
             bail!("{}: --out exists and is not a folder", self.out.display());
         }

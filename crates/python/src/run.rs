@@ -223,15 +223,8 @@ pub fn optimize<'py>(
         apply_settings(&mut job, settings)?;
         jobs.push(job.validate().map_err(errors::pipeline)?);
     }
-    if threads == Some(0) {
-        return Err(errors::settings("threads must be at least 1"));
-    }
     // At most the logical CPUs, as the CLI's `--threads` (more only adds switching).
-    let n = threads.map_or(0, |t| t2tf::memory::thread_count(t).0);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(n)
-        .build()
-        .map_err(|e| errors::settings(format!("cannot start the thread pool: {e}")))?;
+    let pool = pipeline::workers(threads).map_err(errors::pipeline)?.pool;
     let volume = &volume.get().volume;
     if let Some(job) = jobs.first() {
         job.check_volume(volume).map_err(errors::pipeline)?;

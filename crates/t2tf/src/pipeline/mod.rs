@@ -25,6 +25,7 @@ mod model;
 pub mod naming;
 mod outputs;
 mod start;
+mod threads;
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -33,6 +34,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 pub use model::{Model, ModelOptions};
 pub use outputs::{check_name, check_outputs, output_files};
 pub use start::{check_locks, InitTf, PARAVIEW_TABLE};
+pub use threads::{check_threads, workers, Workers};
 
 use crate::camera::{Camera, Orbit, ParaViewCamera, UpAxis};
 use crate::image::Image;
@@ -171,14 +173,14 @@ impl Job {
         if let Some(s) = self.step_size {
             if !(s.is_finite() && s > 0.0) {
                 return Err(PipelineError::Job(format!(
-                    "the step size must be a positive number of voxels, got {s}"
+                    "`step_size` must be a positive number of voxels, got {s}"
                 )));
             }
         }
         if let Some(r) = self.render_size {
             if !(8..=4096).contains(&r) {
                 return Err(PipelineError::Job(format!(
-                    "the render size must be 8 to 4096 pixels, got {r}"
+                    "`render_size` must be 8 to 4096 pixels, got {r}"
                 )));
             }
         }
