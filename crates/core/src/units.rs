@@ -51,7 +51,6 @@ mod tests {
 
     #[test]
     fn sizes_read_well() {
-        // Input → text rows, as cli/info.rs's tests of its own formatting: alike by design.
         assert_eq!(human_bytes(512), "512 B");
         assert_eq!(human_bytes(2048), "2.0 KiB");
         assert_eq!(human_bytes(605_000_000), "577.0 MiB");
