@@ -56,13 +56,17 @@ const LOCAL_MODEL: &str = ", or use a local `model` folder";
 pub fn say(message: &str, fetching: bool) -> String {
     let mut m = message.to_string();
     if m.contains(LOCAL_MODEL) {
-        let local = if fetching {
-            ""
-        } else {
-            ", or pass --model DIR (offline, the test model of the repository runs every stage: \
-             --model tests/fixtures/clip/quick_gelu --tokenizer ../shared/data/clip/tokenizer.json)"
+        let local = match (fetching, test_model()) {
+            (true, _) => String::new(),
+            (false, None) => ", or pass --model DIR".to_string(),
+            (false, Some((model, tokenizer))) => format!(
+                ", or pass --model DIR (offline, the test model of the repository runs every \
+                 stage: --model {} --tokenizer {})",
+                model.display(),
+                tokenizer.display()
+            ),
         };
-        m = m.replace(LOCAL_MODEL, local);
+        m = m.replace(LOCAL_MODEL, &local);
     }
     // "fetch REPO with network access" → "run `t2tf model fetch REPO` on a machine with network"
     while let Some(end) = m.find(FETCH.0) {
@@ -81,12 +85,26 @@ pub fn say(message: &str, fetching: bool) -> String {
     m
 }
 
+/// The repository's tiny test model and the shared CLIP tokenizer, as absolute paths, where
+/// the checkout this binary was built from still has them (a hint that works from any folder);
+/// `None` for a binary whose checkout is gone.
+fn test_model() -> Option<(std::path::PathBuf, std::path::PathBuf)> {
+    // Cargo gives the manifest's folder as an absolute path.
+    let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let model = repo.join("tests/fixtures/clip/quick_gelu");
+    let tokenizer = repo.parent()?.join("shared/data/clip/tokenizer.json");
+    (model.is_dir() && tokenizer.is_file()).then_some((model, tokenizer))
+}
+
 /// A pipeline error as the command line says it.
 pub fn pipeline(e: PipelineError) -> anyhow::Error {
     match e {
         PipelineError::Optimize(o) => optimize(o),
         PipelineError::Memory(m) => anyhow::anyhow!("{m} ({MEMORY_HINT})"),
         PipelineError::Volume(v) => volume(v),
+        // A job's settings by their flags (`step_size` → --step-size) where the error is made,
+        // not only when it is printed.
+        PipelineError::Job(j) => anyhow::anyhow!(say(&j, false)),
         other => memory_hint(other.into()),
     }
 }
@@ -156,7 +174,15 @@ mod tests {
             m.contains("run `t2tf model fetch o/n` on a machine with network (copy)"),
             "{m}"
         );
-        assert!(m.contains("--model DIR") && m.contains("quick_gelu"), "{m}");
+        // The test model by absolute paths, so the hint works from any folder.
+        let (model, tokenizer) = test_model().expect("the tests run in the checkout");
+        assert!(model.is_absolute() && tokenizer.is_absolute());
+        let hint = format!(
+            "--model {} --tokenizer {}",
+            model.display(),
+            tokenizer.display()
+        );
+        assert!(m.contains("--model DIR") && m.contains(&hint), "{m}");
         let m = say(offline, true);
         assert!(
             m.contains("t2tf model fetch o/n") && !m.contains("--model"),

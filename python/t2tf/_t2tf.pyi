@@ -8,6 +8,9 @@ import numpy.typing as npt
 
 _Path = Union[str, "os.PathLike[str]"]
 _Size = Union[int, str]
+# What optimize and render take as a volume: a Volume, a file's path or an array.
+_VolumeLike = Union["Volume", _Path, npt.ArrayLike]
+_Triple = Union[Tuple[float, float, float], Sequence[float], npt.ArrayLike]
 
 DEFAULT_MODEL: str
 __version__: str
@@ -51,8 +54,8 @@ class Volume:
     def __init__(
         self,
         values: npt.ArrayLike,
-        spacing: Tuple[float, float, float] = (1.0, 1.0, 1.0),
-        origin: Tuple[float, float, float] = (0.0, 0.0, 0.0),
+        spacing: Optional[_Triple] = None,
+        origin: Optional[_Triple] = None,
     ) -> None: ...
     @property
     def shape(self) -> Tuple[int, int, int]:
@@ -83,7 +86,7 @@ def read_volume(
     *,
     dims: Optional[Tuple[int, int, int]] = None,
     dtype: Any = None,
-    spacing: Optional[Tuple[float, float, float]] = None,
+    spacing: Optional[_Triple] = None,
     byte_order: Optional[str] = None,
     array: Optional[str] = None,
 ) -> Volume:
@@ -134,8 +137,8 @@ class TransferFunction:
         """`n` values evenly over `range` and RGBA there: ((n,), (n, 4)), RGB colours."""
 
 def render(
-    volume: Volume,
-    tf: TransferFunction,
+    volume: _VolumeLike,
+    tf: Union[TransferFunction, _Path],
     *,
     yaw: float = 30.0,
     pitch: float = 10.0,
@@ -197,14 +200,8 @@ class Result:
 Progress = Callable[[Dict[str, Any]], Optional[bool]]
 
 @overload
-def optimize(
-    volume: Volume,
-    prompt: Sequence[str],
-    **kwargs: Any,
-) -> List[Result]: ...
-@overload
-def optimize(
-    volume: Volume,
+def optimize(  # type: ignore[overload-overlap]  # a str is also a Sequence[str]
+    volume: _VolumeLike,
     prompt: Optional[str] = None,
     *,
     negatives: Sequence[str] = (),
@@ -237,7 +234,43 @@ def optimize(
     init: Union[None, _Path, TransferFunction] = None,
     preset: Optional[str] = None,
     lock: Sequence[Tuple[float, float]] = (),
-) -> Result:
+) -> Result: ...
+@overload
+def optimize(
+    volume: _VolumeLike,
+    prompt: Sequence[str],
+    *,
+    negatives: Sequence[str] = (),
+    steps: int = 300,
+    views: int = 3,
+    seed: int = 0,
+    model: Union[None, _Path, Model] = None,
+    tokenizer: Optional[_Path] = None,
+    revision: Optional[str] = None,
+    precision: str = "f32",
+    threads: Optional[int] = None,
+    progress: Optional[Progress] = None,
+    reference_image: Optional[_Path] = None,
+    max_memory: Optional[_Size] = None,
+    lr: float = 10.0,
+    momentum: float = 0.75,
+    prior_weight: float = 0.02,
+    prior_ab: float = 0.5,
+    prior_start: int = 100,
+    l1: float = 2e-5,
+    l2: float = 8e-4,
+    control_points: int = 32,
+    negatives_per_step: int = 128,
+    negatives_file: Optional[_Path] = None,
+    up: str = "z",
+    step_size: Optional[float] = None,
+    level: Optional[int] = None,
+    render_size: Optional[int] = None,
+    caption_cache: Optional[_Path] = ...,
+    init: Union[None, _Path, TransferFunction] = None,
+    preset: Optional[str] = None,
+    lock: Sequence[Tuple[float, float]] = (),
+) -> List[Result]:
     """Optimize a transfer function so renderings of `volume` match `prompt` (Algorithm 1
     with the paper's defaults; every keyword is the `t2tf optimize` flag of that name).
 

@@ -16,6 +16,10 @@ def test_the_command_is_the_rust_cli():
                             capture_output=True, text=True)
     assert failed.returncode == 1
     assert failed.stderr.startswith("t2tf: error:") and "no-such.raw" in failed.stderr
+    # `python -m t2tf` names the program as the command does, not `__main__.py`.
+    helped = subprocess.run([sys.executable, "-m", "t2tf", "--help"], capture_output=True,
+                            text=True)
+    assert helped.returncode == 0 and "Usage: t2tf <COMMAND>" in helped.stdout, helped.stdout
 
 
 def test_optimize_writes_the_clis_tf_bit_for_bit(tmp_path):

@@ -105,6 +105,9 @@ def test_ctrl_c_stops_the_run_then_raises_keyboard_interrupt(tmp_path):
     (dict(prompt="x", views=0), t2tf.SettingsError, "views"),
     # Sizes are bounded before anything is allocated (an allocation this large aborts).
     (dict(prompt="x", steps=10**12), t2tf.SettingsError, "steps.*at most 1000000"),
+    # A negative count is a settings error, not Python's OverflowError.
+    (dict(prompt="x", steps=-1), t2tf.SettingsError, "steps must be 0 or more, got -1"),
+    (dict(prompt="x", views=-2), t2tf.SettingsError, "views must be 0 or more, got -2"),
     (dict(prompt="x", views=10**6), t2tf.SettingsError, "views.*at most 64"),
     (dict(prompt="x", prior_ab=-1.0), t2tf.SettingsError, "prior_ab"),
     (dict(prompt="x", threads=0), t2tf.SettingsError, "threads"),
@@ -225,3 +228,16 @@ def test_init_and_lock_refine_a_tf_and_keep_the_locked_range(volume):
 def test_bad_starts_are_settings_or_format_errors(volume, kwargs, words):
     with pytest.raises(t2tf.Error, match=words):
         t2tf.optimize(volume, "x", **QUICK, **kwargs)
+
+
+def test_a_volume_is_a_volume_an_array_or_a_path(neghip):
+    """What the README says volumes are: arrays or files, as well as `Volume`s; each gives the
+    TF of the same data."""
+    runs = [t2tf.optimize(v, "a protein molecule", **dict(QUICK, steps=1))
+            for v in (t2tf.read_volume(NEGHIP), neghip, str(NEGHIP), NEGHIP)]
+    first = runs[0].transfer_function.sample(64)[1]
+    for r in runs[1:]:
+        np.testing.assert_array_equal(r.transfer_function.sample(64)[1], first)
+    with pytest.raises(t2tf.VolumeError, match="3-D array"):
+        t2tf.optimize(np.zeros((4, 4)), "x", **QUICK)
+    assert repr(runs[0]).startswith("Result(steps_run=1, interrupted=False, ")

@@ -105,3 +105,16 @@ def test_a_tf_from_points_renders_as_its_saved_file(tmp_path):
         t2tf.TransferFunction.from_points([(1, 0, 0, 0), (0, 1, 1, 1)])
     with pytest.raises(t2tf.FormatError, match="no colour points"):
         t2tf.TransferFunction.from_points([])
+
+
+def test_render_takes_paths_and_arrays_and_volume_takes_any_triple(neghip, tmp_path):
+    tf = t2tf.TransferFunction.load(PRESET)
+    want = t2tf.render(t2tf.read_volume(NEGHIP), tf, size=32)
+    for volume in (NEGHIP, str(NEGHIP), neghip):
+        np.testing.assert_array_equal(t2tf.render(volume, PRESET, size=32), want)
+    with pytest.raises(t2tf.SettingsError, match="tf must be a t2tf.TransferFunction or"):
+        t2tf.render(neghip, 3, size=32)
+    for spacing in ([1, 1, 2], (1, 1, 2), np.array([1.0, 1.0, 2.0])):
+        assert t2tf.Volume(neghip, spacing=spacing).spacing == (1.0, 1.0, 2.0)
+    with pytest.raises(t2tf.SettingsError, match="spacing must be three numbers"):
+        t2tf.Volume(neghip, spacing=[1, 2])

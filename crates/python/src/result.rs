@@ -103,10 +103,11 @@ impl OptimizeResult {
     }
 
     fn __repr__(&self) -> String {
+        // Python's spelling of the bool.
+        let interrupted = if self.interrupted() { "True" } else { "False" };
         format!(
-            "Result(steps_run={}, interrupted={}, name={:?})",
+            "Result(steps_run={}, interrupted={interrupted}, name={:?})",
             self.steps_run(),
-            self.interrupted(),
             self.name
         )
     }

@@ -18,7 +18,6 @@ use crate::errors;
 use crate::events::run_with_events;
 use crate::result::OptimizeResult;
 use crate::tf::PyTransferFunction;
-use crate::volume::PyVolume;
 
 /// A CLIP model loaded once, to run several optimizations with.
 #[pyclass(name = "Model", module = "t2tf", frozen)]
@@ -160,15 +159,15 @@ pub fn default_name(target: &Target, out: Option<&Path>) -> PyResult<String> {
 /// Optimize a transfer function so renderings of `volume` match `prompt` (or, with
 /// `reference_image`, a picture). See the package docs for every keyword.
 #[pyfunction]
-#[pyo3(signature = (volume, prompt = None, *, negatives = Vec::new(), steps = defaults::STEPS, views = defaults::VIEWS, seed = defaults::SEED, model = None, tokenizer = None, revision = None, precision = "f32", threads = None, progress = None, reference_image = None, max_memory = None, init = None, preset = None, lock = Vec::new(), **settings))]
+#[pyo3(signature = (volume, prompt = None, *, negatives = Vec::new(), steps = defaults::STEPS as i64, views = defaults::VIEWS as i64, seed = defaults::SEED, model = None, tokenizer = None, revision = None, precision = "f32", threads = None, progress = None, reference_image = None, max_memory = None, init = None, preset = None, lock = Vec::new(), **settings))]
 #[allow(clippy::too_many_arguments)] // each is one keyword of the Python function
 pub fn optimize<'py>(
     py: Python<'py>,
-    volume: Py<PyVolume>,
+    volume: &Bound<'py, PyAny>,
     prompt: Option<&Bound<'py, PyAny>>,
     negatives: Vec<String>,
-    steps: usize,
-    views: usize,
+    steps: i64,
+    views: i64,
     seed: u64,
     model: Option<&Bound<'_, PyAny>>,
     tokenizer: Option<PathBuf>,
@@ -209,6 +208,13 @@ pub fn optimize<'py>(
             ))
         }
     };
+    // Counts as Python ints: a negative one is a settings error, not an OverflowError.
+    let count = |name: &str, v: i64| {
+        usize::try_from(v)
+            .map_err(|_| errors::settings(format!("{name} must be 0 or more, got {v}")))
+    };
+    let (steps, views) = (count("steps", steps)?, count("views", views)?);
+    let volume = crate::volume::volume_arg(py, volume)?;
     let init = init_tf(init, preset)?;
     let mut jobs = Vec::with_capacity(targets.len());
     for target in &targets {

@@ -15,11 +15,11 @@ use t2tf::memory::Budget;
 use t2tf::render::{CpuBackend, RenderOptions};
 
 use crate::errors::{self, RenderError};
-use crate::volume::PyVolume;
 
 /// A transfer function: colour and opacity points in data units, in the colour space its
 /// file gave (ParaView presets may interpolate in Lab, HSV, …).
 #[pyclass(name = "TransferFunction", module = "t2tf", frozen)]
+#[derive(Clone)]
 pub struct PyTransferFunction {
     pub preset: Preset,
 }
@@ -165,8 +165,8 @@ type Sampled<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>);
 #[allow(clippy::too_many_arguments)] // each is one keyword of the Python function
 pub fn render<'py>(
     py: Python<'py>,
-    volume: &PyVolume,
-    tf: &PyTransferFunction,
+    volume: &Bound<'py, PyAny>,
+    tf: &Bound<'py, PyAny>,
     yaw: f64,
     pitch: f64,
     distance: f64,
@@ -186,7 +186,9 @@ pub fn render<'py>(
         .map_err(|e| errors::settings(format!("up: {}", errors::message(&e))))?;
     let bg = t2tf::background::from_name(background, size, size, seed)
         .map_err(|e| errors::settings(format!("background: {}", errors::message(&e))))?;
-    let v = &volume.volume;
+    let volume = crate::volume::volume_arg(py, volume)?;
+    let v = &volume.get().volume;
+    let tf = tf_arg(tf)?;
     let name = Path::new(&tf.preset.tf.name);
     let lut =
         preset_lut(&tf.preset, name, v, unit_distance, Sampling::Exact).map_err(errors::format)?;
@@ -206,6 +208,18 @@ pub fn render<'py>(
         .map_err(|e| RenderError::new_err(errors::message(&e)))?
         .image;
     rgb8(py, &image)
+}
+
+/// What `render` takes as a transfer function: a `TransferFunction`, or a TF file's path (its
+/// only preset, as `TransferFunction.load` reads it).
+fn tf_arg(value: &Bound<'_, PyAny>) -> PyResult<PyTransferFunction> {
+    if let Ok(tf) = value.cast::<PyTransferFunction>() {
+        return Ok(tf.get().clone());
+    }
+    let path: PathBuf = value
+        .extract()
+        .map_err(|_| errors::settings("tf must be a t2tf.TransferFunction or a TF file's path"))?;
+    PyTransferFunction::load(path, None, DEFAULT_MAX_PRESET_SIZE)
 }
 
 /// An RGB image as a uint8 array (height, width, 3).

@@ -146,16 +146,18 @@ fn geometry(shape: &[usize], spacing: [f64; 3], origin: [f64; 3]) -> Geometry {
 #[pymethods]
 impl PyVolume {
     #[new]
-    #[pyo3(signature = (values, spacing = (1.0, 1.0, 1.0), origin = (0.0, 0.0, 0.0)))]
+    #[pyo3(signature = (values, spacing = None, origin = None))]
     fn new(
         py: Python<'_>,
         values: &Bound<'_, PyAny>,
-        spacing: (f64, f64, f64),
-        origin: (f64, f64, f64),
+        spacing: Option<&Bound<'_, PyAny>>,
+        origin: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PyVolume> {
+        let spacing = spacing.map_or(Ok([1.0; 3]), |s| triple("spacing", s))?;
+        let origin = origin.map_or(Ok([0.0; 3]), |o| triple("origin", o))?;
         let array = c_array(values)?;
         let (ty, order) = volume_type(&array).expect("c_array gives a volume type");
-        let g = geometry(array.shape(), spacing.into(), origin.into());
+        let g = geometry(array.shape(), spacing, origin);
         // SAFETY: the array is C-contiguous (checked or made so above), so its data pointer
         // starts `nbytes` bytes of values; the owner reference keeps them alive.
         let data = unsafe { (*array.as_array_ptr()).fields.data as *const u8 };
@@ -282,6 +284,33 @@ fn decoded<'py>(py: Python<'py>, path: &Path, opts: &ReadOptions) -> PyResult<Bo
     })
 }
 
+/// Three numbers (x, y, z) from any sequence: a tuple, a list, a NumPy array.
+pub fn triple(name: &str, value: &Bound<'_, PyAny>) -> PyResult<[f64; 3]> {
+    let v: Vec<f64> = value
+        .extract()
+        .map_err(|_| errors::settings(format!("{name} must be three numbers (x, y, z)")))?;
+    <[f64; 3]>::try_from(v.as_slice()).map_err(|_| {
+        errors::settings(format!(
+            "{name} must be three numbers (x, y, z), got {}",
+            v.len()
+        ))
+    })
+}
+
+/// What `optimize` and `render` take as a volume: a `Volume`, a file's path (read as
+/// `read_volume` reads it), or an array (as `Volume(array)` takes it).
+pub fn volume_arg(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<Py<PyVolume>> {
+    if let Ok(v) = value.cast::<PyVolume>() {
+        return Ok(v.clone().unbind());
+    }
+    let made = if let Ok(path) = value.extract::<PathBuf>() {
+        read_volume(py, path, None, None, None, None, None)?
+    } else {
+        PyVolume::new(py, value, None, None)?
+    };
+    Py::new(py, made)
+}
+
 /// Read a volume file (`.raw`, `.vti`, `.vtk`) as `t2tf optimize` does.
 #[pyfunction]
 #[pyo3(signature = (path, *, dims = None, dtype = None, spacing = None, byte_order = None, array = None))]
@@ -290,10 +319,11 @@ pub fn read_volume(
     path: PathBuf,
     dims: Option<(usize, usize, usize)>,
     dtype: Option<&Bound<'_, PyAny>>,
-    spacing: Option<(f64, f64, f64)>,
+    spacing: Option<&Bound<'_, PyAny>>,
     byte_order: Option<&str>,
     array: Option<String>,
 ) -> PyResult<PyVolume> {
+    let spacing = spacing.map(|s| triple("spacing", s)).transpose()?;
     let dtype = match dtype {
         None => None,
         // A name, or anything NumPy calls a dtype (np.uint16, np.dtype("<u2")).
@@ -318,7 +348,7 @@ pub fn read_volume(
     let opts = ReadOptions {
         dims: dims.map(|(x, y, z)| [x, y, z]),
         dtype,
-        spacing: spacing.map(Into::into),
+        spacing,
         byte_order,
         array,
         budget: Budget::system(),
