@@ -85,7 +85,8 @@ def message(text, error=True):
 # t2tf's words for a setting (the binary's flags, the Python module's keywords) and the
 # property that sets it in ParaView, longest first.
 _PROPERTY_WORDS = (
-    ("give a --tokenizer", "set Tokenizer"), ("--reference-image PNG", "Reference Image"), ("--reference-image", "Reference Image"),
+    ("give a --tokenizer", "set Tokenizer"),
+    ("--reference-image PNG", "Reference Image"), ("--reference-image", "Reference Image"),
     ("--model DIR", "Model"), ("--model", "Model"), ("--tokenizer", "Tokenizer"),
     ("--steps", "Steps"), ("--views", "Views"), ("--seed", "Seed"),
     ("--negative", "Negatives"), ("--lock", "Lock Ranges"), ("--array", "Array"),
@@ -198,11 +199,18 @@ def _alive(pid):
     """Whether process `pid` runs (a process we may not signal runs)."""
     if os.name == "nt":
         # os.kill on Windows terminates the process: ask the kernel instead.
+        from ctypes import wintypes
+
         kernel32 = ctypes.WinDLL("kernel32", use_last_error=True)
+        # A HANDLE is pointer-sized: ctypes' default int return would cut it on 64-bit.
+        kernel32.OpenProcess.restype = wintypes.HANDLE
+        kernel32.OpenProcess.argtypes = (wintypes.DWORD, wintypes.BOOL, wintypes.DWORD)
+        kernel32.GetExitCodeProcess.argtypes = (wintypes.HANDLE, ctypes.POINTER(wintypes.DWORD))
+        kernel32.CloseHandle.argtypes = (wintypes.HANDLE,)
         handle = kernel32.OpenProcess(0x1000, False, pid)  # PROCESS_QUERY_LIMITED_INFORMATION
         if not handle:
             return ctypes.get_last_error() == 5  # access denied: it exists
-        code = ctypes.c_ulong()
+        code = wintypes.DWORD()
         ok = kernel32.GetExitCodeProcess(handle, ctypes.byref(code))
         kernel32.CloseHandle(handle)
         return bool(ok) and code.value == 259  # STILL_ACTIVE

@@ -48,6 +48,21 @@ fn many_points(dir: &Path, n: usize, smooth: bool) -> PathBuf {
     p
 }
 
+/// `optimize --init init` into `out` with a model that does not exist: what is said before
+/// the model would load.
+fn optimize_from(init: &Path, out: &Path) -> (i32, String) {
+    let args = [
+        "optimize",
+        VOLUME,
+        "--prompt",
+        "x",
+        "--model",
+        "no/such/model",
+        "--out",
+    ];
+    t2tf(&args, &[out, Path::new("--init"), init])
+}
+
 fn one_line_naming(err: &str, needles: &[&str]) {
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     for n in needles {
@@ -77,18 +92,7 @@ fn a_preset_file_over_the_cap_is_refused_before_it_is_read_by_every_command() {
     assert_eq!(code, 1, "{err}");
     one_line_naming(&err, &said);
     // Before the model: the model named here does not exist.
-    let (code, err) = t2tf(
-        &[
-            "optimize",
-            VOLUME,
-            "--prompt",
-            "x",
-            "--model",
-            "no/such/model",
-            "--out",
-        ],
-        &[&out, Path::new("--init"), &big],
-    );
+    let (code, err) = optimize_from(&big, &out);
     assert_eq!(code, 1, "{err}");
     one_line_naming(&err, &said);
     assert!(!err.contains("no/such/model"), "{err}");
@@ -129,18 +133,7 @@ fn an_init_preset_of_more_points_than_a_run_has_is_refused_before_the_model_load
     let dir = tempfile::tempdir().unwrap();
     let tf = many_points(dir.path(), 5000, false);
     let out = dir.path().join("out");
-    let (code, err) = t2tf(
-        &[
-            "optimize",
-            VOLUME,
-            "--prompt",
-            "x",
-            "--model",
-            "no/such/model",
-            "--out",
-        ],
-        &[&out, Path::new("--init"), &tf],
-    );
+    let (code, err) = optimize_from(&tf, &out);
     assert_eq!(code, 1, "{err}");
     one_line_naming(
         &err,

@@ -1133,25 +1133,7 @@ fn the_launcher_loads_the_plugin_without_load_plugin() {
     let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("launcher.json");
-    let mut attempt = 0;
-    let out = loop {
-        attempt += 1;
-        let out = Command::new("timeout")
-            .args(["300", "xvfb-run"])
-            .args(paraview_util::xvfb_display_args())
-            .arg(repo().join("paraview/bin/t2tf-paraview"))
-            .args(["pvpython", "--dr"])
-            .arg(repo().join("tests/paraview_plugin/launcher.py"))
-            .arg(&json)
-            .env_remove("PYTHONPATH")
-            .env_remove("PV_PLUGIN_PATH")
-            .output()
-            .expect("run xvfb-run t2tf-paraview pvpython");
-        if attempt < 3 && lost_display(&out, "") {
-            continue;
-        }
-        break out;
-    };
+    let out = launcher_pvpython(&[], &json);
     let all = text(&out);
     assert!(out.status.success(), "{all}");
     assert!(!all.contains("getargspec"), "{all}");
@@ -1179,6 +1161,31 @@ fn the_launcher_loads_the_plugin_without_load_plugin() {
     assert_eq!(res["venv_module"], serde_json::Value::Null, "{res}");
 }
 
+/// `paraview/bin/t2tf-paraview LAUNCHER_ARGS pvpython --dr launcher.py json` under xvfb with
+/// no PYTHONPATH or PV_PLUGIN_PATH of the caller's (retried when Xvfb lost its display).
+fn launcher_pvpython(launcher_args: &[&std::ffi::OsStr], json: &Path) -> Output {
+    let mut attempt = 0;
+    loop {
+        attempt += 1;
+        let out = Command::new("timeout")
+            .args(["300", "xvfb-run"])
+            .args(paraview_util::xvfb_display_args())
+            .arg(repo().join("paraview/bin/t2tf-paraview"))
+            .args(launcher_args)
+            .args(["pvpython", "--dr"])
+            .arg(repo().join("tests/paraview_plugin/launcher.py"))
+            .arg(json)
+            .env_remove("PYTHONPATH")
+            .env_remove("PV_PLUGIN_PATH")
+            .output()
+            .expect("run xvfb-run t2tf-paraview pvpython");
+        if attempt < 3 && lost_display(&out, "") {
+            continue;
+        }
+        return out;
+    }
+}
+
 /// `t2tf-paraview --venv DIR` puts a virtual environment's packages on ParaView's Python path
 /// (where Debian refuses `pip install --user`), and names a folder that is no environment.
 #[test]
@@ -1192,21 +1199,7 @@ fn the_launcher_adds_a_venvs_packages() {
     std::fs::create_dir_all(&site).unwrap();
     std::fs::write(site.join("t2tf_launcher_probe.py"), "").unwrap();
     let json = dir.path().join("launcher.json");
-    let launch = |venv: &Path| {
-        Command::new("timeout")
-            .args(["300", "xvfb-run"])
-            .args(paraview_util::xvfb_display_args())
-            .arg(repo().join("paraview/bin/t2tf-paraview"))
-            .arg("--venv")
-            .arg(venv)
-            .args(["pvpython", "--dr"])
-            .arg(repo().join("tests/paraview_plugin/launcher.py"))
-            .arg(&json)
-            .env_remove("PYTHONPATH")
-            .env_remove("PV_PLUGIN_PATH")
-            .output()
-            .expect("run xvfb-run t2tf-paraview pvpython")
-    };
+    let launch = |venv: &Path| launcher_pvpython(&["--venv".as_ref(), venv.as_os_str()], &json);
     let out = launch(&venv);
     let all = text(&out);
     assert!(out.status.success(), "{all}");

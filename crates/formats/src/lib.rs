@@ -158,7 +158,8 @@ pub(crate) fn only_preset(
 }
 
 /// The largest TF file read unless the caller raises the cap (`--max-preset-size`): a
-/// larger one is refused before it is read. ParaView's whole preset library is under 1 MiB;
+/// larger one is refused before it is read. ParaView's whole preset library is 224 KiB
+/// (`tests/fixtures/paraview/paraview_library.json`);
 /// 64 MiB holds some 800,000 points of a JSON preset.
 pub const DEFAULT_MAX_PRESET_SIZE: u64 = 64 << 20;
 
