@@ -12,6 +12,8 @@ pub struct PresetFileArgs {
         long,
         value_name = "SIZE",
         value_parser = crate::memory::parse_size,
+        // `-5M` reaches the parser, which says a size must be positive.
+        allow_hyphen_values = true,
         help = format!(
             "Largest transfer-function file read (e.g. 256M); a larger one is refused before \
              it is read [default: {}M]",

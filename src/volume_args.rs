@@ -11,14 +11,16 @@ use crate::volume::{self, ByteOrder, ReadOptions, ScalarType, Volume};
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct VolumeArgs {
     /// Raw files: points per axis, x fastest (overrides the file name)
-    #[arg(long, value_name = "X,Y,Z", value_parser = parse_dims)]
+    // Hyphen values reach the parser, which says what is wrong with a negative one (clap
+    // would take `-2,1,1` for a flag).
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_dims, allow_hyphen_values = true)]
     pub dims: Option<[usize; 3]>,
     /// Raw files: scalar type: uint8, int8, uint16, int16, uint32, int32, float32, float64
     /// (also uint64, int64)
     #[arg(long, value_name = "TYPE", value_parser = ScalarType::from_str)]
     pub dtype: Option<ScalarType>,
     /// Grid spacing per axis (raw files: default 1,1,1; other files: replaces theirs)
-    #[arg(long, value_name = "A,B,C", value_parser = parse_spacing)]
+    #[arg(long, value_name = "A,B,C", value_parser = parse_spacing, allow_hyphen_values = true)]
     pub spacing: Option<[f64; 3]>,
     /// Raw files: byte order of the values (default little)
     #[arg(long, value_name = "little|big", value_parser = ByteOrder::from_str)]

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 
 use crate::clip::{cosine, softmax_scaled};
-use crate::image::Image;
+use crate::image::{Image, ImageError};
 use crate::ModelArgs;
 
 /// Print each caption's cosine similarity to the image and CLIP's softmax probability over the
@@ -29,7 +29,13 @@ pub struct ClipScoreArgs {
 }
 
 pub fn run(args: ClipScoreArgs) -> Result<()> {
-    let image = Image::load_png(&args.image)?;
+    let image = Image::load_png(&args.image).map_err(|e| match e {
+        // Worded as every other missing input is (`PATH: no such file`).
+        ImageError::Open { path, source } if source.kind() == std::io::ErrorKind::NotFound => {
+            anyhow::anyhow!("{}: no such file", path.display())
+        }
+        other => other.into(),
+    })?;
     let clip = args
         .model
         .load_clip()

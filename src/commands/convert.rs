@@ -3,7 +3,9 @@
 
 use std::path::PathBuf;
 
-use crate::formats::{extension_list, format_of, list_presets, read_preset_within, write_preset};
+use crate::formats::{
+    extension_list, format_of, list_presets, read_preset_within, write_preset, PointCounts,
+};
 
 /// Convert a transfer function between ParaView JSON (.json), ParaView XML (.xml) and VisIt
 /// colour tables (.ct); the formats follow the file extensions.
@@ -37,6 +39,9 @@ pub struct ConvertArgs {
     /// List the presets of INPUT (name, colour space, points) and exit.
     #[arg(long)]
     pub list: bool,
+    /// Name of the written preset (default: the input preset's own name).
+    #[arg(long, value_name = "NAME")]
+    pub name: Option<String>,
     /// Map the TF's data range linearly onto MIN,MAX (data units).
     #[arg(long, value_name = "MIN,MAX", value_parser = parse_range, allow_hyphen_values = true)]
     pub rescale: Option<Range>,
@@ -117,17 +122,25 @@ pub fn run(args: ConvertArgs) -> anyhow::Result<()> {
             );
         }
     }
+    if let Some(name) = args.name {
+        if name.trim().is_empty() {
+            anyhow::bail!("--name is empty: give the preset a name");
+        }
+        preset.tf.name = name;
+    }
     // Errors from here name the output file already.
     write_preset(&output, &preset)?;
     let tf = &preset.tf;
     let [lo, hi] = tf.data_range();
+    // Counted as `--list` counts the input's presets.
+    let counts = PointCounts::of(tf);
     outln!(
         "wrote {} ({}, {}: {} colour points, {} opacity points, data range {lo} to {hi})",
         output.display(),
         preset.space.paraview_name(),
         tf.name,
-        tf.rgb_points.len(),
-        tf.opacity_points.len()
+        counts.colour,
+        counts.opacity
     )?;
     Ok(())
 }

@@ -24,7 +24,14 @@ pub struct InfoArgs {
     #[command(flatten)]
     pub read: VolumeArgs,
     /// Histogram rows (1-256)
-    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..=256))]
+    // A negative count reaches the range check (which says what is allowed) instead of clap
+    // taking it for a flag.
+    #[arg(
+        long,
+        default_value_t = 32,
+        allow_negative_numbers = true,
+        value_parser = clap::value_parser!(u16).range(1..=256)
+    )]
     pub bins: u16,
     /// Histogram bars proportional to counts (default: to log(1 + count), since most volumes
     /// are dominated by empty space)

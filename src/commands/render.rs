@@ -6,10 +6,14 @@ use anyhow::{bail, Context, Result};
 
 use crate::background;
 use crate::camera::{Camera, Orbit, UpAxis};
-use crate::formats::{preset_lut, read_preset_within, Sampling};
+use crate::formats::{preset_lut, read_preset_within, ExportTf, Preset, Sampling, LUT_SIZE};
 use crate::memory::Budget;
+use crate::optimize::Settings;
+use crate::pipeline::InitTf;
 use crate::render::{CpuBackend, RenderOptions, FINAL_LEVEL, FINAL_STEP};
+use crate::volume::Volume;
 use crate::VolumeArgs;
+use t2tf::tf::Lut;
 
 #[derive(clap::Args, Debug)]
 #[command(after_help = "Examples:\n  \
@@ -38,29 +42,31 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
     pub pitch: f64,
     /// Camera distance from the box centre in bounding radii (the optimizer samples 2 to 4).
-    #[arg(long, default_value_t = 2.5)]
+    #[arg(long, default_value_t = 2.5, allow_negative_numbers = true)]
     pub distance: f64,
     /// World axis pointing up on screen: x, y, z, -x, -y or -z.
     #[arg(long, default_value = "z", allow_hyphen_values = true)]
     pub up: UpAxis,
-    /// Image width and height in pixels (one view).
-    #[arg(long, default_value_t = 512)]
-    pub size: usize,
+    /// Image width and height in pixels (one view), 1 to 8192.
+    // Signed, as are the other whole numbers: a negative one reaches `run`'s check, which says
+    // what is allowed, instead of clap taking it for a flag.
+    #[arg(long, default_value_t = 512, allow_negative_numbers = true)]
+    pub size: i64,
     /// Background: gray, gray:V, white, black, checkerboard, noise, fourier.
     #[arg(long, default_value = "gray:0.3")]
     pub background: String,
     /// Seed for random backgrounds.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
+    pub seed: i128,
     /// Step between samples in voxels of the rendered mip level. The default is for final
     /// pictures: ≥ 37.6 dB from 1/8-voxel sampling on the shared volumes (BENCHMARKS.md).
-    #[arg(long, default_value_t = FINAL_STEP)]
+    #[arg(long, default_value_t = FINAL_STEP, allow_negative_numbers = true)]
     pub step_size: f32,
     /// Mip level to render (0 = full resolution; coarser levels are faster and blurrier).
-    #[arg(long, default_value_t = FINAL_LEVEL)]
-    pub level: usize,
+    #[arg(long, default_value_t = FINAL_LEVEL as i64, allow_negative_numbers = true)]
+    pub level: i64,
     /// ScalarOpacityUnitDistance to read the preset's opacity with (world units).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub unit_distance: Option<f64>,
     /// Sample the TF as ParaView's GPU volume mapper does instead of exactly: through a table
     /// of at least 1024 entries over the data range, opacities corrected to the sample
@@ -69,11 +75,11 @@ pub struct RenderArgs {
     #[arg(long)]
     pub paraview_lut: bool,
     /// Render N views on a ring (yaw evenly spaced, same pitch and distance) into one sheet.
-    #[arg(long, value_name = "N")]
-    pub orbit: Option<usize>,
+    #[arg(long, value_name = "N", allow_negative_numbers = true)]
+    pub orbit: Option<i64>,
     /// Memory budget for sizes read from files and flags (e.g. 512M, 16G); default: what the
     /// system has available.
-    #[arg(long, value_name = "SIZE", value_parser = crate::memory::parse_size)]
+    #[arg(long, value_name = "SIZE", value_parser = crate::memory::parse_size, allow_hyphen_values = true)]
     pub max_memory: Option<u64>,
     #[command(flatten)]
     pub preset_file: crate::PresetFileArgs,
@@ -112,16 +118,101 @@ fn check_png_name(out: &Path) -> Result<()> {
     )
 }
 
-pub fn run(args: RenderArgs) -> Result<()> {
-    check_png_name(&args.out)?;
-    if args.size == 0 || args.size > 8192 {
-        bail!("--size {} must be between 1 and 8192", args.size);
-    }
+/// The whole-number flags, checked.
+struct Counts {
+    size: usize,
+    seed: u64,
+    level: usize,
+    orbit: Option<usize>,
+}
+
+fn check_counts(args: &RenderArgs) -> Result<Counts> {
+    let size = usize::try_from(args.size)
+        .ok()
+        .filter(|s| (1..=8192).contains(s))
+        .with_context(|| format!("--size {} must be between 1 and 8192", args.size))?;
+    let seed = u64::try_from(args.seed).ok().with_context(|| {
+        format!(
+            "--seed {} must be a whole number from 0 to {}",
+            args.seed,
+            u64::MAX
+        )
+    })?;
+    let level = usize::try_from(args.level)
+        .ok()
+        .with_context(|| format!("--level {} must be 0 or more", args.level))?;
+    let orbit = match args.orbit {
+        None => None,
+        Some(n) => Some(
+            usize::try_from(n)
+                .ok()
+                .filter(|&n| n > 0)
+                .with_context(|| format!("--orbit {n}: needs at least one view"))?,
+        ),
+    };
     if !(args.step_size.is_finite() && args.step_size > 0.0) {
         bail!("--step-size {} must be a positive number", args.step_size);
     }
+    if !(args.distance.is_finite() && args.distance > 0.0) {
+        bail!("--distance {} must be a positive number", args.distance);
+    }
+    if let Some(u) = args.unit_distance.filter(|u| !(u.is_finite() && *u > 0.0)) {
+        bail!("--unit-distance {u} must be a positive number");
+    }
+    Ok(Counts {
+        size,
+        seed,
+        level,
+        orbit,
+    })
+}
+
+/// Input size of the default CLIP model (ViT-B/32): a colour-only preset's densities are those
+/// a default `optimize --init` run starts from, whose start view is rendered at this size.
+const DEFAULT_CLIP_SIZE: usize = 224;
+
+/// The LUT of a preset without opacity (a ParaView colour map such as "Cool to Warm"): its
+/// colours over the densities `optimize --init` starts such a preset from, the paper's initial
+/// ones with the default settings, said on stderr.
+fn colours_only_lut(
+    args: &RenderArgs,
+    preset: Preset,
+    volume: &Volume,
+    sampling: Sampling,
+    budget: Budget,
+) -> Result<Lut> {
+    errln!(
+        "t2tf: note: preset \"{}\" has no opacity: drawn with the paper's initial densities, as \
+         `t2tf optimize --init` starts from it",
+        preset.tf.name
+    );
+    let settings = Settings::default()
+        .validate()
+        .map_err(crate::flags::optimize)?;
+    let init = InitTf::new(preset, args.tf.clone()).map_err(crate::flags::pipeline)?;
+    let cp = init
+        .colours_only_points(volume, &settings, DEFAULT_CLIP_SIZE, args.up, budget)
+        .map_err(crate::flags::pipeline)?;
+    Ok(match sampling {
+        Sampling::Exact => cp.to_lut(LUT_SIZE),
+        // What ParaView draws of the TF an optimize run writes for this start.
+        Sampling::ParaView { .. } => {
+            let tf = ExportTf::from_control_points(&init.preset.tf.name, &cp, volume, None);
+            preset_lut(&Preset::rgb(tf), &args.tf, volume, None, sampling)?
+        }
+    })
+}
+
+pub fn run(args: RenderArgs) -> Result<()> {
+    check_png_name(&args.out)?;
+    let Counts {
+        size,
+        seed,
+        level: level_index,
+        orbit,
+    } = check_counts(&args)?;
     let budget = Budget::new(args.max_memory);
-    check_image_memory(budget, args.size, args.orbit)?;
+    check_image_memory(budget, size, orbit)?;
     // Before any work: the name is free or a regular file, and its folder takes new files.
     crate::fs::check_writable(&args.out)?;
     let volume = args
@@ -132,10 +223,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     // segments within the export tolerance, as the renderer's LUT needs.
     let limit = args.preset_file.limit();
     let preset = read_preset_within(&args.tf, args.preset.as_deref(), limit)?;
-    let level = volume.levels.get(args.level).with_context(|| {
+    let level = volume.levels.get(level_index).with_context(|| {
         format!(
-            "--level {}: this volume has levels 0..={}",
-            args.level,
+            "--level {level_index}: this volume has levels 0..={}",
             volume.levels.len() - 1
         )
     })?;
@@ -147,18 +237,20 @@ pub fn run(args: RenderArgs) -> Result<()> {
     } else {
         Sampling::Exact
     };
-    let lut = preset_lut(&preset, &args.tf, &volume, args.unit_distance, sampling)?;
+    let lut = if preset.tf.opacity_points.is_empty() {
+        colours_only_lut(&args, preset, &volume, sampling, budget)?
+    } else {
+        preset_lut(&preset, &args.tf, &volume, args.unit_distance, sampling)?
+    };
     let backend = CpuBackend::new(budget);
-    let bg = background::from_name(&args.background, args.size, args.size, args.seed)
-        .context("--background")?;
+    let bg = background::from_name(&args.background, size, size, seed).context("--background")?;
     let opts = RenderOptions {
         step: args.step_size,
-        level: Some(args.level),
+        level: Some(level_index),
         ..RenderOptions::final_quality()
     };
     let (pitch, distance) = (args.pitch.to_radians(), args.distance);
-    let image = match args.orbit {
-        Some(0) => bail!("--orbit needs at least one view"),
+    let image = match orbit {
         Some(n) => {
             let cams = Camera::ring(&volume.geometry, n, pitch, distance, args.up)?;
             backend

@@ -214,3 +214,168 @@ fn sizes_from_flags_are_refused_before_anything_is_allocated() {
         );
     }
 }
+
+/// The whole stderr of a command that must fail with status `code`.
+fn stderr_of(args: &[&str], code: i32) -> String {
+    let o = t2tf(args);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(code), "{args:?}: {err}");
+    err
+}
+
+#[test]
+fn an_error_says_the_program_once() {
+    // A context naming the command line (`t2tf optimize VOLUME: …`) would follow the line's
+    // own `t2tf: error:`; the message goes on from the volume.
+    let d = tempfile::tempdir().unwrap();
+    let nucleon = repo().join(NUCLEON);
+    let out = d.path().join("run");
+    let args = [
+        "optimize",
+        s(&nucleon),
+        "--prompt",
+        "x",
+        "--lock",
+        "300,400",
+        "--out",
+        s(&out),
+    ];
+    assert_eq!(
+        stderr_of(&args, 1),
+        format!(
+            "t2tf: error: {}: locked range 300,400 is outside the data range 0..249\n",
+            nucleon.display()
+        )
+    );
+}
+
+#[test]
+fn a_missing_file_is_said_alike_by_every_command() {
+    let d = tempfile::tempdir().unwrap();
+    let nucleon = repo().join(NUCLEON);
+    let tf = write_preset(d.path());
+    let out = d.path().join("r.png");
+    let gone_vol = d.path().join("gone_8x8x8_uint8.raw");
+    let gone_tf = d.path().join("gone.json");
+    let gone_png = d.path().join("gone.png");
+    let xml = d.path().join("out.xml");
+    let said = |p: &Path| format!("t2tf: error: {}: no such file\n", p.display());
+    let cases: [(Vec<&str>, &Path); 6] = [
+        (vec!["info", s(&gone_vol)], &gone_vol),
+        (
+            vec!["render", s(&gone_vol), "--tf", s(&tf), "--out", s(&out)],
+            &gone_vol,
+        ),
+        (
+            vec!["render", s(&nucleon), "--tf", s(&gone_tf), "--out", s(&out)],
+            &gone_tf,
+        ),
+        (vec!["convert", s(&gone_tf), s(&xml)], &gone_tf),
+        (vec!["convert", "--list", s(&gone_tf)], &gone_tf),
+        (
+            vec!["clip-score", s(&gone_png), "--caption", "a skull"],
+            &gone_png,
+        ),
+    ];
+    for (args, missing) in cases {
+        assert_eq!(stderr_of(&args, 1), said(missing), "{args:?}");
+    }
+}
+
+#[test]
+fn negative_numbers_reach_the_checks_that_say_what_is_allowed() {
+    let d = tempfile::tempdir().unwrap();
+    let nucleon = repo().join(NUCLEON);
+    let tf = write_preset(d.path());
+    let out = d.path().join("r.png");
+    let render = |flag: &str, value: &str| {
+        let args = [
+            "render",
+            s(&nucleon),
+            "--tf",
+            s(&tf),
+            "--out",
+            s(&out),
+            flag,
+            value,
+        ];
+        stderr_of(&args, 1)
+    };
+    for (flag, value, said) in [
+        ("--size", "-5", "--size -5 must be between 1 and 8192"),
+        (
+            "--seed",
+            "-1",
+            "--seed -1 must be a whole number from 0 to 18446744073709551615",
+        ),
+        ("--level", "-1", "--level -1 must be 0 or more"),
+        ("--orbit", "-2", "--orbit -2: needs at least one view"),
+        (
+            "--distance",
+            "-3",
+            "--distance -3 must be a positive number",
+        ),
+        (
+            "--step-size",
+            "-0.5",
+            "--step-size -0.5 must be a positive number",
+        ),
+        (
+            "--unit-distance",
+            "-2",
+            "--unit-distance -2 must be a positive number",
+        ),
+    ] {
+        assert_eq!(render(flag, value), format!("t2tf: error: {said}\n"));
+    }
+    assert!(!out.exists());
+    // Flags whose values clap checks: the value's own message, never clap's advice to write
+    // `-- -5` (which would not work for a flag's value).
+    let clap_checked: [(Vec<&str>, &str); 6] = [
+        (
+            vec!["info", s(&nucleon), "--bins", "-3"],
+            "invalid value '-3' for '--bins <BINS>': -3 is not in 1..=256",
+        ),
+        (
+            vec!["info", s(&nucleon), "--spacing", "-1,1,1"],
+            "invalid value '-1,1,1' for '--spacing <A,B,C>': spacing '-1,1,1' must be positive \
+             finite numbers",
+        ),
+        (
+            vec!["info", s(&nucleon), "--dims", "4,-4,4"],
+            "invalid value '4,-4,4' for '--dims <X,Y,Z>': '-4' in '4,-4,4' is not whole numbers",
+        ),
+        (
+            vec![
+                "render",
+                s(&nucleon),
+                "--tf",
+                s(&tf),
+                "--out",
+                s(&out),
+                "--max-memory",
+                "-5G",
+            ],
+            "invalid value '-5G' for '--max-memory <SIZE>': \"-5G\" is not a positive size like \
+             512M or 16G",
+        ),
+        (
+            vec!["convert", s(&tf), "o.json", "--max-preset-size", "-1M"],
+            "invalid value '-1M' for '--max-preset-size <SIZE>': \"-1M\" is not a positive size \
+             like 512M or 16G",
+        ),
+        (
+            vec!["convert", s(&tf), "o.json", "--rescale", "-5,-10"],
+            "invalid value '-5,-10' for '--rescale <MIN,MAX>': MIN (-5) must be below MAX (-10)",
+        ),
+    ];
+    for (args, said) in clap_checked {
+        let err = stderr_of(&args, 2);
+        assert_eq!(
+            err.lines().next(),
+            Some(format!("error: {said}").as_str()),
+            "{err}"
+        );
+        assert!(!err.contains("tip:") && !err.contains("'-- -"), "{err}");
+    }
+}

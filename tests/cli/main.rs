@@ -4,6 +4,7 @@
 //! module covers one subject, so a test's name is `MODULE::TEST`.
 
 mod cli_cache;
+mod cli_colour_only;
 mod cli_help;
 mod cli_info;
 mod cli_messages;

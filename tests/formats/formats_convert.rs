@@ -69,3 +69,88 @@ fn bad_input_fails_with_a_clear_message() {
         "{out}"
     );
 }
+
+/// The `--list` line of the preset `name` in `file`: its colour and opacity point counts.
+fn listed(file: &str, name: &str) -> (usize, usize) {
+    let (ok, out) = t2tf(&["convert", "--list", file]);
+    assert!(ok, "{out}");
+    let line = out
+        .lines()
+        .find(|l| l.split('\t').next() == Some(name))
+        .unwrap_or_else(|| panic!("{name} not listed: {out}"));
+    let count = |what: &str| {
+        line.split('\t')
+            .find_map(|f| f.strip_suffix(what))
+            .and_then(|n| n.trim().parse().ok())
+            .unwrap_or_else(|| panic!("no {what}: {line}"))
+    };
+    (count(" colour points"), count(" opacity points"))
+}
+
+/// What `convert` reported writing: (colour, opacity) points.
+fn reported(out: &str) -> (usize, usize) {
+    let tail = out.split(": ").nth(1).unwrap_or_else(|| panic!("{out}"));
+    let n: Vec<usize> = tail
+        .split(", ")
+        .take(2)
+        .map(|p| p.split(' ').next().unwrap().parse().unwrap())
+        .collect();
+    (n[0], n[1])
+}
+
+#[test]
+fn list_and_convert_count_the_same_points() {
+    // ParaView wrote this preset's third opacity point with midpoint 0.3: 4 stored points, 5
+    // as read (the midpoint is a point), which `--list` and `convert` both say.
+    let file = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/paraview/colorspace_RGB.json")
+        .to_string_lossy()
+        .into_owned();
+    let text = std::fs::read_to_string(&file).unwrap();
+    assert!(
+        text.contains("0.29999999999999999"),
+        "the fixture has its midpoint"
+    );
+    assert_eq!(listed(&file, "colorspace_RGB"), (6, 5));
+    let d = tempfile::tempdir().unwrap();
+    for ext in ["json", "xml", "ct"] {
+        let out = d
+            .path()
+            .join(format!("o.{ext}"))
+            .to_string_lossy()
+            .into_owned();
+        let (ok, said) = t2tf(&["convert", &file, &out]);
+        assert!(ok, "{said}");
+        assert_eq!(reported(&said), (6, 5), "{said}");
+    }
+    // A written JSON lists as it was reported.
+    let out = d.path().join("o.json").to_string_lossy().into_owned();
+    assert_eq!(listed(&out, "colorspace_RGB"), (6, 5));
+}
+
+#[test]
+fn convert_keeps_the_preset_name_unless_given_one() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("o.json").to_string_lossy().into_owned();
+    // Moved to another range, the preset keeps its name (no hash appended).
+    let (ok, said) = t2tf(&["convert", &fixture(), &out, "--rescale", "0,255"]);
+    assert!(ok, "{said}");
+    let tf = read_tf(Path::new(&out)).unwrap();
+    assert_eq!(tf.name, "ParaViewWritten");
+    assert_eq!(tf.data_range(), [0.0, 255.0]);
+    assert!(said.contains(", ParaViewWritten: "), "{said}");
+    // --name names it, in every format that stores a name.
+    for ext in ["json", "xml"] {
+        let out = d
+            .path()
+            .join(format!("n.{ext}"))
+            .to_string_lossy()
+            .into_owned();
+        let (ok, said) = t2tf(&["convert", &fixture(), &out, "--name", "bone and skin"]);
+        assert!(ok, "{said}");
+        let (ok, listed) = t2tf(&["convert", "--list", &out]);
+        assert!(ok && listed.starts_with("bone and skin\t"), "{listed}");
+    }
+    let (ok, said) = t2tf(&["convert", &fixture(), &out, "--name", " "]);
+    assert!(!ok && said.contains("--name is empty"), "{said}");
+}

@@ -127,7 +127,9 @@ impl ExportTf {
         [lo, hi]
     }
 
-    /// Map the data range linearly onto [min, max] (`t2tf convert --rescale`).
+    /// Map the data range linearly onto [min, max] (`t2tf convert --rescale`), keeping the
+    /// name: the preset is the user's, and a caller that wants a name of its own for the moved
+    /// TF gives one (or asks [`ExportTf::unique_name`]).
     pub fn rescaled(&self, min: f64, max: f64) -> ExportTf {
         let [lo, hi] = self.data_range();
         let map = |x: f64| {
@@ -137,7 +139,7 @@ impl ExportTf {
                 min
             }
         };
-        let mut out = ExportTf {
+        ExportTf {
             name: self.name.clone(),
             rgb_points: self.rgb_points.iter().map(|&(x, c)| (map(x), c)).collect(),
             opacity_points: self
@@ -146,9 +148,7 @@ impl ExportTf {
                 .map(|&(x, o)| (map(x), o))
                 .collect(),
             unit_distance: self.unit_distance,
-        };
-        out.name = out.unique_name();
-        out
+        }
     }
 
     /// The checks every reader applies: at least one colour point, finite ascending x,

@@ -85,18 +85,30 @@ pub struct PresetSummary {
     /// ParaView's name of its colour space; `None` for a categorical preset
     /// (IndexedColors/Annotations without RGBPoints).
     pub space: Option<String>,
-    /// Colour and opacity points as the file stores them; `None` for a file of one map,
-    /// whose listing shows only the name and colour space.
+    /// Colour and opacity points of the preset as t2tf reads it ([`PointCounts::of`]); `None`
+    /// for a file of one map, whose listing shows only the name and colour space.
     pub counts: Option<PointCounts>,
 }
 
-/// How many colour and opacity points a preset stores.
+/// How many colour and opacity points a preset has as t2tf reads it: what `t2tf convert
+/// --list` shows of a file and `t2tf convert` reports of what it wrote, counted alike.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PointCounts {
-    /// `RGBPoints` quadruples.
+    /// Colour points.
     pub colour: usize,
-    /// Opacity `Points` quadruples.
+    /// Opacity points. A ParaView opacity point whose midpoint is not 0.5 is read as two: the
+    /// point, and the point at its midpoint that makes the curve linear.
     pub opacity: usize,
+}
+
+impl PointCounts {
+    /// The points of `tf`.
+    pub fn of(tf: &ExportTf) -> PointCounts {
+        PointCounts {
+            colour: tf.rgb_points.len(),
+            opacity: tf.opacity_points.len(),
+        }
+    }
 }
 
 /// Every TF format, in the order [`write_all`] writes them and messages list them.

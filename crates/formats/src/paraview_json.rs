@@ -155,9 +155,14 @@ fn list_paraview_json(text: &str, path: &Path) -> Result<Vec<PresetSummary>, For
                     .unwrap_or("RGB")
                     .to_string()
             }),
-            counts: Some(PointCounts {
-                colour: count(p, "RGBPoints"),
-                opacity: count(p, "Points"),
+            // The points as the preset is read (and converted), so the listing and `convert`
+            // count alike; a preset t2tf cannot read shows what the file stores.
+            counts: Some(match read_one(p, path) {
+                Ok(preset) => PointCounts::of(&preset.tf),
+                Err(_) => PointCounts {
+                    colour: count(p, "RGBPoints"),
+                    opacity: count(p, "Points"),
+                },
             }),
         })
         .collect())

@@ -25,7 +25,7 @@ pub struct Preset {
 
 impl Preset {
     /// An RGB preset with nothing else.
-    pub(crate) fn rgb(tf: ExportTf) -> Preset {
+    pub fn rgb(tf: ExportTf) -> Preset {
         Preset {
             tf,
             space: ColorSpace::Rgb,

@@ -5,8 +5,13 @@
 use std::path::{Path, PathBuf};
 
 use super::PipelineError;
+use crate::camera::UpAxis;
 use crate::formats::Preset;
+use crate::memory::Budget;
+use crate::optimize::adapters::{PaperTf, VolumeRenderer};
 use crate::optimize::start::{self, Lock, StartTf};
+use crate::optimize::ValidSettings;
+use crate::render::{CpuBackend, RenderOptions};
 use crate::tf::ControlPoints;
 use crate::volume::Volume;
 
@@ -67,6 +72,63 @@ impl InitTf {
     /// as ParaView applies a library preset, and the paper's densities.
     pub fn colours_only(&self) -> bool {
         self.preset.tf.opacity_points.is_empty()
+    }
+
+    /// The control points a run from this colour-only start begins with on `volume` (what
+    /// `optimize --init` with 0 steps writes): the preset's colours over the paper's initial
+    /// densities ([`crate::optimize::initialize`] with `settings`, its start view rendered at
+    /// `size` pixels, CLIP's input size in a run, with the loop's default step and `up`).
+    /// `t2tf render` draws a colour-only preset with them. A preset with opacity is an error:
+    /// its own densities are the start.
+    pub fn colours_only_points(
+        &self,
+        volume: &Volume,
+        settings: &ValidSettings,
+        size: usize,
+        up: UpAxis,
+        budget: Budget,
+    ) -> Result<ControlPoints, PipelineError> {
+        use crate::optimize::Parameterization;
+        if !self.colours_only() {
+            return Err(PipelineError::Job(format!(
+                "{}: preset \"{}\" has opacity points: a start takes its own densities",
+                self.source.display(),
+                self.preset.tf.name
+            )));
+        }
+        // As a run renders its start view (`pipeline::run`).
+        let backend = CpuBackend::new(budget);
+        let renderer = VolumeRenderer {
+            backend: &backend,
+            volume,
+            options: RenderOptions {
+                step: crate::render::DEFAULT_STEP,
+                level: None,
+                ..Default::default()
+            },
+            up,
+            size,
+            render_size: size,
+            jitter: false,
+        };
+        let paper = PaperTf {
+            k: settings.control_points,
+            lut_size: super::LUT_SIZE,
+        };
+        let (_, found) =
+            crate::optimize::initialize(&renderer, &paper, &volume.histogram, settings)?;
+        let planned = plan(
+            volume,
+            Some(self),
+            Some(&found.control_points),
+            &[],
+            settings.control_points,
+        )?;
+        // What the run's exports hold: the points through the LUT the loop samples.
+        Ok(planned
+            .control_points
+            .to_lut(planned.tf.lut_size())
+            .to_control_points())
     }
 
     /// "FILE (preset NAME)", for report.json.
