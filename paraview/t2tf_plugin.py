@@ -21,10 +21,12 @@ Undo of an Apply restores the camera the view had before, and Redo (or Undo of a
 Apply) reuses the earlier run's result from memory. The read-only Time Estimate shows the
 run time of the applied Steps and Views from the last measured run with the same model.
 
-Connected to a remote pvserver, use text_to_transfer_function(source, prompt, ...) (or the
-macro t2tf_macro.py): it fetches a bounded ResampleToImage proxy of the data, optimizes
-locally and applies the TF to the full data's display. The filter itself does not run on a
-pvserver (it says so once and fails).
+In the GUI the Abort button beside the progress bar stops a run after its current step, and
+closing the main window stops it too. Connected to a remote pvserver that loaded this plugin
+too, the filter passes the data through on the server and this client runs t2tf on a bounded
+ResampleToImage proxy of it at each Apply, applying the TF to the filter's full-resolution
+display; text_to_transfer_function(source, prompt, ...) (or the macro t2tf_macro.py) does the
+same for any source.
 
 Errors (no binary, empty prompt, Steps below 1, input that is not image data, t2tf failing)
 are one message in ParaView's output window, in ParaView's words (properties, never t2tf's
@@ -276,6 +278,7 @@ class _Qt:
     looked_up = False
     instance = None  # QCoreApplication::self, a live view of the pointer
     process = None
+    hooks = []  # called before each processEvents
 
     @classmethod
     def process_events(cls):
@@ -304,10 +307,214 @@ class _Qt:
         if cls.process is None or not cls.instance.value:
             return False
         # All events, for at most 50 ms: while a pipeline updates, ParaView's progress
-        # manager drops mouse presses and key presses on everything but its Abort button,
-        # so this repaints and runs timers without letting the user start other work.
+        # manager drops every mouse press and key press (it lets through those on its
+        # progress bar and Abort button, but a press reaches Qt's window object first, where
+        # it is dropped), so this repaints and runs timers without letting the user start
+        # other work. A run's _AbortButton opens that lock while the pointer is over the
+        # button.
+        for hook in cls.hooks:
+            hook()
         cls.process(0, 50)
         return True
+
+
+class _QPoint(ctypes.Structure):
+    _fields_ = [("x", ctypes.c_int), ("y", ctypes.c_int)]
+
+
+class _QRect(ctypes.Structure):
+    # Qt 5's QRect: left, top, right, bottom (right = left + width - 1).
+    _fields_ = [("x1", ctypes.c_int), ("y1", ctypes.c_int), ("x2", ctypes.c_int),
+                ("y2", ctypes.c_int)]
+
+
+class _AbortButton:
+    """The Abort button beside ParaView's progress bar, and the main window, during a run.
+
+    In ParaView 5.11 the button is disabled (nothing calls pqProgressManager::setEnableAbort)
+    and its press only emits pqProgressManager::abort(), a signal nothing is connected to.
+    ParaView's Python has no Qt bindings to connect a slot, so for the length of a run the
+    button is enabled through the manager and made checkable: a click leaves it checked, and
+    the run asks for that between steps. The main window is watched the same way: a window
+    that was shown when the run began and is hidden now was closed (ParaView hides it and
+    quits once the event loop gets back control), so the run stops instead of keeping a
+    hidden ParaView alive. Where a symbol is missing (Windows, Qt 6, pvpython), nothing is
+    watched and the abort flag alone stops a run."""
+    looked_up = False
+    lib = None
+    manager = None  # the pqProgressManager
+    window = None  # the main window (QWidget*)
+    button = None  # the QToolButton "AbortButton"
+
+    def __init__(self):
+        self.active = False
+        self.window_shown = False
+        try:
+            if not self._look_up():
+                return
+            self.window_shown = self._visible()
+            self._enable(True)
+            self._call("_ZN15QAbstractButton12setCheckableEb", None, ctypes.c_void_p,
+                       ctypes.c_bool)(self.button, True)
+            self._set_checked(False)
+            self.unblocked = self._unblock(False)
+            _Qt.hooks.append(self._guard)
+            self.active = True
+        except (OSError, ValueError, AttributeError, TypeError):
+            self.active = False
+
+    def _unblock(self, on):
+        """pqProgressManager::unblockEvents: whether presses pass its lock; returns the
+        value it had."""
+        return bool(self._call("_ZN17pqProgressManager13unblockEventsEb", ctypes.c_bool,
+                               ctypes.c_void_p, ctypes.c_bool)(self.manager, on))
+
+    def _guard(self):
+        """Before the GUI's events are processed: open the progress manager's lock on presses
+        while the pointer is over the Abort button, close it elsewhere. Qt delivers a press
+        to the window object before the widget under the pointer, and the manager drops it
+        there, so without this the button never sees a press during a run. The pointer's
+        place is asked from the window system (QCursor::pos), so a press that follows the
+        pointer's arrival on the button finds the lock open; other presses stay dropped."""
+        try:
+            pos = self._call("_ZN7QCursor3posEv", _QPoint)()
+            corner = self._call("_ZNK7QWidget11mapToGlobalERK6QPoint", _QPoint, ctypes.c_void_p,
+                                ctypes.c_void_p)(self.button, ctypes.byref(_QPoint(0, 0)))
+            rect = self._call("_ZNK7QWidget13frameGeometryEv", _QRect, ctypes.c_void_p)(
+                self.button)
+            over = (0 <= pos.x - corner.x <= rect.x2 - rect.x1
+                    and 0 <= pos.y - corner.y <= rect.y2 - rect.y1)
+            self._unblock(over)
+        except (OSError, ValueError, AttributeError, TypeError):
+            pass
+
+    @classmethod
+    def _call(cls, name, restype, *argtypes):
+        f = getattr(cls.lib, name)
+        f.restype, f.argtypes = restype, list(argtypes)
+        return f
+
+    @classmethod
+    def _look_up(cls):
+        """Find the progress manager, the main window and its Abort button (once found,
+        kept: they live as long as the GUI)."""
+        if cls.button:
+            return True
+        if cls.looked_up:
+            return False
+        try:
+            # PyDLL: the GIL stays held; setEnableAbort and setChecked emit signals.
+            cls.lib = ctypes.PyDLL(None)
+            core = cls._call("_ZN17pqApplicationCore8instanceEv", ctypes.c_void_p)()
+            window = cls._call("_ZN15pqCoreUtilities14findMainWindowEv", ctypes.c_void_p)()
+        except (OSError, ValueError, AttributeError, TypeError):
+            cls.looked_up = True
+            return False
+        if not core or not window:
+            # pvpython, or a GUI whose window is not made yet: ask again next run.
+            return False
+        cls.looked_up = True
+        find = cls._call(
+            "_Z20qt_qFindChild_helperPK7QObjectRK7QStringRK11QMetaObject6QFlagsIN2Qt15"
+            "FindChildOptionEE", ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
+            ctypes.c_void_p, ctypes.c_int)
+
+        def child(parent, name, meta):
+            meta = ctypes.c_void_p.in_dll(cls.lib, meta)
+            # 1: Qt::FindChildrenRecursively
+            return find(parent, ctypes.byref(cls._qstring(name)), ctypes.addressof(meta), 1)
+
+        manager = child(core, None, "_ZN17pqProgressManager16staticMetaObjectE")
+        button = child(window, "AbortButton", "_ZN11QToolButton16staticMetaObjectE")
+        if manager and button:
+            cls.manager, cls.window, cls.button = manager, window, button
+            return True
+        return False
+
+    @classmethod
+    def _qstring(cls, text):
+        """A QString made by QString::fromUtf8 (None: a null one, which matches any object
+        name); its few bytes are not released."""
+        data = text.encode("utf-8") if text is not None else None
+        buf = (ctypes.c_void_p * 1)()
+        cls._call("_ZN7QString15fromUtf8_helperEPKci", ctypes.c_void_p, ctypes.c_void_p,
+                  ctypes.c_char_p, ctypes.c_int)(ctypes.byref(buf), data, len(data or b""))
+        return buf
+
+    def _enable(self, on):
+        # Through the progress manager (its enableAbort signal reaches the button), and on
+        # the button itself, where the manager is locked by another sender and ignores it.
+        self._call("_ZN17pqProgressManager14setEnableAbortEb", None, ctypes.c_void_p,
+                   ctypes.c_bool)(self.manager, on)
+        self._call("_ZN7QWidget10setEnabledEb", None, ctypes.c_void_p, ctypes.c_bool)(
+            self.button, on)
+
+    def _visible(self):
+        # QWidget::isVisibleTo(nullptr) is isVisible() (the latter is inline).
+        return bool(self._call("_ZNK7QWidget11isVisibleToEPKS_", ctypes.c_bool, ctypes.c_void_p,
+                               ctypes.c_void_p)(self.window, None))
+
+    def _set_checked(self, on):
+        self._call("_ZN15QAbstractButton10setCheckedEb", None, ctypes.c_void_p,
+                   ctypes.c_bool)(self.button, on)
+
+    def requested(self):
+        """Whether the Abort button was clicked (or is held down), or the main window was
+        closed, since the run began."""
+        if not self.active:
+            return False
+        checked = self._call("_ZNK15QAbstractButton9isCheckedEv", ctypes.c_bool,
+                             ctypes.c_void_p)(self.button)
+        down = self._call("_ZNK15QAbstractButton6isDownEv", ctypes.c_bool,
+                          ctypes.c_void_p)(self.button)
+        return bool(checked or down or (self.window_shown and not self._visible()))
+
+    def closed(self):
+        """Whether the main window was closed during the run."""
+        return self.active and self.window_shown and not self._visible()
+
+    def end(self):
+        """The button as ParaView 5.11 has it between runs: unchecked, disabled."""
+        if not self.active:
+            return
+        self.active = False
+        if self._guard in _Qt.hooks:
+            _Qt.hooks.remove(self._guard)
+        self._unblock(self.unblocked)
+        self._set_checked(False)
+        self._call("_ZN15QAbstractButton12setCheckableEb", None, ctypes.c_void_p,
+                   ctypes.c_bool)(self.button, False)
+        self._enable(False)
+
+
+class _GuiProgress:
+    """ParaView's progress bar driven from the client, for a run that is no pipeline update
+    (a remote run: t2tf runs here while the filter's algorithm lives on the server). Like an
+    update, it holds the GUI's input for the run (pqProgressManager::setEnableProgress counts
+    it as one), so no second run starts meanwhile. Nothing outside the GUI."""
+
+    def __init__(self):
+        self.active = False
+        try:
+            if _AbortButton._look_up():
+                _AbortButton._call("_ZN17pqProgressManager17setEnableProgressEb", None,
+                                   ctypes.c_void_p, ctypes.c_bool)(_AbortButton.manager, True)
+                self.active = True
+        except (OSError, ValueError, AttributeError, TypeError):
+            self.active = False
+
+    def update(self, text, fraction):
+        if self.active:
+            _AbortButton._call("_ZN17pqProgressManager11setProgressERK7QStringi", None,
+                               ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int)(
+                _AbortButton.manager, ctypes.byref(_AbortButton._qstring(text)),
+                int(round(100 * fraction)))
+
+    def end(self):
+        if self.active:
+            self.active = False
+            _AbortButton._call("_ZN17pqProgressManager17setEnableProgressEb", None,
+                               ctypes.c_void_p, ctypes.c_bool)(_AbortButton.manager, False)
 
 
 class Progress:
@@ -315,8 +522,9 @@ class Progress:
     Function: step k/N, loss L, ETA s") and fraction, refreshed at least once a second,
     with the GUI's events processed in between."""
 
-    def __init__(self, algorithm=None):
+    def __init__(self, algorithm=None, gui=None):
         self.algorithm = algorithm
+        self.gui = gui  # a _GuiProgress: the progress bar of a run with no algorithm
         self.start = time.time()
         self.step, self.steps, self.loss = 0, None, None
         self.first_step = None  # when step 1 ended: the rate is measured after it
@@ -353,6 +561,8 @@ class Progress:
         if self.algorithm is not None:
             self.algorithm.SetProgressText(self.text())
             self.algorithm.UpdateProgress(self.fraction())
+        if self.gui is not None:
+            self.gui.update(self.text(), self.fraction())
         _Qt.process_events()
 
     def tick(self):
@@ -1128,6 +1338,7 @@ PROPERTIES_XML = """
 <StringVectorProperty name="Negatives" label="Negatives" command="SetNegative"
     clean_command="ClearNegatives" repeat_command="1" number_of_elements_per_command="1"
     number_of_elements="1" default_values="a blank image">
+  <Hints><ShowLabel /></Hints>
   <Documentation>What the rendering should not look like, one phrase per row (default: "a
   blank image"); sampled captions are added to them at every step.</Documentation>
 </StringVectorProperty>
@@ -1223,7 +1434,7 @@ _KEYED = ("_prompt", "_negatives", "_steps", "_views", "_seed", "_model", "_toke
 
 
 @smproxy.filter(name="TextToTransferFunction", label=TITLE, support_reload=False)
-@smhint.xml('<ShowInMenu category="t2tf" /><RepresentationType view="RenderView" type="Volume" />')
+@smhint.xml('<ShowInMenu category="t2tf" />')
 @smproperty.xml(PROPERTIES_XML)
 class TextToTransferFunction(VTKPythonAlgorithmBase):
     """Optimizes a transfer function for a sentence with t2tf and shows the data with it."""
@@ -1345,16 +1556,14 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
     def RequestData(self, request, inInfo, outInfo):
         self.error = None
         try:
-            server, rank = _on_server()
+            server, _rank = _on_server()
             if server:
-                # A pvserver's ranks would each run t2tf, and no rank can reach the client's
-                # colour maps: refuse, once.
-                raise T2tfError(
-                    "the filter does not run on a pvserver (loaded there with remote=True): "
-                    "load t2tf_plugin.py on the client (LoadPlugin(path, remote=False)) and "
-                    "use t2tf_plugin.text_to_transfer_function(source, prompt) or the t2tf "
-                    "macro, which fetch a bounded proxy of the data and apply the transfer "
-                    "function to its full-resolution display" if rank == 0 else "")
+                # On a pvserver the filter passes the data through: the client that loaded
+                # this plugin runs t2tf on a bounded proxy of it when the filter updates
+                # (_RemoteFilters), and applies the result to this output's display. Ranks
+                # running t2tf each on a piece could not reach the client's colour maps.
+                vtkDataObject.GetData(outInfo).ShallowCopy(vtkDataObject.GetData(inInfo[0]))
+                return 1
             data = vtkDataObject.GetData(inInfo[0])
             if not isinstance(data, vtkImageData):
                 raise T2tfError(
@@ -1467,6 +1676,12 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         locks = parse_locks(self._locks)
         progress = Progress(self)
         progress.show()
+        # In the GUI: the Abort button works during the run, and closing the window stops it.
+        button = _AbortButton()
+
+        def aborted():
+            return bool(self.GetAbortExecute()) or button.requested()
+
         # t2tf's files are read into memory and the folder removed, whatever happens.
         out = tempfile.mkdtemp(prefix=_TEMP_PREFIX)
         try:
@@ -1481,11 +1696,14 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
                     module, image, array, os.path.join(out, "tf"), self._prompt,
                     self._negatives, self._steps, self._views, self._seed,
                     self._model or None, self._tokenizer or None, self._reference or None,
-                    progress=progress, aborted=self.GetAbortExecute, init=init, locks=locks)
+                    progress=progress, aborted=aborted, init=init, locks=locks)
                 volume = None
             else:
-                result, volume = self._run_binary(image, array, out, progress, init, locks)
+                result, volume = self._run_binary(image, array, out, progress, init, locks,
+                                                  aborted)
         finally:
+            closed = button.closed()
+            button.end()
             shutil.rmtree(out, ignore_errors=True)
         self.SetProgressText(TITLE)
         self.UpdateProgress(1.0)
@@ -1496,10 +1714,11 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         if result["timing"]:
             _TIMINGS[self._model] = result["timing"]
         if result["interrupted"]:
-            message("cancelled: kept the transfer function of the last finished step", False)
+            message("%s: kept the transfer function of the last finished step"
+                    % ("the main window was closed" if closed else "cancelled"), False)
         return result
 
-    def _run_binary(self, image, array, out, progress, init=None, locks=()):
+    def _run_binary(self, image, array, out, progress, init=None, locks=(), aborted=None):
         """`t2tf optimize` on the upstream file, else on the image written to a .vti."""
         proxy = _proxy_of(self)
         upstream = _upstream_file(proxy, array) if proxy is not None else None
@@ -1515,7 +1734,7 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
             volume, os.path.join(out, "tf"), self._prompt, self._negatives, self._steps,
             self._views, self._seed, self._model or None, self._tokenizer or None,
             reference_image=self._reference or None, extra=extra, progress=progress,
-            aborted=self.GetAbortExecute, init=init, locks=locks)
+            aborted=aborted or self.GetAbortExecute, init=init, locks=locks)
         return result, volume
 
     def _annotate(self, out, result):
@@ -1589,21 +1808,9 @@ def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, v
             raise T2tfError(algo.error or "t2tf gave no result (see the messages above)")
         pvs.Show(f, view)
         return algo.result, f
-    size = proxy_size_setting(proxy_size)
-    dims = _proxy_dims(info.GetExtent(), size)
-    local, fetched = fetch_proxy(source, dims)
-    out = tempfile.mkdtemp(prefix="t2tf-plugin-")
-    try:
-        volume = os.path.join(out, "proxy.vti")
-        write_vti(local, array, volume)
-        init = (write_current_tf(array, os.path.join(out, "start.json"), source)
-                if refine else None)
-        result = optimize(volume, os.path.join(out, "tf"), prompt, negatives, steps, views, seed,
-                          model, tokenizer, array=array, reference_image=reference_image,
-                          extra=extra, timeout=timeout, init=init, locks=locks)
-    finally:
-        shutil.rmtree(out, ignore_errors=True)
-    result.update(array=array, volume=None, proxy_dims=dims, fetched_points=fetched)
+    result, local = remote_optimize(
+        source, array, prompt, negatives, steps, views, seed, model, tokenizer,
+        reference_image, proxy_size, extra, timeout, refine, locks)
     register_preset(result)
     view = view or pvs.GetActiveViewOrCreate("RenderView")
     pvs.Show(source, view)
@@ -1612,6 +1819,183 @@ def text_to_transfer_function(source=None, prompt="", negatives=(), steps=300, v
     # spans the same box (UseInputBounds).
     apply_to_display(result, source, view, array, camera)
     return result, local
+
+
+def remote_optimize(source, array, prompt, negatives=(), steps=300, views=3, seed=0,
+                    model=None, tokenizer=None, reference_image=None, proxy_size=None,
+                    extra=(), timeout=None, refine=False, locks=()):
+    """The remote run: a ResampleToImage proxy of `source` (at most `proxy_size` points per
+    axis) fetched from the server, t2tf run here on it. In the GUI the run shows on
+    ParaView's progress bar, holds the GUI's input as a pipeline update does, and stops at
+    its Abort button or when the main window is closed. Returns (result, proxy image)."""
+    info = source.GetDataInformation()
+    size = proxy_size_setting(proxy_size)
+    dims = _proxy_dims(info.GetExtent(), size)
+    gui = _GuiProgress()
+    progress = Progress(gui=gui)
+    button = _AbortButton()
+    out = tempfile.mkdtemp(prefix=_TEMP_PREFIX)
+    try:
+        progress.show()
+        local, fetched = fetch_proxy(source, dims)
+        volume = os.path.join(out, "proxy.vti")
+        write_vti(local, array, volume)
+        init = (write_current_tf(array, os.path.join(out, "start.json"), source)
+                if refine else None)
+        result = optimize(volume, os.path.join(out, "tf"), prompt, negatives, steps, views, seed,
+                          model, tokenizer, array=array, reference_image=reference_image,
+                          extra=extra, progress=progress, aborted=button.requested,
+                          timeout=timeout, init=init, locks=locks)
+    finally:
+        button.end()
+        gui.end()
+        shutil.rmtree(out, ignore_errors=True)
+    if result["interrupted"]:
+        message("cancelled: kept the transfer function of the last finished step", False)
+    result.update(array=array, volume=None, proxy_dims=dims, fetched_points=fetched)
+    return result, local
+
+
+class _RemoteFilters:
+    """The filter in a client-server session, on the client. The filter's algorithm runs on
+    the server, where it passes the data through; the client watches its filters and, when
+    one updates with settings or data it has not run for (an Apply), runs t2tf here on a
+    bounded proxy of the filter's input (remote_optimize: progress bar, Abort, the GUI held
+    during the run) and applies the transfer function to the filter's own display, rendered
+    on the server at full resolution. Once per Apply: a repeated update with the same
+    settings and data (a render, a view's update) runs nothing, and no update starts a run
+    while one runs. Watched once per process, whichever copy of this module loads first."""
+
+    @staticmethod
+    def state():
+        _runs()  # makes the module every copy of this one shares
+        shared = sys.modules["_t2tf_plugin_runs"]
+        if not hasattr(shared, "remote"):
+            shared.remote = {"sessions": [], "filters": set(), "keys": {}, "running": False,
+                             "results": {}}
+        return shared.remote
+
+    @classmethod
+    def watch(cls):
+        """In a client process: follow the sessions, so that filters made in a remote one
+        are watched."""
+        from paraview import servermanager
+
+        if _on_server()[0]:
+            return
+        pxm = servermanager.vtkSMProxyManager.GetProxyManager()
+        state = cls.state()
+        if pxm is None or state.get("watching"):
+            return
+        state["watching"] = True
+        pxm.AddObserver(servermanager.vtkSMProxyManager.ActiveSessionChanged,
+                        lambda *_: cls.on_session())
+        cls.on_session()
+
+    @classmethod
+    def on_session(cls):
+        from paraview import servermanager
+
+        spxm = servermanager.vtkSMProxyManager.GetProxyManager().GetActiveSessionProxyManager()
+        state = cls.state()
+        if spxm is None or any(s is spxm for s in state["sessions"]):
+            return
+        state["sessions"].append(spxm)
+        spxm.AddObserver("RegisterEvent", lambda *_: cls.on_register(spxm))
+
+    @classmethod
+    def on_register(cls, spxm):
+        """Watch the session's TextToTransferFunction filters not watched yet (a register
+        event does not say which proxy it is for in Python: the sources are few)."""
+        state = cls.state()
+        session = spxm.GetSession()
+        if session is None or not session.IsA("vtkSMSessionClient"):
+            return  # a builtin session: the filter runs itself
+        sources = spxm.GetNumberOfProxies("sources")
+        for i in range(sources):
+            proxy = spxm.GetProxy("sources", spxm.GetProxyName("sources", i))
+            if proxy is None or proxy.GetXMLName() != "TextToTransferFunction":
+                continue
+            gid = proxy.GetGlobalIDAsString()
+            if gid in state["filters"]:
+                continue
+            state["filters"].add(gid)
+            proxy.AddObserver("UpdateDataEvent", lambda obj, _e: cls.on_update(obj))
+
+    @classmethod
+    def on_update(cls, smproxy):
+        from paraview import servermanager
+
+        state = cls.state()
+        if state["running"]:
+            return
+        proxy = servermanager._getPyProxy(smproxy)
+        try:
+            key = cls.key(proxy)
+        except Exception as e:  # the input went away: nothing to run on
+            message("internal error: %s: %s" % (type(e).__name__, e))
+            return
+        gid = smproxy.GetGlobalIDAsString()
+        if state["keys"].get(gid) == key:
+            return
+        state["keys"][gid] = key
+        state["running"] = True
+        try:
+            cls.run(proxy, gid)
+        except T2tfError as e:
+            message(str(e))
+        except Exception as e:  # a bug of ours: still one line, not a traceback
+            message("internal error: %s: %s" % (type(e).__name__, e))
+        finally:
+            state["running"] = False
+
+    @staticmethod
+    def key(proxy):
+        """The settings and the input's data as the server describes them."""
+        names = ("Prompt", "Negatives", "Steps", "Views", "Seed", "Model", "Tokenizer",
+                 "ReferenceImage", "Refine", "LockRanges", "Array")
+        values = [[str(v) for v in proxy.GetProperty(n)] for n in names]
+        source = proxy.Input
+        info = source.GetDataInformation()
+        values += [source.GetGlobalIDAsString(), info.GetDataClassName(),
+                   list(info.GetExtent()), list(info.GetBounds()), info.GetNumberOfPoints(),
+                   sorted((a.GetName(), list(a.GetRange())) for a in source.PointData)]
+        return json.dumps(values, default=str)
+
+    @classmethod
+    def run(cls, proxy, gid):
+        import paraview.simple as pvs
+
+        source = proxy.Input
+        info = source.GetDataInformation()
+        if info.GetDataClassName() not in ("vtkImageData", "vtkUniformGrid",
+                                           "vtkStructuredPoints"):
+            raise T2tfError("the input is a %s, not image data (vtkImageData): resample it "
+                            "first, e.g. with Resample To Image" % info.GetDataClassName())
+        prompt = proxy.Prompt or ""
+        reference = proxy.ReferenceImage or None
+        if not prompt.strip() and not reference:
+            raise T2tfError("the prompt is empty: type what the rendering should show (Prompt)")
+        for name in ("Steps", "Views"):
+            value = int(getattr(proxy, name))
+            if value < 1:
+                raise T2tfError("%s must be at least 1 (it is %d)" % (name, value))
+        array = (list(proxy.Array) + ["", ""])[1] or _active_array(source)
+        find_binary()
+        result, _local = remote_optimize(
+            source, array, prompt, [n for n in proxy.Negatives], int(proxy.Steps),
+            int(proxy.Views), int(proxy.Seed), proxy.Model or None, proxy.Tokenizer or None,
+            reference, None, (), None, bool(proxy.Refine), parse_locks(proxy.LockRanges))
+        remember_model(proxy.Model, proxy.Tokenizer)
+        state = cls.state()
+        register_preset(result, state["results"].get(gid))
+        state["results"][gid] = result["name"]
+        # The filter's display (the full data, on the server), as it appears.
+        _PENDING[gid] = (proxy, result, bool(proxy.ApplyCamera), set())
+        _watch_displays()
+        _apply_pending()
+        for view in pvs.GetViews():
+            view.StillRender()
 
 
 def _new_filter():
@@ -1707,3 +2091,9 @@ def _proxy_dims(extent, size):
     dims = [extent[2 * i + 1] - extent[2 * i] + 1 for i in range(3)]
     scale = min(1.0, float(size) / max(dims))
     return [max(2, min(size, int(round(d * scale)))) for d in dims]
+
+
+try:
+    _RemoteFilters.watch()
+except Exception as e:  # the filter still works in a builtin session
+    message("client-server sessions are not watched: %s" % e, False)

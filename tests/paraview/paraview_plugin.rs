@@ -749,10 +749,197 @@ fn abort_from_the_gui_event_loop_stops_the_run() {
     assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
 }
 
+/// `gui_abort.py` in the ParaView GUI: a 5000-step run of 8 views started with the panel's
+/// Apply button and stopped a few steps in by `stop`: "abort" (the Abort button beside the
+/// progress bar, clicked through the X server) or "close" (the main window's close message,
+/// as its close button sends). `module`: a folder holding the t2tf Python package, to run
+/// in-process (T2TF_BIN empty), else the binary runs.
+fn gui_stop(stop: &str, dir: &Path, module: Option<&Path>) -> serde_json::Value {
+    let mut env = vec![("T2TF_GUI_STOP", stop.into())];
+    if let Some(module) = module {
+        env.push(("T2TF_BIN", "".into()));
+        env.push((
+            "PYTHONPATH",
+            std::env::join_paths([
+                repo().join("paraview/compat"),
+                repo().join("tests/paraview_plugin"),
+                module.to_path_buf(),
+            ])
+            .unwrap(),
+        ));
+    }
+    let res = paraview_gui_with("gui_abort.py", dir, &env, false);
+    eprintln!("gui_abort ({stop}): {res}");
+    res
+}
+
+/// The first run of [`gui_stop`]: stopped by `stop` soon after it was sent, keeping the
+/// last finished step's transfer function (the report ends at the step it counts).
+fn assert_stopped_early(res: &serde_json::Value) {
+    let first = &res["first"];
+    assert_eq!(res["error"], serde_json::Value::Null, "{res}");
+    assert_eq!(first["steps"], 5000, "{res}");
+    assert_eq!(first["interrupted"], true, "{res}");
+    assert_eq!(first["report_interrupted"], true, "{res}");
+    let run = first["steps_run"].as_u64().unwrap();
+    let sent = res["pressed_at"].as_u64().unwrap();
+    assert_eq!(first["steps_recorded"].as_u64().unwrap(), run, "{res}");
+    // t2tf finishes the step under way; the run stopped within a few hundred steps of the
+    // press, far from its 5000.
+    assert!(run >= sent && run < sent + 300, "{res}");
+    assert!(first["rgb_points"].as_u64().unwrap() >= 2, "{res}");
+}
+
+/// The Abort button of [`gui_stop`]: enabled only during the run, left unchecked and
+/// disabled after it; the second filter, applied with the same Apply button, ran to its end.
+fn assert_aborted_and_usable(res: &serde_json::Value) {
+    assert_stopped_early(res);
+    assert_eq!(res["abort_enabled_before"], false, "{res}");
+    assert_eq!(res["abort_enabled_during"], true, "{res}");
+    assert_eq!(res["abort_enabled_after"], false, "{res}");
+    assert_eq!(res["abort_checked_after"], false, "{res}");
+    assert_eq!(res["window_visible_after"], true, "{res}");
+    let second = &res["second"];
+    assert_eq!(res["second_error"], serde_json::Value::Null, "{res}");
+    assert_eq!(second["interrupted"], false, "{res}");
+    assert_eq!(second["steps_run"], 3, "{res}");
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn the_abort_button_stops_the_binarys_run_and_paraview_stays_usable() {
+    require_tools(
+        "the_abort_button_stops_the_binarys_run_and_paraview_stays_usable",
+        &["paraview", "xvfb-run"],
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let res = gui_stop("abort", dir.path(), None);
+    assert_aborted_and_usable(&res);
+    assert_eq!(runs(dir.path()), 2, "{res}");
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn the_abort_button_stops_an_in_process_run() {
+    require_tools(
+        "the_abort_button_stops_an_in_process_run",
+        &["paraview", "xvfb-run"],
+    );
+    // The Python extension `cargo build --release -p t2tf-python` (or a wheel's build) leaves
+    // beside the binary; the Rust harness does not build it.
+    let built = Path::new(env!("CARGO_BIN_EXE_t2tf")).with_file_name("lib_t2tf.so");
+    if !built.is_file() {
+        eprintln!(
+            "the_abort_button_stops_an_in_process_run: no {} (build the Python extension); not run",
+            built.display()
+        );
+        return;
+    }
+    // The package as an install lays it out: the Python files and the extension.
+    let dir = tempfile::tempdir().unwrap();
+    let package = dir.path().join("module/t2tf");
+    std::fs::create_dir_all(&package).unwrap();
+    for entry in std::fs::read_dir(repo().join("python/t2tf")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "py") {
+            std::fs::copy(&path, package.join(path.file_name().unwrap())).unwrap();
+        }
+    }
+    std::fs::copy(&built, package.join("_t2tf.abi3.so")).unwrap();
+    let res = gui_stop("abort", dir.path(), Some(&dir.path().join("module")));
+    assert_aborted_and_usable(&res);
+    assert_eq!(runs(dir.path()), 0, "the binary ran: {res}");
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn closing_the_main_window_stops_the_run_and_paraview() {
+    require_tools(
+        "closing_the_main_window_stops_the_run_and_paraview",
+        &["paraview", "xvfb-run"],
+    );
+    // The script leaves ParaView running after the run: paraview_gui's success means ParaView
+    // then quit by itself (the window was closed), within its timeout.
+    let dir = tempfile::tempdir().unwrap();
+    let res = gui_stop("close", dir.path(), None);
+    assert_stopped_early(&res);
+    assert_eq!(res["window_visible_after"], false, "{res}");
+    assert_eq!(runs(dir.path()), 1, "{res}");
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn the_panel_labels_negatives_and_a_failed_first_apply_shows_an_outline() {
+    require_tools(
+        "the_panel_labels_negatives_and_a_failed_first_apply_shows_an_outline",
+        &["paraview", "xvfb-run"],
+    );
+    // The filter made from the Filters menu and applied with the panel's Apply button, in
+    // the ParaView GUI.
+    let dir = tempfile::tempdir().unwrap();
+    let res = paraview_gui("gui_panel.py", dir.path());
+    // The labels the Properties panel shows, in order: Negatives (a list, whose widget
+    // ParaView 5.11 shows without a label unless asked) between Prompt and Steps.
+    let labels: Vec<&str> = res["labels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|l| l.as_str())
+        .filter(|l| l.starts_with("<p>"))
+        .collect();
+    let at = |name: &str| {
+        labels
+            .iter()
+            .position(|l| *l == format!("<p>{name}</p>"))
+            .unwrap_or_else(|| panic!("no label {name} in {labels:?}"))
+    };
+    assert_eq!(at("Negatives"), at("Prompt") + 1, "{labels:?}");
+    assert_eq!(at("Steps"), at("Negatives") + 1, "{labels:?}");
+    // A first Apply that fails (empty Prompt) leaves the input passed through and shown as
+    // ParaView shows image data a filter passes on: an outline in a solid colour, like the
+    // input was, not a volume in the default colour map.
+    assert_eq!(
+        res["error"],
+        "the prompt is empty: type what the rendering should show (Prompt)"
+    );
+    assert_eq!(res["input_before"]["representation"], "Outline", "{res}");
+    let failed = &res["failed"];
+    assert_eq!(failed["visible"], true, "{res}");
+    assert_eq!(failed["representation"], "Outline", "{res}");
+    assert_eq!(failed["color_array"], "", "{res}");
+    // The next Apply, with a Prompt, runs and shows t2tf's TF as a volume.
+    assert_eq!(res["error_after"], serde_json::Value::Null, "{res}");
+    let worked = &res["worked"];
+    assert_eq!(worked["representation"], "Volume", "{res}");
+    assert_eq!(worked["color_array"], "ImageFile", "{res}");
+    assert_close(
+        &floats(&worked["rgb_points"]),
+        &floats(&res["result_rgb"]),
+        "the volume's colour points",
+    );
+    assert_eq!(runs(dir.path()), 1, "{res}");
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
+}
+
 /// Run `paraview --script=tests/paraview_plugin/SCRIPT` under xvfb with the plugin's
 /// environment (t2tf through [`counting_t2tf`], temporaries in `dir/tmp`, no welcome dialog)
 /// and return the JSON the script wrote.
 fn paraview_gui(script: &str, dir: &Path) -> serde_json::Value {
+    paraview_gui_with(script, dir, &[], false)
+}
+
+/// [`paraview_gui`] with more environment (set after, so overriding, the plugin's), and
+/// started through `paraview/bin/t2tf-paraview` when `launcher` (which loads the plugin at
+/// start-up: PV_PLUGIN_PATH is not given).
+fn paraview_gui_with(
+    script: &str,
+    dir: &Path,
+    env: &[(&str, std::ffi::OsString)],
+    launcher: bool,
+) -> serde_json::Value {
     let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
     let config = dir.join("config/ParaView");
     std::fs::create_dir_all(&config).unwrap();
@@ -771,7 +958,9 @@ fn paraview_gui(script: &str, dir: &Path) -> serde_json::Value {
         let out = Command::new("timeout")
             .args(["300", "xvfb-run"])
             .args(paraview_util::xvfb_display_args())
+            .args(launcher.then(|| repo().join("paraview/bin/t2tf-paraview")))
             .arg("paraview")
+            .env_remove("PV_PLUGIN_PATH")
             .arg(format!(
                 "--script={}",
                 repo().join("tests/paraview_plugin").join(script).display()
@@ -797,6 +986,7 @@ fn paraview_gui(script: &str, dir: &Path) -> serde_json::Value {
                 repo().join("../shared/data/clip/tokenizer.json"),
             )
             .env("T2TF_RESULT", &json)
+            .envs(env.iter().map(|(k, v)| (k, v)))
             .output()
             .expect("run xvfb-run paraview");
         if attempt < 3 && lost_display(&out, "") {
@@ -862,6 +1052,152 @@ fn undo_apply_restores_the_camera_and_redo_reuses_the_result() {
     assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
 }
 
+/// `paraview/bin/t2tf-paraview mpiexec -n RANKS pvserver` on 127.0.0.1, on an Xvfb of its
+/// own, with nothing of the plugin's in its environment but what the launcher sets; dropping
+/// it stops both process groups. (paraview_util::server starts pvserver without the launcher.)
+struct LauncherServer {
+    xvfb: std::process::Child,
+    mpiexec: std::process::Child,
+    port: u16,
+    log: PathBuf,
+}
+
+impl LauncherServer {
+    fn start(ranks: usize, dir: &Path) -> LauncherServer {
+        use std::io::BufRead;
+        use std::os::unix::process::CommandExt;
+        use std::process::Stdio;
+
+        let log = dir.join("pvserver.log");
+        let file = std::fs::File::create(&log).unwrap();
+        let mut xvfb = Command::new("Xvfb")
+            .args(["-displayfd", "1", "-ac", "-nolisten", "tcp"])
+            .args(["-screen", "0", "1280x1024x24"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(file.try_clone().unwrap())
+            .process_group(0)
+            .spawn()
+            .expect("start Xvfb");
+        let mut display = String::new();
+        std::io::BufReader::new(xvfb.stdout.take().unwrap())
+            .read_line(&mut display)
+            .unwrap();
+        let display = display.trim().to_string();
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .unwrap()
+            .port();
+        let mpiexec = Command::new(repo().join("paraview/bin/t2tf-paraview"))
+            .args(["mpiexec", "--oversubscribe", "-n", &ranks.to_string()])
+            .arg("pvserver")
+            .arg(format!("--server-port={port}"))
+            .env("DISPLAY", format!(":{display}"))
+            .env_remove("XAUTHORITY")
+            .env_remove("PYTHONPATH")
+            .env_remove("PV_PLUGIN_PATH")
+            // As paraview_util::server: loopback TCP between the ranks, and Open MPI as root.
+            .env("OMPI_MCA_btl", "self,tcp")
+            .env("OMPI_MCA_btl_tcp_if_include", "lo")
+            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+            .stdin(Stdio::null())
+            .stdout(file.try_clone().unwrap())
+            .stderr(file)
+            .process_group(0)
+            .spawn()
+            .expect("start t2tf-paraview mpiexec pvserver");
+        let mut server = LauncherServer {
+            xvfb,
+            mpiexec,
+            port,
+            log,
+        };
+        let start = std::time::Instant::now();
+        loop {
+            let text = server.log_text();
+            if text.contains("Accepting connection") {
+                return server;
+            }
+            if let Ok(Some(status)) = server.mpiexec.try_wait() {
+                panic!("pvserver exited ({status}) before accepting:\n{text}");
+            }
+            assert!(
+                start.elapsed().as_secs() < 120,
+                "pvserver did not accept within 120 s:\n{text}"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(200));
+        }
+    }
+
+    fn log_text(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+}
+
+impl Drop for LauncherServer {
+    fn drop(&mut self) {
+        for child in [&mut self.mpiexec, &mut self.xvfb] {
+            let group = child.id() as libc::pid_t;
+            // SAFETY: kill(2) with a negative pid signals our own child's process group.
+            unsafe { libc::kill(-group, libc::SIGTERM) };
+            std::thread::sleep(std::time::Duration::from_millis(500));
+            unsafe { libc::kill(-group, libc::SIGKILL) };
+            let _ = child.wait();
+        }
+    }
+}
+
+#[test]
+#[cfg_attr(
+    not(t2tf_pvserver),
+    ignore = "needs pvpython, xvfb-run, mpiexec and pvserver"
+)]
+fn client_server_gui_has_the_filter_and_runs_it_once_per_apply() {
+    let name = "client_server_gui_has_the_filter_and_runs_it_once_per_apply";
+    require_tools(name, &["paraview", "xvfb-run"]);
+    server::require_pvserver(name);
+    let dir = tempfile::tempdir().unwrap();
+    let server = LauncherServer::start(2, dir.path());
+    // The GUI through the launcher too, connecting from its startup script.
+    let res = paraview_gui_with(
+        "gui_remote.py",
+        dir.path(),
+        &[("T2TF_PORT", server.port.to_string().into())],
+        true,
+    );
+    let log = server.log_text();
+    eprintln!("gui_remote: {res}");
+    assert_eq!(res["remote"], true, "{res}");
+    assert_eq!(res["partitions"], 2, "{res}");
+    // The server loaded the plugin through the launcher: the Plugin Manager has nothing to
+    // warn about and the filter stays in the Filters menu.
+    assert_eq!(res["dialogs_after_connect"], 0, "{res}");
+    assert_eq!(res["filter_action"], true, "{res}\n{log}");
+    assert!(!log.contains("getargspec"), "{log}");
+    assert!(!log.contains("invalid ELF header"), "{log}");
+    // One t2tf run per Apply, on the client, shown on the progress bar with Abort enabled
+    // (the GUI's events processed: the view's timer ticked) and disabled after.
+    assert_eq!(res["runs_after_apply"], 1, "{res}");
+    assert!(res["during_run"]["ticks"].as_u64().unwrap() >= 2, "{res}");
+    assert_eq!(res["during_run"]["abort_enabled"], true, "{res}");
+    assert_eq!(res["abort_enabled_after"], false, "{res}");
+    assert_eq!(res["dialogs_after_apply"], 0, "{res}");
+    assert_eq!(res["runs_after_render"], 1, "{res}");
+    assert_eq!(res["runs_after_second_apply"], 2, "{res}");
+    // The filter's own display (the full data, on the server) shows t2tf's TF as a volume.
+    for run in ["first", "second"] {
+        assert_eq!(res[run]["representation"], "Volume", "{res}");
+        assert_eq!(res[run]["color_array"], "ImageFile", "{res}");
+    }
+    assert_close(
+        &floats(&res["second"]["rgb_points"]),
+        &floats(&res["preset"]["RGBPoints"]),
+        "the display's colour points",
+    );
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
+}
+
 /// Points per axis the pvserver test allows the proxy (neghip has 64).
 const PROXY_SIZE: usize = 32;
 
@@ -881,7 +1217,7 @@ fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
     let bin = counting_t2tf(dir.path());
     std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
     let mut attempt = 0;
-    let (client, all) = loop {
+    let all = loop {
         attempt += 1;
         let _ = std::fs::remove_file(dir.path().join("runs.log"));
         // Dropped at the end of each attempt, passed or panicked: stops Xvfb, mpiexec and the
@@ -914,24 +1250,29 @@ fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
             distinct_lines(&text(&out))
         );
         assert!(out.status.success(), "{all}");
-        break (text(&out), all);
+        break all;
     };
-    // One t2tf run (the client's, on the proxy); the filter loaded on the server with
-    // remote=True ran t2tf on no rank and said why once (rank 0; ParaView forwards a
-    // server's messages to the client).
-    assert_eq!(runs(dir.path()), 1, "{all}");
-    assert_eq!(
-        client
-            .matches("the filter does not run on a pvserver")
-            .count(),
-        1,
-        "{all}"
-    );
+    // Two t2tf runs, both the client's, on proxies: text_to_transfer_function's, and the
+    // filter's (loaded on the server with remote=True, whose ranks pass the data through),
+    // once for two updates with the same settings.
+    assert_eq!(runs(dir.path()), 2, "{all}");
     assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
     let res: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).expect("driver JSON");
     assert_eq!(res["remote"], true);
     assert_eq!(res["partitions"], 2, "two pvserver ranks");
+    // The filter on the server: the full data passed through, shown as a volume with the TF
+    // the client computed for it.
+    assert!(
+        res["server_filter_points"].as_u64().unwrap() >= 64 * 64 * 64,
+        "{res}"
+    );
+    assert_eq!(res["server_filter_representation"], "Volume", "{res}");
+    assert_close(
+        &floats(&res["server_filter_rgb"]),
+        &floats(&res["server_filter_preset"]["RGBPoints"]),
+        "the server filter's colour points",
+    );
 
     // The proxy: at most PROXY_SIZE points per axis, over the full data's box.
     let dims: Vec<u64> = res["proxy_dims"]

@@ -78,14 +78,23 @@ pvs.Show(again, view)
 t2tf_plugin.apply_to_display(result, again, view, "ImageFile", camera=True)
 pvs.SaveScreenshot(proxy_png, view, ImageResolution=[size, size])
 
-# The filter itself loaded on the server (remote=True): it refuses once (rank 0), runs t2tf
-# on no rank, and fails.
+# The filter itself, loaded on the server (remote=True) as well as here (the imported module
+# watches the session): the server's ranks pass the data through and run no t2tf; this client
+# runs t2tf once, on a proxy, when the filter updates, and shows the TF on its display.
 pvs.LoadPlugin(plugin, remote=True, ns=globals())
 print("SERVER FILTER", flush=True)
 f = TextToTransferFunction(Input=full, Prompt="a protein molecule", Steps=2, Views=1,
                            Model=model, Tokenizer=tokenizer)
 f.UpdatePipeline()
+pvs.Show(f, view)
+f.UpdatePipeline()  # the same settings and data again: no second run
+fdisp = pvs.GetDisplayProperties(f, view)
 res["server_filter_points"] = f.GetDataInformation().GetNumberOfPoints()
+res["server_filter_representation"] = text(fdisp.Representation)
+res["server_filter_rgb"] = list(fdisp.LookupTable.RGBPoints) if fdisp.LookupTable else None
+res["server_filter_preset"] = json.loads(presets.GetPresetAsString(
+    next(i for i in range(presets.GetNumberOfPresets())
+         if presets.GetPresetName(i) == "t2tf: a protein molecule")))
 print("SERVER FILTER DONE", flush=True)
 with open(out_json, "w") as fh:
     json.dump(res, fh)
