@@ -157,7 +157,10 @@ def main_job(label, cmd, work, out_arg, out_dir):
     run(label, cmd, ["optimize", VOLUME, "--prompt", "a red molecule", "--model", MODEL,
                      "--tokenizer", TOKENIZER, "--negatives-file", negatives, "--steps", "2",
                      "--views", "1", "--negatives-per-step", "3", "--render-size", "64",
-                     "--out", out_arg, "--name", "tf", "--seed", "7"], work)
+                     "--out", out_arg, "--name", "tf", "--seed", "7",
+                     # f32 on both sides: `auto` picks per CPU (bf16 on an x86 with a bf16
+                     # kernel, f32 under qemu's aarch64), and this compares the platforms.
+                     "--precision", "f32"], work)
     for name in OUTPUTS + ["tf" + s for s in OUTPUT_SUFFIXES]:
         path = os.path.join(out_dir, name)
         if not os.path.isfile(path) or os.path.getsize(path) == 0:

@@ -240,6 +240,8 @@ impl Setup {
             Setup::Packed(Kernel::Avx512Bf16) => "bf16",
             Setup::Packed(Kernel::Portable) => "portable",
             Setup::Packed(Kernel::PortableBf16) => "portable-bf16",
+            Setup::Packed(Kernel::Amx) => "amx",
+            Setup::Packed(Kernel::AmxEmulated) => "amx-emulated",
         }
     }
     fn precision(self) -> Precision {
@@ -265,9 +267,16 @@ fn setups() -> (Vec<Setup>, Vec<String>) {
     let mut skipped = Vec::new();
     for k in Kernel::ALL {
         match (k, k.missing()) {
-            (Kernel::Portable | Kernel::PortableBf16, _) => skipped.push(format!(
+            (Kernel::Portable | Kernel::PortableBf16 | Kernel::AmxEmulated, _) => {
+                skipped.push(format!(
                 "{}: scalar reference (tested in tests/clip/clip_kernels.rs, too slow to time here)",
                 k.name()
+            ))
+            }
+            (Kernel::Amx, Some(_)) => skipped.push(format!(
+                "{}: not run here: {}",
+                k.name(),
+                packed::amx_status().err().unwrap_or_default()
             )),
             (_, Some(what)) => skipped.push(format!("{}: this CPU lacks {what}", k.name())),
             (_, None) => run.push(Setup::Packed(k)),

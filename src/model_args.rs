@@ -24,12 +24,14 @@ pub struct ModelArgs {
     #[arg(long, value_name = "PATH")]
     pub tokenizer: Option<PathBuf>,
 
-    /// Number format of CLIP's weight products: f32, bf16 (weights and activations rounded to
-    /// bf16, f32 accumulation; needs AVX512_BF16) or auto (bf16 where the CPU has it and a
-    /// few-millisecond calibration measures it at least 1.15× faster than f32, else f32). f32
-    /// is the default because its runs are reproducible; a bf16 run took 0.64× the f32 time on
-    /// Zen 4, its TF rendering at 53.4 dB PSNR against f32's on held-out views (BENCHMARKS.md).
-    #[arg(long, value_name = "f32|bf16|auto", default_value = "f32")]
+    /// Number format of CLIP's weight products: auto (bf16 where the CPU has a bf16 kernel,
+    /// AMX or AVX512_BF16, and a calibration measures it at least 1.15× as fast as f32, else
+    /// f32; the calibration is kept per CPU in the cache folder, so every run on a machine
+    /// picks alike, and report.json records the choice), f32 (bit-reproducible across
+    /// machines and thread counts) or bf16 (weights and activations rounded to bf16, f32
+    /// accumulation). A bf16 run took 0.64× the f32 time on Zen 4, its TF rendering at 53.4 dB
+    /// PSNR against f32's on held-out views (BENCHMARKS.md).
+    #[arg(long, value_name = "auto|f32|bf16", default_value = "auto")]
     pub precision: String,
 }
 
@@ -37,8 +39,9 @@ impl ModelArgs {
     /// `--precision` for this CPU, or why it cannot be had. An explicit bf16 that this CPU
     /// runs slower than f32 is honoured with a warning.
     pub fn precision(&self) -> anyhow::Result<Precision> {
-        let p =
-            Precision::resolve(&self.precision).map_err(|e| anyhow::anyhow!("--precision: {e}"))?;
+        let cache = crate::optimize::captions::cache_dir();
+        let p = Precision::resolve_cached(&self.precision, cache.as_deref())
+            .map_err(|e| anyhow::anyhow!("--precision: {e}"))?;
         if self.precision == "bf16" {
             if let Some(s) = crate::clip::bf16_speedup().filter(|s| *s < 1.0) {
                 errln!(
@@ -51,7 +54,11 @@ impl ModelArgs {
 
     /// How the model's products run: `--precision` on the faster engine of this CPU.
     pub fn compute(&self) -> anyhow::Result<Compute> {
-        Ok(Compute::new(self.precision()?))
+        let precision = self.precision()?;
+        Ok(Compute {
+            auto: self.precision == "auto",
+            ..Compute::new(precision)
+        })
     }
 
     /// What the library loads.

@@ -2,7 +2,7 @@
 //! values it multiplies (odd shapes, sub-ranges, accumulate, bias), against each other, through
 //! whole models (the transformers golden fixtures), and across thread counts. Kernels the CPU
 //! lacks are skipped and listed (run with `--nocapture` to see the list), unless
-//! `T2TF_REQUIRE_KERNELS` names them (comma-separated: avx2, avx512f, avx512bf16): then a
+//! `T2TF_REQUIRE_KERNELS` names them (comma-separated: avx2, avx512f, avx512bf16, amx): then a
 //! missing one fails. CI sets it to what its CPU's flags promise.
 
 use std::path::Path;
@@ -20,7 +20,8 @@ fn short(k: Kernel) -> Option<&'static str> {
         Kernel::Avx2Fma => Some("avx2"),
         Kernel::Avx512F => Some("avx512f"),
         Kernel::Avx512Bf16 => Some("avx512bf16"),
-        Kernel::Portable | Kernel::PortableBf16 => None,
+        Kernel::Amx => Some("amx"),
+        Kernel::Portable | Kernel::PortableBf16 | Kernel::AmxEmulated => None,
     }
 }
 
@@ -36,7 +37,7 @@ fn available(test: &str) -> Vec<Kernel> {
     for r in &required {
         assert!(
             Kernel::ALL.into_iter().any(|k| short(k) == Some(r)),
-            "T2TF_REQUIRE_KERNELS: unknown kernel {r:?} (avx2, avx512f, avx512bf16)"
+            "T2TF_REQUIRE_KERNELS: unknown kernel {r:?} (avx2, avx512f, avx512bf16, amx)"
         );
     }
     let mut run = Vec::new();
@@ -424,12 +425,78 @@ fn missing_kernels_are_refused() {
     }
     // bf16 is native exactly where its kernel is, and `auto` never picks an emulated one, nor
     // one its calibration measured too slow.
-    assert_eq!(Precision::Bf16.native(), Kernel::Avx512Bf16.available());
+    assert_eq!(
+        Precision::Bf16.native(),
+        Kernel::Avx512Bf16.available() || Kernel::Amx.available()
+    );
     assert_eq!(
         Precision::auto() == Precision::Bf16,
-        Kernel::Avx512Bf16.available()
+        Precision::Bf16.native()
             && t2tf::clip::bf16_speedup().unwrap() >= t2tf::clip::AUTO_BF16_MIN_SPEEDUP
     );
+}
+
+/// Where the CPU has AMX: the AMX units and their emulation (`Kernel::AmxEmulated`, tested
+/// against the instruction's definition on every CPU) give the same bits, through the whole
+/// product path, on odd shapes, sub-ranges, both precisions of edge (partial tiles, partial
+/// steps) and every thread count. Elsewhere the test says why it did not run, and fails where
+/// `T2TF_REQUIRE_KERNELS` names `amx`.
+#[test]
+fn amx_hardware_matches_its_emulation_bit_for_bit() {
+    let kernels = available("amx vs emulation");
+    if !kernels.contains(&Kernel::Amx) {
+        eprintln!(
+            "amx vs emulation: not run: {}",
+            packed::amx_status().err().unwrap_or_default()
+        );
+        return;
+    }
+    let shapes = [
+        (1, 1, 1, 0..1, 0..1),
+        (150, 768, 768, 0..768, 0..768),
+        (150, 3072, 768, 0..768, 0..3072),
+        (37, 130, 301, 3..300, 5..130),
+        (40, 200, 700, 1..700, 64..200),
+    ];
+    for (m, n, bk, ks, cols) in shapes {
+        let k = ks.len();
+        let a = values(m * k, 21, 1.0);
+        let b = values(bk * n, 22, 1.0);
+        let bias = values(n, 23, 1.0);
+        let run = |kernel: Kernel, threads: usize| {
+            let packed = PackedB::from_rows_for(kernel, &b, bk, n);
+            let mut c = values(m * cols.len(), 24, 1.0);
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                packed::gemm(
+                    &mut c,
+                    cols.len(),
+                    &a,
+                    k,
+                    m,
+                    &packed,
+                    ks.clone(),
+                    cols.clone(),
+                    Some(&bias),
+                    true,
+                )
+            });
+            c
+        };
+        let emulated = run(Kernel::AmxEmulated, 1);
+        for threads in [1, 2] {
+            let hardware = run(Kernel::Amx, threads);
+            for (i, (h, e)) in hardware.iter().zip(&emulated).enumerate() {
+                assert!(
+                    h.to_bits() == e.to_bits(),
+                    "{m}x{n}, B rows {ks:?}, columns {cols:?}, {threads} threads: element {i}: AMX {h}, emulation {e}"
+                );
+            }
+        }
+    }
 }
 
 /// The transposed product `C = A · B[.., cols]ᵀ` on a forward packing (`packed::gemm_t`, the

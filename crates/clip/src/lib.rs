@@ -71,7 +71,10 @@ use std::path::{Path, PathBuf};
 pub use config::{Activation, ClipConfig, ConfigError};
 pub use load::{Layout, ModelFiles, ModelRequest, DEFAULT_MODEL, DEFAULT_REVISION};
 pub use openclip::OpenClipConfig;
-pub use packed::{bf16_speedup, Compute, Engine, Kernel, Precision, AUTO_BF16_MIN_SPEEDUP};
+pub use packed::{
+    bf16_speedup, calibration, Calibration, Compute, Engine, Kernel, Precision,
+    AUTO_BF16_MIN_SPEEDUP, CALIBRATION_FILE,
+};
 pub use preprocess::{preprocess, Preprocessing, MEAN, STD};
 pub use similarity::{
     cosine, cosine_checked, cosine_grad, softmax_scaled, unit, BadLogitScale, Head, Incomparable,

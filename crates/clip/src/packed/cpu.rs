@@ -20,9 +20,9 @@ pub fn cpu_features() -> String {
     }
 }
 
-/// Whether the CPU reports AMX-BF16 (CPUID leaf 7 EDX bit 22). Only reported: there is no AMX
-/// kernel (untestable on the AVX-512 development machine, which lacks AMX), so AMX machines
-/// run `Avx512Bf16`. `is_x86_feature_detected!` has no stable name for AMX.
+/// Whether the CPU reports AMX-BF16 (CPUID leaf 7 EDX bit 22), whether or not the system lets
+/// this process use it (`super::amx::status` decides that). `is_x86_feature_detected!` has no
+/// stable name for AMX.
 #[cfg(target_arch = "x86_64")]
 pub(super) fn amx_bf16() -> bool {
     // CPUID exists on every x86-64 CPU (a safe intrinsic); leaf 7 is only read when reported.

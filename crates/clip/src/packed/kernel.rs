@@ -16,16 +16,27 @@ pub enum Kernel {
     PortableBf16,
     /// AVX512_BF16 `vdpbf16ps`, 6 × 64, bf16 pairs, f32 accumulation.
     Avx512Bf16,
+    /// Intel AMX `tdpbf16ps` computed in software, bit for bit as the SDM defines it
+    /// (`amx.rs`): the same panels, tiles and steps as `Amx`, so every CPU tests the AMX
+    /// path's layout code, and the reference of the AMX self-check (tests only; a model never
+    /// emulates bf16).
+    AmxEmulated,
+    /// Intel AMX-BF16 `tdpbf16ps`, 16 × 64 (four 16 × 16 tiles of C), bf16 pairs, f32
+    /// accumulation; available only after the system granted the tile state and a self-check
+    /// against `AmxEmulated` passed (`amx::status`).
+    Amx,
 }
 
 impl Kernel {
     /// Every kernel, whether this CPU has it or not.
-    pub const ALL: [Kernel; 5] = [
+    pub const ALL: [Kernel; 7] = [
         Kernel::Portable,
         Kernel::Avx2Fma,
         Kernel::Avx512F,
         Kernel::PortableBf16,
         Kernel::Avx512Bf16,
+        Kernel::AmxEmulated,
+        Kernel::Amx,
     ];
 
     /// A short description ("avx512f 6x64 f32"), as benchmarks and report.json print it.
@@ -36,6 +47,8 @@ impl Kernel {
             Kernel::Avx512F => "avx512f 6x64 f32",
             Kernel::PortableBf16 => "portable 6x64 bf16",
             Kernel::Avx512Bf16 => "avx512bf16 6x64 bf16 (vdpbf16ps)",
+            Kernel::AmxEmulated => "emulated amx 16x64 bf16 (tdpbf16ps in software)",
+            Kernel::Amx => "amx-bf16 16x64 bf16 (tdpbf16ps)",
         }
     }
 
@@ -43,7 +56,9 @@ impl Kernel {
     pub fn precision(self) -> Precision {
         match self {
             Kernel::Portable | Kernel::Avx2Fma | Kernel::Avx512F => Precision::F32,
-            Kernel::PortableBf16 | Kernel::Avx512Bf16 => Precision::Bf16,
+            Kernel::PortableBf16 | Kernel::Avx512Bf16 | Kernel::AmxEmulated | Kernel::Amx => {
+                Precision::Bf16
+            }
         }
     }
 
@@ -59,13 +74,19 @@ impl Kernel {
         matches!(self, Kernel::Avx2Fma)
     }
 
-    /// `None` where this CPU can run the kernel, else what it lacks.
+    /// `None` where this CPU can run the kernel, else what it lacks (for AMX, why in full:
+    /// [`amx_status`](super::amx_status)).
     pub fn missing(self) -> Option<&'static str> {
+        if self == Kernel::Amx {
+            return super::amx::status()
+                .is_err()
+                .then_some("AMX-BF16 granted by the system and a passing self-check");
+        }
         #[cfg(target_arch = "x86_64")]
         {
             use std::arch::is_x86_feature_detected as has;
             match self {
-                Kernel::Portable | Kernel::PortableBf16 => None,
+                Kernel::Portable | Kernel::PortableBf16 | Kernel::AmxEmulated | Kernel::Amx => None,
                 Kernel::Avx2Fma => (!(has!("avx2") && has!("fma"))).then_some("AVX2 and FMA"),
                 Kernel::Avx512F => (!has!("avx512f")).then_some("AVX-512F"),
                 Kernel::Avx512Bf16 => {
@@ -76,7 +97,7 @@ impl Kernel {
         }
         #[cfg(not(target_arch = "x86_64"))]
         match self {
-            Kernel::Portable | Kernel::PortableBf16 => None,
+            Kernel::Portable | Kernel::PortableBf16 | Kernel::AmxEmulated => None,
             _ => Some("an x86-64 CPU"),
         }
     }
@@ -87,11 +108,12 @@ impl Kernel {
     }
 
     /// The fastest kernel for `precision` on this CPU (f32: always one, `Portable` at worst;
-    /// bf16: only a native one).
+    /// bf16: only a native one, AMX before `vdpbf16ps`: the same bf16 operands and f32
+    /// accumulation, 5–6× the products per core on ViT-B/32's shapes).
     pub fn best(precision: Precision) -> Option<Kernel> {
         let order: &[Kernel] = match precision {
             Precision::F32 => &[Kernel::Avx512F, Kernel::Avx2Fma, Kernel::Portable],
-            Precision::Bf16 => &[Kernel::Avx512Bf16],
+            Precision::Bf16 => &[Kernel::Amx, Kernel::Avx512Bf16],
         };
         order.iter().copied().find(|k| k.available())
     }
@@ -100,7 +122,19 @@ impl Kernel {
     pub(super) fn nr(self) -> usize {
         match self {
             Kernel::Portable | Kernel::Avx2Fma => 16,
-            Kernel::Avx512F | Kernel::PortableBf16 | Kernel::Avx512Bf16 => 64,
+            Kernel::Avx512F
+            | Kernel::PortableBf16
+            | Kernel::Avx512Bf16
+            | Kernel::AmxEmulated
+            | Kernel::Amx => 64,
+        }
+    }
+
+    /// Rows of C per micro-tile: a tile register's 16 rows for AMX, else [`MR`].
+    pub(super) fn mr(self) -> usize {
+        match self {
+            Kernel::AmxEmulated | Kernel::Amx => super::amx::ROWS,
+            _ => MR,
         }
     }
 
@@ -111,7 +145,9 @@ impl Kernel {
     pub(super) fn kc(self) -> usize {
         match self {
             Kernel::Portable | Kernel::Avx2Fma | Kernel::Avx512F => 256,
-            Kernel::PortableBf16 | Kernel::Avx512Bf16 => 128,
+            // AMX: a multiple of its 16-pair step, so that only a call's last block has a
+            // partial step.
+            Kernel::PortableBf16 | Kernel::Avx512Bf16 | Kernel::AmxEmulated | Kernel::Amx => 128,
         }
     }
 

@@ -39,6 +39,7 @@
 //! instructions. The choice is a value, [`Compute`], given when a model is loaded; tests and
 //! benchmarks force any kernel the CPU has with [`Compute::with_kernel`].
 
+mod amx;
 #[cfg(target_arch = "x86_64")]
 mod avx2;
 #[cfg(target_arch = "x86_64")]
@@ -54,10 +55,14 @@ mod product;
 mod tests;
 mod transposed;
 
+pub use amx::status as amx_status;
 pub use cpu::cpu_features;
 pub use kernel::Kernel;
 pub use pack::{round_bf16, PackedB};
-pub use precision::{bf16_speedup, Precision, PrecisionError, AUTO_BF16_MIN_SPEEDUP};
+pub use precision::{
+    bf16_speedup, calibration, Calibration, Precision, PrecisionError, AUTO_BF16_MIN_SPEEDUP,
+    CALIBRATION_FILE,
+};
 pub use product::gemm;
 pub use transposed::gemm_t;
 
@@ -119,6 +124,9 @@ pub struct Compute {
     /// second copy `W` for the backward, the faster product. Results agree to float rounding
     /// either way (bit for bit with the AVX2 and scalar kernels).
     pub one_copy: bool,
+    /// Whether `precision` is `auto`'s choice ([`Precision::auto_cached`]): report.json then
+    /// says so, with the calibration behind it.
+    pub auto: bool,
 }
 
 impl Default for Compute {
@@ -136,6 +144,16 @@ impl Compute {
             precision,
             kernel: None,
             one_copy: false,
+            auto: false,
+        }
+    }
+
+    /// `--precision auto`: the precision [`Precision::auto_cached`] picks on this CPU (its
+    /// calibration kept in `dir`), on the faster engine, marked as `auto`'s choice.
+    pub fn auto(dir: Option<&std::path::Path>) -> Compute {
+        Compute {
+            auto: true,
+            ..Compute::new(Precision::auto_cached(dir))
         }
     }
 
@@ -191,9 +209,10 @@ impl Compute {
         }
     }
 
-    /// One line for report.json: which GEMM the layers use (engine, kernel, precision) and
-    /// the CPU features behind the choice, e.g. `packed engine, avx512f 6x64 f32
-    /// micro-kernel, f32 (CPU has avx2 fma avx512f avx512bw avx512_bf16; lacks amx_bf16)`.
+    /// One line for report.json: which GEMM the layers use (engine, kernel, precision), how
+    /// `auto` chose, whether AMX runs, and the CPU features behind the choice, e.g. `packed
+    /// engine, avx512bf16 6x64 bf16 (vdpbf16ps) micro-kernel, bf16; chosen by auto: … measured
+    /// 1.83× as fast as avx512f 6x64 f32 (cached; …) (CPU has avx2 fma …; lacks amx_bf16)`.
     pub fn describe(&self) -> String {
         let what = match self.layer_kernel() {
             Some(k) => format!(
@@ -208,7 +227,26 @@ impl Compute {
         } else {
             ""
         };
-        format!("{what}{fallback} (CPU {})", cpu_features())
+        let auto = if self.auto {
+            match calibration(None) {
+                Some(c) => format!(
+                    "; chosen by auto: {} measured {:.2}× as fast as {} ({}; bf16 needs {AUTO_BF16_MIN_SPEEDUP}×)",
+                    c.bf16_kernel, c.speedup, c.f32_kernel, c.source
+                ),
+                None => "; chosen by auto: this CPU has no bf16 kernel".into(),
+            }
+        } else {
+            String::new()
+        };
+        #[cfg(target_arch = "x86_64")]
+        let amx = match (cpu::amx_bf16(), amx::status()) {
+            (false, _) => String::new(),
+            (true, Ok(())) => "; AMX ready (self-check passed)".into(),
+            (true, Err(why)) => format!("; AMX not used: {why}"),
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let amx = "";
+        format!("{what}{fallback}{auto}{amx} (CPU {})", cpu_features())
     }
 }
 

@@ -49,6 +49,22 @@ impl PackedB {
         if let Some(what) = kernel.missing() {
             panic!("PackedB for {}: this CPU lacks {what}", kernel.name());
         }
+        PackedB::build_unchecked(kernel, k, n, at)
+    }
+
+    /// `from_rows_for` without asking whether the CPU runs `kernel`: for the AMX self-check,
+    /// which runs before `Kernel::Amx` counts as available (and decides whether it does).
+    pub(super) fn from_rows_unchecked(kernel: Kernel, b: &[f32], k: usize, n: usize) -> PackedB {
+        assert_eq!(b.len(), k * n, "PackedB::from_rows_unchecked: size");
+        PackedB::build_unchecked(kernel, k, n, |p, j| b[p * n + j])
+    }
+
+    fn build_unchecked(
+        kernel: Kernel,
+        k: usize,
+        n: usize,
+        at: impl Fn(usize, usize) -> f32 + Sync,
+    ) -> PackedB {
         let nr = kernel.nr();
         let rows = packed_rows(kernel, k);
         let panel_lines = rows * nr / 16;
@@ -176,7 +192,8 @@ pub(super) enum APacked<'a> {
         tail: Vec<f32>,
         k: usize,
     },
-    /// bf16 pairs `[panels·MR][kq]` u32, zero rows past m (`Avx512Bf16`, `PortableBf16`).
+    /// bf16 pairs `[panels·mr][kq]` u32, zero rows past m (the bf16 kernels; `mr` is the
+    /// kernel's rows per tile: 6, or AMX's 16).
     Pairs { data: Vec<u32>, kq: usize },
 }
 
@@ -192,7 +209,8 @@ pub(super) fn pack_a<'a>(
     shift: usize,
     parallel: bool,
 ) -> APacked<'a> {
-    let panels_m = m.div_ceil(MR);
+    let mr = kernel.mr();
+    let panels_m = m.div_ceil(mr);
     match kernel {
         Kernel::Portable | Kernel::Avx2Fma => {
             // Packed A, panel-major: panel i (rows i·MR ..) is `[k][MR]`, rows past m zero.
@@ -251,9 +269,9 @@ pub(super) fn pack_a<'a>(
                 k,
             }
         }
-        Kernel::PortableBf16 | Kernel::Avx512Bf16 => {
+        Kernel::PortableBf16 | Kernel::Avx512Bf16 | Kernel::AmxEmulated | Kernel::Amx => {
             let kq = (k + shift).div_ceil(2);
-            let mut data = vec![0u32; panels_m * MR * kq];
+            let mut data = vec![0u32; panels_m * mr * kq];
             let convert = |(r, dst): (usize, &mut [u32])| {
                 if r < m {
                     let row = &a[r * lda..][..k];

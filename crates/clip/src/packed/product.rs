@@ -206,7 +206,8 @@ pub(super) unsafe fn gemm_raw(
         assert_eq!(bias.len(), b.n, "packed::gemm: bias length");
     }
     let nr = kernel.nr();
-    let panels_m = m.div_ceil(MR);
+    let mr = kernel.mr();
+    let panels_m = m.div_ceil(mr);
     let parallel = m * n * k >= PARALLEL_MIN_MACS && rayon::current_num_threads() > 1;
     // Packed rows of B this call covers: k rows (f32), or the k pairs q0 .. q0 + kr (bf16).
     let (row0, shift) = if kernel.bf16() {
@@ -229,7 +230,7 @@ pub(super) unsafe fn gemm_raw(
     };
     let cp = SendPtr(c);
     // Row panels per A block: the fewest blocks of at most MC rows, of balanced sizes.
-    let per_block = panels_m.div_ceil(panels_m.div_ceil(MC / MR));
+    let per_block = panels_m.div_ceil(panels_m.div_ceil(MC / mr));
     let bflat = b.flat();
     let ap = &ap;
     let cols = &cols;
@@ -274,7 +275,7 @@ pub(super) unsafe fn gemm_raw(
                         let pf_start = ((i - ib) * share).min(next.len());
                         let prefetch = &next[pf_start..(pf_start + share).min(next.len())];
                         let tile = Tile {
-                            rows: MR.min(m - i * MR),
+                            rows: mr.min(m - i * mr),
                             lo,
                             hi,
                             // Offset of tile column 0 in C's row; < 0 only when lo > 0.
@@ -283,13 +284,13 @@ pub(super) unsafe fn gemm_raw(
                             add: !first || accumulate,
                             nr,
                         };
-                        // SAFETY: row i·MR of C starts inside `c` (i·MR < m); the tile
+                        // SAFETY: row i·mr of C starts inside `c` (i·mr < m); the tile
                         // writes rows < m and C columns col0 + lo .. col0 + hi, which lie in
                         // 0 .. n ≤ ldc by the clipping above, so inside the asserted bounds.
                         // Threads own disjoint panel ranges j0..j1, hence disjoint columns.
                         // `b.kernel` was checked against this CPU when B was packed.
                         unsafe {
-                            let crow = cp.get().add(i * MR * ldc);
+                            let crow = cp.get().add(i * mr * ldc);
                             run_tile(kernel, ap, i, kb, kc, bpanel, prefetch, crow, ldc, &tile);
                         }
                         if let (Some(post), true) = (post, kb + kc == kr) {
@@ -300,11 +301,11 @@ pub(super) unsafe fn gemm_raw(
                                 // reference to it exists during the call.
                                 let values = unsafe {
                                     std::slice::from_raw_parts_mut(
-                                        cp.get().add((i * MR + r) * ldc + col),
+                                        cp.get().add((i * mr + r) * ldc + col),
                                         hi - lo,
                                     )
                                 };
-                                post(i * MR + r, col, values);
+                                post(i * mr + r, col, values);
                             }
                         }
                     }
@@ -322,7 +323,7 @@ pub(super) unsafe fn gemm_raw(
 /// Where and how one micro-tile's result goes into C.
 #[derive(Clone, Copy)]
 pub(super) struct Tile<'a> {
-    /// Valid rows (≤ MR).
+    /// Valid rows (≤ the kernel's rows per tile).
     pub(super) rows: usize,
     /// Valid tile columns `lo .. hi` (⊆ 0 .. nr).
     pub(super) lo: usize,
@@ -364,7 +365,7 @@ impl Tile<'_> {
         }
     }
 
-    /// Write an accumulated tile `acc [MR][nr]` into C through the general (edge) path.
+    /// Write an accumulated tile `acc [rows][nr]` into C through the general (edge) path.
     ///
     /// # Safety
     /// `crow` is C's row of the tile's first row; rows `< self.rows` and columns
@@ -468,6 +469,38 @@ pub(super) unsafe fn run_tile(
                     *kq,
                     bpanel.as_ptr().cast(),
                     prefetch,
+                    crow,
+                    ldc,
+                    tile,
+                )
+            }
+        }
+        (Kernel::AmxEmulated, APacked::Pairs { data, kq }) => {
+            let apanel = &data[i * amx::ROWS * kq + kb..];
+            // SAFETY: forwarded from the caller; the panel holds `amx::ROWS` rows of kq u32s.
+            unsafe {
+                amx::tile_emulated(
+                    kc,
+                    apanel.as_ptr(),
+                    *kq,
+                    bpanel.as_ptr().cast(),
+                    crow,
+                    ldc,
+                    tile,
+                )
+            }
+        }
+        #[cfg(target_arch = "x86_64")]
+        (Kernel::Amx, APacked::Pairs { data, kq }) => {
+            let apanel = &data[i * amx::ROWS * kq + kb..];
+            // SAFETY: forwarded from the caller (the tile state was granted before `Amx` was
+            // packed for); the panel holds `amx::ROWS` rows of kq u32s.
+            unsafe {
+                amx::tile(
+                    kc,
+                    apanel.as_ptr(),
+                    *kq,
+                    bpanel.as_ptr().cast(),
                     crow,
                     ldc,
                     tile,

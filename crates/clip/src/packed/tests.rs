@@ -1,4 +1,5 @@
 use super::*;
+use std::ops::Range;
 
 /// C = base + A·B (+ bias) in f64, B given row-major [k, n].
 fn naive(
@@ -332,4 +333,171 @@ fn settings_are_values() {
         .join()
         .unwrap();
     assert_eq!(there, bf.layer_kernel());
+}
+
+/// The AMX product as the SDM defines `tdpbf16ps`, written per element of C from B's rows and
+/// A's columns, without the packing, tiling or steps of `amx.rs`: A's row and B's rows paired
+/// from `ks.start` (an odd start pairs A's first column with B's row before it, as `pack_a`
+/// does), blocks of `kc` pairs, 16-pair instructions with a low and a high lane, padding
+/// pairs as zeros, and C stored as `Tile::store_scalar` stores it.
+#[allow(clippy::too_many_arguments)]
+fn amx_model(
+    c: &mut [f32],
+    a: &[f32],
+    m: usize,
+    b: &[f32],
+    bk: usize,
+    bn: usize,
+    ks: Range<usize>,
+    cols: Range<usize>,
+    bias: Option<&[f32]>,
+    accumulate: bool,
+) {
+    let daz = |x: f32| {
+        if x.is_subnormal() {
+            0.0f32.copysign(x)
+        } else {
+            x
+        }
+    };
+    let ftz = daz;
+    let bf = |x: f32| daz(round_bf16(x));
+    let (k, shift) = (ks.len(), ks.start % 2);
+    let (q0, kq) = (ks.start / 2, (ks.len() + shift).div_ceil(2));
+    let kc = Kernel::AmxEmulated.kc();
+    let n = cols.len();
+    for i in 0..m {
+        // A's column of the low and high half of pair p.
+        let a_at = |col: isize| {
+            if (0..k as isize).contains(&col) {
+                bf(a[i * k + col as usize])
+            } else {
+                0.0
+            }
+        };
+        for (jj, j) in cols.clone().enumerate() {
+            let b_at = |row: usize| if row < bk { bf(b[row * bn + j]) } else { 0.0 };
+            for kb in (0..kq).step_by(kc) {
+                let block = kc.min(kq - kb);
+                let mut acc = 0.0f32;
+                for s in (0..block.div_ceil(16)).map(|s| kb + 16 * s) {
+                    let (mut lo, mut hi) = (0.0f32, 0.0f32);
+                    for p in s..s + 16 {
+                        let (a0, a1, b0, b1) = if p < kb + block {
+                            let col = 2 * p as isize - shift as isize;
+                            let row = 2 * (q0 + p);
+                            (a_at(col), a_at(col + 1), b_at(row), b_at(row + 1))
+                        } else {
+                            (0.0, 0.0, 0.0, 0.0)
+                        };
+                        lo = ftz(a0.mul_add(b0, lo));
+                        hi = ftz(a1.mul_add(b1, hi));
+                    }
+                    acc = ftz(acc + ftz(lo + hi));
+                }
+                let first = kb == 0;
+                let v = acc
+                    + if first {
+                        bias.map_or(0.0, |b| b[j])
+                    } else {
+                        0.0
+                    };
+                let dst = &mut c[i * n + jj];
+                *dst = if !first || accumulate { *dst + v } else { v };
+            }
+        }
+    }
+}
+
+#[test]
+fn amx_emulation_is_the_instruction_bit_for_bit() {
+    // Odd shapes and every edge: partial row tiles and column panels, calls of one pair, k
+    // past two blocks, sub-ranges starting at odd rows and columns, bias and accumulate; and
+    // values that round to bf16 denormals (read as zero), huge values and exact cancellations.
+    let shapes = [
+        (1, 1, 1, 0..1, 0..1),
+        (17, 70, 33, 0..33, 0..70),
+        (37, 130, 301, 0..301, 0..130),
+        (16, 64, 512, 3..300, 5..64),
+        (40, 200, 700, 1..700, 64..200),
+    ];
+    for ((m, n, bk, ks, cols), special) in shapes
+        .into_iter()
+        .flat_map(|s| [(s.clone(), false), (s, true)])
+    {
+        let k = ks.len();
+        // Products of many magnitudes, so that the order of the additions shows in the bits.
+        let spread = |v: Vec<f32>| -> Vec<f32> {
+            v.iter()
+                .enumerate()
+                .map(|(i, x)| x * (1 << (i % 9)) as f32 / 97.0 + x / 3.0)
+                .collect()
+        };
+        let mut a = spread(values(m * k, 7, 1.0));
+        let mut b = spread(values(bk * n, 8, 1.0));
+        if special {
+            for (i, x) in a.iter_mut().enumerate().step_by(13) {
+                *x = if i % 2 == 0 { 3e-39 } else { -1e30 };
+            }
+            for (i, x) in b.iter_mut().enumerate().step_by(11) {
+                *x = if i % 2 == 0 { -2e-39 } else { 1e-30 };
+            }
+        }
+        let bias = values(n, 9, 1.0);
+        let packed = PackedB::from_rows_for(Kernel::AmxEmulated, &b, bk, n);
+        for (bias, accumulate) in [(None, false), (Some(&bias[..]), false), (None, true)] {
+            let base = values(m * cols.len(), 10, 2.0);
+            let mut got = base.clone();
+            let mut want = base.clone();
+            gemm(
+                &mut got,
+                cols.len(),
+                &a,
+                k,
+                m,
+                &packed,
+                ks.clone(),
+                cols.clone(),
+                bias,
+                accumulate,
+            );
+            amx_model(
+                &mut want,
+                &a,
+                m,
+                &b,
+                bk,
+                n,
+                ks.clone(),
+                cols.clone(),
+                bias,
+                accumulate,
+            );
+            for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                assert!(
+                    g.to_bits() == w.to_bits(),
+                    "{m}x{n}, B rows {ks:?}, columns {cols:?}, bias {}, accumulate {accumulate}: element {i}: {g} against the instruction's {w}",
+                    bias.is_some()
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn amx_is_available_only_after_the_system_and_the_self_check_agree() {
+    match amx_status() {
+        Ok(()) => {
+            assert!(Kernel::Amx.available());
+            assert_eq!(Kernel::best(Precision::Bf16), Some(Kernel::Amx));
+        }
+        Err(why) => {
+            assert!(!Kernel::Amx.available());
+            assert!(!why.is_empty());
+            assert_ne!(Kernel::best(Precision::Bf16), Some(Kernel::Amx));
+            // The emulation runs everywhere; a model never gets it unless forced.
+            assert!(Kernel::AmxEmulated.available());
+        }
+    }
+    assert_ne!(Kernel::best(Precision::Bf16), Some(Kernel::AmxEmulated));
 }

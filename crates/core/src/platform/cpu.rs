@@ -129,6 +129,59 @@ fn parse_cpuinfo(text: &str) -> Cpu {
     }
 }
 
+/// Whether this CPU's AMX tiles (AMX-TILE and AMX-BF16) may be used by this process, asking
+/// the system for them where it must: `Err` says why not.
+///
+/// Three things must hold: the CPU reports AMX-TILE and AMX-BF16 (CPUID leaf 7, EDX bits 24
+/// and 22); the system saves the tile state (XCR0 bits 17 and 18, read with `xgetbv` where
+/// CPUID says the system uses XSAVE); and on Linux the process has asked for it: Linux
+/// enables the tile data only for processes that request it
+/// (`arch_prctl(ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA)`, Linux 5.16 and later), and an AMX
+/// instruction before that raises SIGILL. Windows enables the state for every process where
+/// XCR0 has it. The answer is computed once per process.
+pub fn amx_tiles() -> Result<(), String> {
+    static ANSWER: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    ANSWER.get_or_init(ask_amx_tiles).clone()
+}
+
+#[cfg(target_arch = "x86_64")]
+fn ask_amx_tiles() -> Result<(), String> {
+    use std::arch::x86_64::__cpuid_count;
+    // CPUID exists on every x86-64 CPU; leaf 7 is read only where reported.
+    let leaf7 = (__cpuid_count(0, 0).eax >= 7).then(|| __cpuid_count(7, 0).edx);
+    let edx = leaf7.unwrap_or(0);
+    if edx & (1 << 24) == 0 || edx & (1 << 22) == 0 {
+        return Err("the CPU lacks AMX-TILE and AMX-BF16".into());
+    }
+    // OSXSAVE (CPUID leaf 1, ECX bit 27): the system uses XSAVE, so XGETBV may be executed.
+    if __cpuid_count(1, 0).ecx & (1 << 27) == 0 {
+        return Err("the system does not save extended CPU state (no OSXSAVE)".into());
+    }
+    // SAFETY: XGETBV is available where OSXSAVE is set (checked above).
+    let xcr0 = unsafe { xcr0() };
+    if xcr0 & (0b11 << 17) != 0b11 << 17 {
+        return Err("the system does not save the AMX tile state (XCR0)".into());
+    }
+    #[cfg(target_os = "linux")]
+    super::unix::request_tile_data()?;
+    Ok(())
+}
+
+/// XCR0, the state components the system saves.
+///
+/// # Safety
+/// The CPU must support XGETBV (CPUID.1:ECX.OSXSAVE).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "xsave")]
+unsafe fn xcr0() -> u64 {
+    std::arch::x86_64::_xgetbv(0)
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn ask_amx_tiles() -> Result<(), String> {
+    Err("AMX needs an x86-64 CPU".into())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -15,6 +15,7 @@
 //! | lock a file | `flock` (std's `File::try_lock`) | `LockFileEx` (the same call) |
 //! | give freed heap memory back | `malloc_trim` (glibc) | nothing (the heap does) |
 //! | stop counting a mapped file's pages | `madvise(MADV_DONTNEED)` | nothing (Windows trims a mapping's pages itself) |
+//! | may this process use AMX tiles | CPUID, XCR0, then Linux: `arch_prctl(ARCH_REQ_XCOMP_PERM)` | CPUID and XCR0 |
 //! | the CPU's name and flags | `/proc/cpuinfo` on Linux, else `sysinfo` and the CPU's own feature bits | `sysinfo` and the CPU's own feature bits |
 
 use std::path::PathBuf;
@@ -38,7 +39,7 @@ pub use os::{
 mod macos;
 
 mod cpu;
-pub use cpu::{cpu, has_flag, Cpu};
+pub use cpu::{amx_tiles, cpu, has_flag, Cpu};
 
 /// Physical memory the system can give this process now, in bytes (`None`: unknown).
 #[cfg(target_vendor = "apple")]

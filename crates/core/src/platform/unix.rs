@@ -140,3 +140,30 @@ pub fn return_freed_memory() {
         libc::malloc_trim(0);
     }
 }
+
+/// Ask Linux for the AMX tile data (`arch_prctl(ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA)`):
+/// the kernel enables it per process, on request. Asking twice is harmless.
+#[cfg(all(target_os = "linux", target_arch = "x86_64"))]
+pub(super) fn request_tile_data() -> Result<(), String> {
+    /// `ARCH_REQ_XCOMP_PERM` and `XFEATURE_XTILEDATA` (arch/x86/include/uapi/asm/prctl.h and
+    /// the XSAVE feature number of the tile data), which the libc crate does not name.
+    const ARCH_REQ_XCOMP_PERM: libc::c_long = 0x1023;
+    const XFEATURE_XTILEDATA: libc::c_long = 18;
+    // SAFETY: arch_prctl with these arguments only changes this process's permitted
+    // extended-state components; it reads and writes no memory of ours.
+    let rc = unsafe {
+        libc::syscall(
+            libc::SYS_arch_prctl,
+            ARCH_REQ_XCOMP_PERM,
+            XFEATURE_XTILEDATA,
+        )
+    };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "Linux refused the AMX tile data ({}; Linux 5.16 or later is needed)",
+            std::io::Error::last_os_error()
+        ))
+    }
+}
