@@ -1,6 +1,6 @@
 @echo off
 rem Start ParaView with the t2tf plugin loaded (Windows):
-rem     t2tf-paraview.bat [--venv DIR] [paraview^|pvpython^|pvbatch] [ARGS...]
+rem     t2tf-paraview.bat [--venv DIR] [paraview^|pvpython^|pvbatch^|pvserver] [ARGS...]
 rem
 rem The plugin's folder goes on PV_PLUGIN_PATH (ParaView loads every .py file there at start-up).
 rem A t2tf.exe built in this repository (target\release\t2tf.exe, or the Windows cross build)
@@ -46,6 +46,7 @@ set "first=%~1"
 if /i "%first%"=="paraview" goto named
 if /i "%first%"=="pvpython" goto named
 if /i "%first%"=="pvbatch" goto named
+if /i "%first%"=="pvserver" goto named
 goto start
 :named
 set "program=%first%"
