@@ -15,8 +15,10 @@
 //!
 //! Run from the repository root (the tokenizer is read from ../shared/data/clip):
 //!     cargo run --release --features bench --example bench_clip [-- --reps N] [--image-only] [--pool]
-//!         [--pool-only] [--only crate|avx2|avx512f|bf16] [--engine packed|crate]
+//!         [--pool-only] [--only crate|avx2|avx512f|bf16|amx] [--engine packed|crate] [--amx-emulated]
 //! `--image-only` runs just the image loop (for profilers); `--pool` adds section 5,
+//! `--amx-emulated` adds the AMX path's error in section 4 through its software model (one
+//! untimed pass: for CPUs without AMX),
 //! `--pool-only` runs only it; `--only` keeps one setup (and `--engine` is `--only` for the
 //! detected f32 kernel or the crate).
 
@@ -317,6 +319,7 @@ const NOUN: [&str; 16] = [
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let arg = |name: &str| std::env::args().skip_while(|a| a != name).nth(1);
     let reps: usize = arg("--reps").map(|s| s.parse()).transpose()?.unwrap_or(5);
+    let amx_emulated = std::env::args().any(|a| a == "--amx-emulated");
     let threads = rayon::current_num_threads();
     // `--image-only`: just the image forward + backward loop (for profilers), no GEMM table,
     // text or error sections.
@@ -629,6 +632,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             setup.name(),
             worst(&e, &emb32),
             worst(&te, &t32)
+        );
+    }
+    // The AMX path's accuracy where the CPU has no AMX: its exact software model, one
+    // untimed pass (the emulation is scalar), against the same f32 reference.
+    if amx_emulated {
+        let model = Setup::Packed(Kernel::AmxEmulated).build(&cfg)?;
+        let (e, c) = model.encode_images(&views)?;
+        let g = model.image_backward(&c, &d)?;
+        let worst = |a: &[Vec<f32>], b: &[Vec<f32>]| {
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| rel_err(x, y))
+                .fold(0.0, f64::max)
+        };
+        let gw = g
+            .iter()
+            .zip(&g32)
+            .map(|(x, y)| rel_err(&x.data, &y.data))
+            .fold(0.0, f64::max);
+        println!(
+            "  {} (untimed): image embedding {:.1e}, input gradient {gw:.1e}",
+            Kernel::AmxEmulated.name(),
+            worst(&e, &emb32)
         );
     }
     if pool {

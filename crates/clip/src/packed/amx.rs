@@ -120,6 +120,7 @@ unsafe fn steps(
 }
 
 /// A bf16 (the low 16 bits) widened to f32, a denormal read as zero of its sign.
+#[inline(always)]
 fn daz(bits: u32) -> f32 {
     let x = bits << 16;
     if x & 0x7f80_0000 == 0 {
@@ -130,6 +131,7 @@ fn daz(bits: u32) -> f32 {
 }
 
 /// A denormal result flushed to zero of its sign.
+#[inline(always)]
 fn ftz(x: f32) -> f32 {
     if x.is_subnormal() {
         f32::from_bits(x.to_bits() & 0x8000_0000)
@@ -138,11 +140,39 @@ fn ftz(x: f32) -> f32 {
     }
 }
 
-/// One `tdpbf16ps` on C tile `j` of `acc` (columns `16j ..`), as the SDM defines it.
+/// One `tdpbf16ps` on C tile `j` of `acc` (columns `16j ..`), as the SDM defines it: with
+/// AVX2 and FMA where the CPU has them (the same bits: a fused multiply-add rounds once either
+/// way; without them `f32::mul_add` is a library call per element).
 ///
 /// # Safety
 /// `step`'s A tile holds 16 rows of 16 u32s and its B rows 16 rows of `NR` u32s.
 unsafe fn tdpbf16ps_emulated(acc: &mut Acc, j: usize, step: &Step) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU has AVX2 and FMA (checked above); the rest is the caller's.
+        return unsafe { tdpbf16ps_fma(acc, j, step) };
+    }
+    // SAFETY: the caller's.
+    unsafe { tdpbf16ps_body(acc, j, step) }
+}
+
+/// `tdpbf16ps_body` compiled for AVX2 and FMA.
+///
+/// # Safety
+/// As `tdpbf16ps_emulated`; the CPU has AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn tdpbf16ps_fma(acc: &mut Acc, j: usize, step: &Step) {
+    // SAFETY: the caller's.
+    unsafe { tdpbf16ps_body(acc, j, step) }
+}
+
+/// The instruction's definition (see `tdpbf16ps_emulated`).
+///
+/// # Safety
+/// As `tdpbf16ps_emulated`.
+#[inline(always)]
+unsafe fn tdpbf16ps_body(acc: &mut Acc, j: usize, step: &Step) {
     for m in 0..ROWS {
         // SAFETY: row m of the A tile (the caller's contract).
         let arow: &[u32] = unsafe {
