@@ -156,7 +156,8 @@ def render(
     """
 
 class Model:
-    """A CLIP model loaded once, to run several optimizations with."""
+    """A CLIP model loaded once, to run several optimizations with: what `load_model` returns
+    and `optimize(model=...)` takes. `id` is the Hub id or folder it was loaded from."""
 
     @property
     def id(self) -> str: ...
@@ -169,8 +170,25 @@ def load_model(
     precision: str = "f32",
     max_memory: Optional[_Size] = None,
 ) -> Model:
-    """Load a CLIP model: a Hub id (downloaded into the Hugging Face cache on first use) or
-    a folder with config.json, tokenizer.json and weights; None: DEFAULT_MODEL."""
+    """Load a CLIP model once, to run several optimizations with (`optimize(model=...)`).
+
+    Parameters:
+        model: a Hugging Face Hub id (downloaded into the Hugging Face cache on first use)
+            or a local folder with config.json, tokenizer.json and the weights; None:
+            DEFAULT_MODEL.
+        tokenizer: a tokenizer.json to use instead of the model's own; None: its own.
+        revision: branch, tag, pull-request ref or commit of a Hub model; None: main.
+        precision: number format of CLIP's products: "f32" (reproducible), "bf16" or
+            "auto" (bf16 where this CPU has it and runs it faster).
+        max_memory: memory budget for the weights, bytes (int) or a size like "16G";
+            None: what the system has.
+
+    Raises ModelError when the model cannot be found or loaded.
+    """
+
+def cli_main(argv: Sequence[Union[str, "os.PathLike[str]"]]) -> int:
+    """Run the `t2tf` command line on `argv` (program name first) and return its exit status.
+    The GIL is released while it runs; an `optimize` run's report.json records `argv`."""
 
 class Result:
     """What `optimize` returns. It holds about 3 MiB, nearly all of it the preview."""
@@ -230,7 +248,7 @@ def optimize(  # type: ignore[overload-overlap]  # a str is also a Sequence[str]
     step_size: Optional[float] = None,
     level: Optional[int] = None,
     render_size: Optional[int] = None,
-    caption_cache: Optional[_Path] = ...,
+    caption_cache: Union[bool, None, _Path] = True,
     init: Union[None, _Path, TransferFunction] = None,
     preset: Optional[str] = None,
     lock: Sequence[Tuple[float, float]] = (),
@@ -266,29 +284,66 @@ def optimize(
     step_size: Optional[float] = None,
     level: Optional[int] = None,
     render_size: Optional[int] = None,
-    caption_cache: Optional[_Path] = ...,
+    caption_cache: Union[bool, None, _Path] = True,
     init: Union[None, _Path, TransferFunction] = None,
     preset: Optional[str] = None,
     lock: Sequence[Tuple[float, float]] = (),
 ) -> List[Result]:
-    """Optimize a transfer function so renderings of `volume` match `prompt` (Algorithm 1
-    with the paper's defaults; every keyword is the `t2tf optimize` flag of that name).
+    """Optimize a transfer function so renderings of `volume` match `prompt` (Algorithm 1 with
+    the paper's defaults; each keyword is the `t2tf optimize` flag of that name).
 
-    A list of prompts runs one optimization per prompt with the model and volume loaded
-    once and returns a list of results (the same seed gives each prompt the TF of its own
-    run). `init` starts from a TF (a file, `preset` naming one of several in it, or a
-    `TransferFunction` such as an earlier result's) instead of the paper's initialization;
-    `lock=[(min, max), ...]` keeps the TF over those data ranges as it starts.
+    Returns a Result; a list of prompts returns a list of Results, one run per prompt with
+    the model and the volume loaded once (the same seed gives each prompt the TF of its own
+    run).
 
-    `model` is a Hub id, a folder or a loaded `Model` (None: DEFAULT_MODEL). `threads`
-    runs it in a pool of that many threads (None: one per CPU); the same volume,
-    settings, seed and threads give the CLI's TF bit for bit.
+    Parameters:
+        volume: a Volume, a volume file's path (read as read_volume reads it) or a 3-D
+            array indexed [z, y, x].
+        prompt: what the renderings should show, e.g. "a potted tree"; or a list of them.
+        negatives: captions to suppress; empty: "a blank image".
+        steps: SGD steps; 0: the result is the start (the initialization, or init).
+        views: random views per step, their gradients averaged.
+        seed: seed of the views, backgrounds, negatives and initial colours.
+        model: a Hub id, a local model folder or a loaded Model; None: DEFAULT_MODEL. A
+            run of 0 steps from an init with opacity loads none.
+        tokenizer: a tokenizer.json to use instead of the model's own.
+        revision: branch, tag, pull-request ref or commit of a Hub model; None: main.
+        precision: number format of CLIP's products: "f32", "bf16" or "auto".
+        threads: worker threads; None: one per CPU. The same volume, settings, seed and
+            threads give the CLI's TF bit for bit.
+        progress: a function called with a dict per event (see below); returning False
+            stops the run.
+        reference_image: a PNG whose CLIP embedding is matched instead of a prompt.
+        max_memory: memory budget, bytes (int) or a size like "16G"; None: what the
+            system has.
+        init: a TF to start from instead of the paper's initialization: a TF file's path
+            or a TransferFunction (such as an earlier result's).
+        preset: the preset of init's file to start from, when it holds several.
+        lock: data ranges [(min, max), ...] whose TF stays as it starts.
+        lr: initial learning rate, annealed linearly to 0.
+        momentum: SGD momentum, in [0, 1).
+        prior_weight: weight of the Beta prior on the rays' final transmittance.
+        prior_ab: a = b of the Beta(a, b) prior; below 1 favours clear or opaque rays.
+        prior_start: first step (0-based) with the prior switched on.
+        l1: weight of the L1 term on the control points' densities.
+        l2: weight of the L2 term pulling colours towards 0.5.
+        control_points: control points of the TF.
+        negatives_per_step: negatives drawn from the caption pool per step.
+        negatives_file: a caption file (one per line) replacing the built-in pool.
+        up: the world axis pointing up in the views: x, y, z, -x, -y or -z.
+        step_size: ray-marching step in voxels; None: the renderer's.
+        level: mip level to render from (0: full resolution); None: chosen from the
+            pixel size.
+        render_size: cast rays at this image side and upsample to CLIP's; None: CLIP's
+            size.
+        caption_cache: the folder caption embeddings are cached in; True: the user's
+            cache folder; False or None: not cached.
 
-    `progress(event)` is called on the caller's thread with a dict per phase
-    ({"event": "phase", "phase": ...}), per step ({"event": "step", "step": 1-based,
-    "steps", "loss", "clip", "prompt_probability", ...}) and per warning
-    ({"event": "warning", "message": ...}); returning False stops the run after that step
-    and the partial result is returned (`interrupted` is True). Ctrl-C, or an exception
-    raised by `progress`, also stops the run after the current step and is then raised
-    (KeyboardInterrupt, or that exception); the partial result is dropped.
+    Progress events: {"event": "phase", "phase": ...} as a phase begins; after each step
+    {"event": "step", "step": 1-based, "total": the run's steps, "loss": the loss, and its
+    parts "clip", "prior", "l1", "l2", with "prompt_probability", "lr", ...}; and
+    {"event": "warning", "message": ...}. Returning False stops the run after that step
+    and the partial result is returned (its `interrupted` is True). Ctrl-C, or an exception
+    raised by `progress`, also stops the run after the current step and is then raised;
+    the partial result is dropped.
     """

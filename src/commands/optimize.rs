@@ -82,75 +82,82 @@ pub struct OptimizeArgs {
     #[arg(long, default_value = "z", allow_hyphen_values = true)]
     pub up: crate::camera::UpAxis,
 
+    // Numbers are read signed (`allow_negative_numbers`), so a negative one reaches the
+    // validation, which says what is wrong, instead of clap taking it for a flag.
     /// Optimization steps.
-    #[arg(long, default_value_t = defaults::STEPS)]
-    pub steps: usize,
+    #[arg(long, default_value_t = defaults::STEPS as i128, allow_negative_numbers = true)]
+    pub steps: i128,
 
     /// Random views per step (their gradients are averaged).
-    #[arg(long, default_value_t = defaults::VIEWS)]
-    pub views: usize,
+    #[arg(long, default_value_t = defaults::VIEWS as i128, allow_negative_numbers = true)]
+    pub views: i128,
 
     /// Initial learning rate (annealed linearly to 0).
-    #[arg(long, default_value_t = defaults::LR)]
+    #[arg(long, default_value_t = defaults::LR, allow_negative_numbers = true)]
     pub lr: f64,
 
     /// SGD momentum.
-    #[arg(long, default_value_t = defaults::MOMENTUM)]
+    #[arg(long, default_value_t = defaults::MOMENTUM, allow_negative_numbers = true)]
     pub momentum: f64,
 
     /// Weight of the Beta prior on final transmittance (data dependent).
-    #[arg(long, default_value_t = defaults::PRIOR_WEIGHT)]
+    #[arg(long, default_value_t = defaults::PRIOR_WEIGHT, allow_negative_numbers = true)]
     pub prior_weight: f64,
 
     /// a = b of the Beta(a, b) prior; below 1 favours clear or opaque rays.
-    #[arg(long, default_value_t = defaults::PRIOR_AB)]
+    #[arg(long, default_value_t = defaults::PRIOR_AB, allow_negative_numbers = true)]
     pub prior_ab: f64,
 
     /// First step (0-based) with the prior switched on.
-    #[arg(long, default_value_t = defaults::PRIOR_START)]
-    pub prior_start: usize,
+    #[arg(long, default_value_t = defaults::PRIOR_START as i128, allow_negative_numbers = true)]
+    pub prior_start: i128,
 
     /// λ1: L1 weight on control-point densities.
-    #[arg(long, default_value_t = defaults::L1)]
+    #[arg(long, default_value_t = defaults::L1, allow_negative_numbers = true)]
     pub l1: f64,
 
     /// λ2: L2 weight of colours towards 0.5.
-    #[arg(long, default_value_t = defaults::L2)]
+    #[arg(long, default_value_t = defaults::L2, allow_negative_numbers = true)]
     pub l2: f64,
 
     /// Control points of the transfer function.
-    #[arg(long, value_name = "N", default_value_t = defaults::CONTROL_POINTS)]
-    pub control_points: usize,
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = defaults::CONTROL_POINTS as i128,
+        allow_negative_numbers = true
+    )]
+    pub control_points: i128,
 
     /// Caption file (one per line) replacing the built-in negative pool.
     #[arg(long, value_name = "FILE")]
     pub negatives_file: Option<PathBuf>,
 
     /// Negatives drawn from the pool per step.
-    #[arg(long, default_value_t = defaults::NEGATIVES_PER_STEP)]
-    pub negatives_per_step: usize,
+    #[arg(long, default_value_t = defaults::NEGATIVES_PER_STEP as i128, allow_negative_numbers = true)]
+    pub negatives_per_step: i128,
 
     /// Seed of views, backgrounds, negatives and initial colours (same seed and threads ⇒
     /// same TF).
-    #[arg(long, default_value_t = defaults::SEED)]
-    pub seed: u64,
+    #[arg(long, default_value_t = defaults::SEED as i128, allow_negative_numbers = true)]
+    pub seed: i128,
 
     /// Use the CLIP embedding of this picture as the positive instead of a prompt.
     #[arg(long, value_name = "PNG", conflicts_with = "prompts")]
     pub reference_image: Option<PathBuf>,
 
     /// Ray-marching step in voxels of the level used; default: the renderer's.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub step_size: Option<f64>,
 
     /// Mip level to render from (0 = full resolution); default: chosen from the pixel size.
-    #[arg(long)]
-    pub level: Option<usize>,
+    #[arg(long, allow_negative_numbers = true)]
+    pub level: Option<i128>,
 
     /// Cast rays at this image side and upsample to CLIP's input size (the background stays
     /// sharp): a cheaper render for a blurrier view (BENCHMARKS.md). Default: CLIP's size.
-    #[arg(long, value_name = "PIXELS")]
-    pub render_size: Option<usize>,
+    #[arg(long, value_name = "PIXELS", allow_negative_numbers = true)]
+    pub render_size: Option<i128>,
 
     /// How progress is shown on stderr: a bar on a terminal and a line every few seconds
     /// otherwise (auto), or one JSON object per line for programs (json).
@@ -158,8 +165,8 @@ pub struct OptimizeArgs {
     pub progress: ProgressMode,
 
     /// Worker threads; default: all cores (more than the logical CPUs are capped).
-    #[arg(long)]
-    pub threads: Option<usize>,
+    #[arg(long, allow_negative_numbers = true)]
+    pub threads: Option<i128>,
 
     /// Memory budget for sizes read from files and flags (e.g. 512M, 16G); default: what
     /// the system has available (MemAvailable, within `ulimit -v`).
@@ -167,29 +174,56 @@ pub struct OptimizeArgs {
     pub max_memory: Option<u64>,
 }
 
+/// A count flag's value: 0 or more, else an error naming the flag and the value (as
+/// `render` words it); a value past what the library takes is its to refuse, with its limit.
+fn count(flag: &str, value: i128) -> Result<usize> {
+    if value < 0 {
+        bail!("--{flag} {value} must be 0 or more");
+    }
+    usize::try_from(value).map_err(|_| anyhow::anyhow!("--{flag} {value} is too large"))
+}
+
+/// An optional count flag's value ([`count`]).
+fn count_opt(flag: &str, value: Option<i128>) -> Result<Option<usize>> {
+    value.map(|v| count(flag, v)).transpose()
+}
+
 impl OptimizeArgs {
-    /// The optimizer settings these flags describe.
-    pub fn settings(&self) -> Settings {
-        Settings {
-            steps: self.steps,
-            views: self.views,
+    /// The optimizer settings these flags describe; a negative count is an error naming its
+    /// flag (the library checks the rest).
+    pub fn settings(&self) -> Result<Settings> {
+        let seed = u64::try_from(self.seed).map_err(|_| {
+            anyhow::anyhow!(
+                "--seed {} must be a whole number from 0 to {}",
+                self.seed,
+                u64::MAX
+            )
+        })?;
+        Ok(Settings {
+            steps: count("steps", self.steps)?,
+            views: count("views", self.views)?,
             lr: self.lr,
             momentum: self.momentum,
             prior_weight: self.prior_weight,
             prior_a: self.prior_ab,
             prior_b: self.prior_ab,
-            prior_start: self.prior_start,
+            prior_start: count("prior-start", self.prior_start)?,
             l1: self.l1,
             l2: self.l2,
-            control_points: self.control_points,
-            negatives_per_step: self.negatives_per_step,
-            seed: self.seed,
+            control_points: count("control-points", self.control_points)?,
+            negatives_per_step: count("negatives-per-step", self.negatives_per_step)?,
+            seed,
             ..Settings::default()
-        }
+        })
+    }
+
+    /// `--threads` (a negative count is an error naming it).
+    pub fn threads(&self) -> Result<Option<usize>> {
+        count_opt("threads", self.threads)
     }
 
     /// The library's jobs these flags describe: one per prompt (or the reference image's).
-    pub fn jobs(&self, init: Option<&pipeline::InitTf>) -> Vec<Job> {
+    pub fn jobs(&self, init: Option<&pipeline::InitTf>) -> Result<Vec<Job>> {
         let targets: Vec<Target> = match &self.reference_image {
             Some(r) => vec![Target::Image(r.clone())],
             None => self.prompts.iter().cloned().map(Target::Prompt).collect(),
@@ -200,19 +234,19 @@ impl OptimizeArgs {
             .collect()
     }
 
-    fn job(&self, target: Target, init: Option<pipeline::InitTf>) -> Job {
+    fn job(&self, target: Target, init: Option<pipeline::InitTf>) -> Result<Job> {
         let mut job = Job::new(target);
         job.init = init;
         job.locks = self.locks.clone();
         job.negatives = self.negatives.clone();
         job.negatives_file = self.negatives_file.clone();
-        job.settings = self.settings();
+        job.settings = self.settings()?;
         job.up = self.up;
         job.step_size = self.step_size.map(|s| s as f32);
-        job.level = self.level;
-        job.render_size = self.render_size;
+        job.level = count_opt("level", self.level)?;
+        job.render_size = count_opt("render-size", self.render_size)?;
         job.budget = Budget::new(self.max_memory);
-        job
+        Ok(job)
     }
 
     /// Whether this run makes one TF per prompt (several `--prompt`).
@@ -242,7 +276,9 @@ impl OptimizeArgs {
     pub fn validate(self) -> Result<ValidArgs> {
         // The settings' bounds (threads, step and render size, …) are the library's to check
         // (`pipeline::check_threads`, `Job::validate`); here only what the flags add.
-        pipeline::check_threads(self.threads).map_err(flags::pipeline)?;
+        // The flags' own numbers first: a negative count says so before anything is read.
+        self.settings()?;
+        pipeline::check_threads(self.threads()?).map_err(flags::pipeline)?;
         if self.out.exists() && !self.out.is_dir() {
             bail!("{}: --out exists and is not a folder", self.out.display());
         }
@@ -276,7 +312,7 @@ impl OptimizeArgs {
             pipeline::check_outputs(&folder, name).map_err(flags::pipeline)?;
         }
         let jobs = self
-            .jobs(init.as_ref())
+            .jobs(init.as_ref())?
             .into_iter()
             .map(|j| j.validate().map_err(flags::pipeline))
             .collect::<Result<Vec<_>>>()?;
@@ -341,6 +377,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     // First, so a SIGTERM at any later moment ends with a truthful account of what was
     // written (a result, or nothing).
     let stop = signals::stop_flag();
+    let invocation = Invocation::now();
     if !Path::new(&args.volume).exists() {
         bail!("{}: volume file not found", args.volume.display());
     }
@@ -351,7 +388,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     let args = run.args();
     let lock = claim_output(&args.out)?;
     let budget = Budget::new(args.max_memory);
-    let pool = crate::thread_pool(args.threads)?;
+    let pool = crate::thread_pool(args.threads()?)?;
     let sets_written = pool.install(|| -> Result<usize> {
         let volume = args
             .volume_args
@@ -363,7 +400,12 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
                 .map_err(flags::pipeline)
                 .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
         }
-        let model = args.model.load(budget)?;
+        // A run of 0 steps from a TF with opacity is that TF: no model is resolved or loaded.
+        let model = if run.runs.iter().any(|(job, _)| job.needs_model()) {
+            Some(args.model.load(budget)?)
+        } else {
+            None
+        };
         let batch = args.is_batch();
         // A batch's presets.json lists this run's finished prompts, rewritten after each: the
         // previous run's goes first, so a run killed part way leaves no library that names
@@ -392,7 +434,14 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
             } else {
                 args.out.clone()
             };
-            written.push(optimize_one(args, job, &volume, &model, stop, &out, name)?);
+            let run = One {
+                args,
+                invocation: &invocation,
+                job,
+                model: model.as_ref(),
+                stop,
+            };
+            written.push(run.optimize(&volume, &out, name)?);
             if batch {
                 crate::formats::write_library(&library, &written)?;
             }
@@ -426,53 +475,110 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     Ok(())
 }
 
-/// One run with progress on stderr, its output set written to `out` with TF files `name`;
-/// returns the TF. A signal stops the run after the current step (its TF is the result).
-fn optimize_one(
-    args: &OptimizeArgs,
-    job: &ValidJob,
-    volume: &crate::volume::Volume,
-    model: &pipeline::Model,
-    stop: &std::sync::atomic::AtomicBool,
-    out: &Path,
-    name: &str,
-) -> Result<crate::formats::ExportTf> {
-    let steps = job.settings().steps;
-    let mut progress = Progress::new(args.progress, steps);
-    let mut on_event = |e: Event| {
-        match e {
-            Event::Phase(what) => progress.phase(what),
-            Event::Step { log, .. } => progress.step(&StepReport {
-                loss: log.total,
-                clip: log.clip,
-                prompt_probability: log.prompt_probability,
-            }),
-            Event::Warning(w) => {
-                progress.suspend(|| errln!("t2tf: warning: {w}"));
+/// One run of a (batch) command: its flags, how it was asked for, its job and model.
+struct One<'a> {
+    args: &'a OptimizeArgs,
+    invocation: &'a Invocation,
+    job: &'a ValidJob,
+    /// `None` for a job that needs no model ([`ValidJob::needs_model`]).
+    model: Option<&'a pipeline::Model>,
+    stop: &'a std::sync::atomic::AtomicBool,
+}
+
+impl One<'_> {
+    /// The run with progress on stderr, its output set written to `out` with TF files
+    /// `name`; returns the TF. A signal stops the run after the current step (its TF is the
+    /// result).
+    fn optimize(
+        &self,
+        volume: &crate::volume::Volume,
+        out: &Path,
+        name: &str,
+    ) -> Result<crate::formats::ExportTf> {
+        let (args, job, stop) = (self.args, self.job, self.stop);
+        let steps = job.settings().steps;
+        let mut progress = Progress::new(args.progress, steps);
+        let mut on_event = |e: Event| {
+            match e {
+                Event::Phase(what) => progress.phase(what),
+                Event::Step { log, .. } => progress.step(&StepReport {
+                    loss: log.total,
+                    clip: log.clip,
+                    prompt_probability: log.prompt_probability,
+                }),
+                Event::Warning(w) => {
+                    progress.suspend(|| errln!("t2tf: warning: {w}"));
+                }
             }
+            // A signal (also one received while loading) stops the run after this step.
+            if stop.load(std::sync::atomic::Ordering::SeqCst) {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        };
+        let result = match self.model {
+            Some(model) => pipeline::optimize(volume, model, job, &mut on_event),
+            None => pipeline::optimize_without_model(volume, job, &mut on_event),
+        };
+        let mut result = result
+            .map_err(flags::pipeline)
+            .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
+        progress.finish();
+        if result.interrupted() {
+            errln!(
+                "stopped after {} of {} steps: writing the TF of the last step",
+                result.steps_run(),
+                steps
+            );
         }
-        // A signal (also one received while loading) stops the run after this step.
-        if stop.load(std::sync::atomic::Ordering::SeqCst) {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        }
-    };
-    let result = pipeline::optimize(volume, model, job, &mut on_event)
-        .map_err(flags::pipeline)
-        .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
-    progress.finish();
-    if result.interrupted() {
-        errln!(
-            "stopped after {} of {} steps: writing the TF of the last step",
-            result.steps_run(),
-            steps
-        );
+        result.report.argv = Some(self.invocation.argv.clone());
+        result.report.cwd = self.invocation.cwd.clone();
+        let report = result.write(out, name).map_err(flags::pipeline)?;
+        errln!("wrote {} files to {}", report.outputs.len(), out.display());
+        progress.done(out, &report.outputs, result.interrupted());
+        Ok(result.transfer_function(name))
     }
-    let report = result.write(out, name).map_err(flags::pipeline)?;
-    errln!("wrote {} files to {}", report.outputs.len(), out.display());
-    progress.done(out, &report.outputs, result.interrupted());
-    Ok(result.transfer_function(name))
+}
+
+/// How the command was asked for, as report.json records it: the command line as given and
+/// the folder it started in.
+struct Invocation {
+    argv: Vec<String>,
+    cwd: Option<String>,
+}
+
+thread_local! {
+    /// The command line of a run started by a caller that is not this process's `main` (the
+    /// Python module's `cli_main`, whose process arguments are Python's).
+    static COMMAND_LINE: std::cell::RefCell<Option<Vec<std::ffi::OsString>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+impl OptimizeArgs {
+    /// Say that the `t2tf` command about to run on this thread was given `argv` (program name
+    /// first): report.json records it instead of the process's arguments. `None` forgets it.
+    pub fn set_command_line(argv: Option<Vec<std::ffi::OsString>>) {
+        COMMAND_LINE.with(|c| *c.borrow_mut() = argv);
+    }
+}
+
+impl Invocation {
+    /// This run's: the command line given to [`OptimizeArgs::set_command_line`] on this
+    /// thread, else the process's.
+    fn now() -> Invocation {
+        let given = COMMAND_LINE.with(|c| c.borrow().clone());
+        let argv = given.unwrap_or_else(|| std::env::args_os().collect());
+        Invocation {
+            argv: argv
+                .iter()
+                .map(|a| a.to_string_lossy().into_owned())
+                .collect(),
+            cwd: std::env::current_dir()
+                .ok()
+                .map(|d| d.display().to_string()),
+        }
+    }
 }
 
 /// Before any work: --out is ours (locked against a second run, which proves it can be
@@ -506,7 +612,7 @@ mod tests {
     #[test]
     fn defaults_are_the_papers() {
         let a = parse(&["--prompt", "a potted tree"]).unwrap();
-        assert_eq!(a.settings(), Settings::default());
+        assert_eq!(a.settings().unwrap(), Settings::default());
         assert_eq!(a.model.model, crate::clip::DEFAULT_MODEL);
         assert_eq!(a.tf_name().unwrap(), "a-potted-tree");
         let a = parse(&["--prompt", "a potted tree", "--out", "runs/Bonsai TF"]).unwrap();
@@ -558,7 +664,7 @@ mod tests {
             "a human face",
         ])
         .unwrap();
-        let s = a.settings();
+        let s = a.settings().unwrap();
         assert_eq!((s.steps, s.views, s.lr, s.momentum), (50, 1, 5.0, 0.5));
         assert_eq!(
             (s.prior_weight, s.prior_a, s.prior_b, s.prior_start),
@@ -593,6 +699,32 @@ mod tests {
             m(&["--prompt", "x", "--negatives-file", "no-such-captions.txt"])
                 .contains("no-such-captions.txt")
         );
+        // Negative numbers reach the validation, which names the flag.
+        for (flag, value) in [
+            ("--steps", "-5"),
+            ("--views", "-1"),
+            ("--prior-start", "-2"),
+            ("--control-points", "-3"),
+            ("--negatives-per-step", "-4"),
+            ("--level", "-1"),
+            ("--render-size", "-64"),
+            ("--threads", "-2"),
+        ] {
+            let e = m(&["--prompt", "x", flag, value]);
+            assert!(
+                e.contains(&format!("{flag} {value} must be 0 or more")),
+                "{flag}: {e}"
+            );
+        }
+        assert!(m(&["--prompt", "x", "--seed", "-1"])
+            .contains("--seed -1 must be a whole number from 0 to 18446744073709551615"));
+        assert!(m(&["--prompt", "x", "--step-size", "-1"]).contains("--step-size"));
+        assert!(
+            m(&["--prompt", "x", "--lr", "-1"]).contains("--lr: must be finite and ≥ 0, got -1")
+        );
+        // The largest seed still parses.
+        let a = parse(&["--prompt", "x", "--seed", "18446744073709551615"]).unwrap();
+        assert_eq!(a.settings().unwrap().seed, u64::MAX);
         // --steps 0 is valid: the result is the initialization.
         parse(&["--prompt", "x", "--steps", "0"])
             .unwrap()

@@ -20,3 +20,4 @@ mod optimize_progress;
 mod optimize_recovery;
 mod optimize_refine;
 mod optimize_render_size;
+mod optimize_reproduce;

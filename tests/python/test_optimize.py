@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import t2tf
-from conftest import MODEL, NEGHIP, QUICK, TOKENIZER
+from conftest import MODEL, NEGHIP, QUICK, REPO, TOKENIZER
 
 
 @pytest.fixture(scope="module")
@@ -33,8 +33,15 @@ def test_a_run_gives_the_tf_report_and_preview(volume):
     kinds = [e["event"] for e in events]
     assert kinds[0] == "phase" and kinds.count("step") == 3
     steps = [e for e in events if e["event"] == "step"]
-    assert [e["step"] for e in steps] == [1, 2, 3] and steps[0]["steps"] == 3
-    assert steps[0]["loss"] == report["steps"][0]["total"]
+    assert [e["step"] for e in steps] == [1, 2, 3]
+    # "total" is the run's step count, as in the library's events; the loss is "loss", its
+    # parts under their own names.
+    assert all(e["total"] == 3 for e in steps)
+    for event, logged in zip(steps, report["steps"]):
+        assert event["loss"] == logged["total"]
+        assert event["loss"] != event["total"]
+        for part in ("clip", "prior", "l1", "l2", "prompt_probability"):
+            assert event[part] == logged[part]
 
 
 def test_the_same_seed_gives_the_same_tf_with_a_loaded_model(volume):
@@ -241,3 +248,56 @@ def test_a_volume_is_a_volume_an_array_or_a_path(neghip):
     with pytest.raises(t2tf.VolumeError, match="3-D array"):
         t2tf.optimize(np.zeros((4, 4)), "x", **QUICK)
     assert repr(runs[0]).startswith("Result(steps_run=1, interrupted=False, ")
+
+
+def test_the_report_holds_the_call_and_repeats_the_run(tmp_path, monkeypatch):
+    """report.json's python_call (keywords as given, paths absolute) runs the same TF again
+    from another folder."""
+    monkeypatch.chdir(REPO)
+    settings = dict(QUICK, model=str(MODEL.relative_to(REPO)), up="-y", control_points=10,
+                    step_size=0.8)
+    r = t2tf.optimize(str(NEGHIP), "a protein molecule", **settings)
+    call = r.report["python_call"]
+    assert call["up"] == "-y" and call["steps"] == 3 and call["control_points"] == 10
+    assert call["model"] == str(MODEL) and call["tokenizer"] == str(TOKENIZER)
+    assert call["volume"] == str(NEGHIP)
+    assert r.report["cwd"] == str(REPO)
+    assert r.report["render"]["up"] == "-y"
+    assert r.report["model"]["folder"] == str(MODEL)
+    monkeypatch.chdir(tmp_path)
+    keywords = {k: v for k, v in call.items() if k not in ("volume", "prompt") and v is not None}
+    again = t2tf.optimize(call["volume"], call["prompt"], **keywords)
+    np.testing.assert_array_equal(r.transfer_function.rgb_points,
+                                  again.transfer_function.rgb_points)
+    np.testing.assert_array_equal(r.transfer_function.opacity_points,
+                                  again.transfer_function.opacity_points)
+    # The up axis the report records is the one that made the TF.
+    other = t2tf.optimize(call["volume"], call["prompt"], **dict(keywords, up="z"))
+    assert not np.array_equal(r.transfer_function.opacity_points,
+                              other.transfer_function.opacity_points)
+
+
+def test_steps_0_from_a_tf_needs_no_model(tmp_path, volume, monkeypatch):
+    # Nothing here may reach the Hub: a model that is looked up fails at once.
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    start = t2tf.optimize(volume, "a protein molecule", **QUICK)
+    path = tmp_path / "start.json"
+    start.transfer_function.save(path)
+    r = t2tf.optimize(volume, "a protein molecule", steps=0, init=str(path),
+                      model="no-such-org/no-such-model", threads=2)
+    assert r.report["model"] is None and r.steps_run == 0
+    assert r.report["init_file"]["path"] == str(path)
+    import hashlib
+    assert r.report["init_file"]["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+    # A loaded model given is used: the same TF and preview with it.
+    model = t2tf.load_model(str(MODEL), tokenizer=str(TOKENIZER))
+    with_model = t2tf.optimize(volume, "a protein molecule", steps=0, init=str(path),
+                               model=model, threads=2)
+    assert with_model.report["model"]["id"] == str(MODEL)
+    np.testing.assert_array_equal(r.preview, with_model.preview)
+    np.testing.assert_array_equal(r.transfer_function.opacity_points,
+                                  with_model.transfer_function.opacity_points)
+    # Without a start the paper's initialization is measured at CLIP's size: it loads.
+    with pytest.raises(t2tf.ModelError):
+        t2tf.optimize(volume, "a protein molecule", steps=0, model="no-such-org/no-such-model",
+                      threads=2)

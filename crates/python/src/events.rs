@@ -54,6 +54,9 @@ impl Owned {
                 d.set_item("phase", p)?;
             }
             Owned::Step { step, total, log } => {
+                // The loss's parts under their names (clip, prior, l1, l2, ...); the log's
+                // own `total` is the loss, given as "loss" below, so that "total" means what
+                // it means in the library's `Event::Step`: the steps of the run.
                 let fields = serde_json::to_value(log).expect("a StepLog serializes");
                 if let Ok(obj) = json_to_py(py, &fields)?.cast_into::<PyDict>() {
                     d.update(obj.as_mapping())?;
@@ -61,6 +64,8 @@ impl Owned {
                 d.set_item("event", "step")?;
                 // 1-based, as the CLI's progress counts (the log's own index is 0-based).
                 d.set_item("step", step)?;
+                d.set_item("total", total)?;
+                // The same count under the name the ParaView plugin and older callers read.
                 d.set_item("steps", total)?;
                 d.set_item("loss", log.total)?;
             }
@@ -80,12 +85,13 @@ pub fn json_to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bound
 }
 
 /// Run the pipeline on a thread in `pool`, forwarding its events to `progress` on this
-/// thread (module docs).
+/// thread (module docs); without a model for a job that needs none
+/// (`ValidJob::needs_model`).
 pub fn run_with_events(
     py: Python<'_>,
     pool: &rayon::ThreadPool,
     volume: &t2tf::volume::Volume,
-    model: &Model,
+    model: Option<&Model>,
     job: &ValidJob,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Optimized> {
@@ -111,7 +117,10 @@ pub fn run_with_events(
                         ControlFlow::Continue(())
                     }
                 };
-                pipeline::optimize(volume, model, job, &mut on_event)
+                match model {
+                    Some(model) => pipeline::optimize(volume, model, job, &mut on_event),
+                    None => pipeline::optimize_without_model(volume, job, &mut on_event),
+                }
             })
         });
         // The first exception (Ctrl-C, or one the callback raised): raised once the run

@@ -20,10 +20,16 @@ use std::process::ExitCode;
 use pyo3::prelude::*;
 
 /// Run the `t2tf` command line on `argv` (program name first) and return its exit status.
-/// The GIL is released while it runs.
+/// The GIL is released while it runs; an `optimize` run's report.json records `argv`.
 #[pyfunction]
+#[pyo3(text_signature = "(argv)")]
 fn cli_main(py: Python<'_>, argv: Vec<OsString>) -> u8 {
-    let code = py.detach(|| t2tf_cli::main(argv));
+    let code = py.detach(|| {
+        t2tf_cli::OptimizeArgs::set_command_line(Some(argv.clone()));
+        let code = t2tf_cli::main(argv);
+        t2tf_cli::OptimizeArgs::set_command_line(None);
+        code
+    });
     exit_status(code)
 }
 

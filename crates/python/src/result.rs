@@ -71,7 +71,7 @@ impl OptimizeResult {
     /// set, while holding its output lock: NAME.json/.xml/.ct, the pvpython and VisIt
     /// scripts (for a volume read from a file), tf.png, preview.png and report.json.
     /// `name` defaults to the CLI's rule for `--out out_dir`. Returns the report written.
-    #[pyo3(signature = (out_dir, name = None))]
+    #[pyo3(signature = (out_dir, name = None), text_signature = "($self, out_dir, name=None)")]
     fn save<'py>(
         &self,
         py: Python<'py>,

@@ -41,10 +41,14 @@ impl PyTransferFunction {
 #[pymethods]
 impl PyTransferFunction {
     /// Read a ParaView JSON preset (.json), ParaView XML colour map (.xml) or VisIt colour
-    /// table (.ct); `preset` picks one of a file that holds several. Files larger than
-    /// `max_preset_size` bytes (default 64 MiB) are refused before they are read.
+    /// table (.ct) at `path`; `preset` picks one of a file that holds several (None: its
+    /// only one). Files larger than `max_preset_size` bytes (default 64 MiB) are refused
+    /// before they are read.
     #[staticmethod]
-    #[pyo3(signature = (path, preset = None, *, max_preset_size = DEFAULT_MAX_PRESET_SIZE))]
+    #[pyo3(
+        signature = (path, preset = None, *, max_preset_size = DEFAULT_MAX_PRESET_SIZE),
+        text_signature = "(path, preset=None, *, max_preset_size=67108864)"
+    )]
     fn load(
         path: PathBuf,
         preset: Option<&str>,
@@ -54,11 +58,15 @@ impl PyTransferFunction {
         Ok(PyTransferFunction { preset })
     }
 
-    /// A transfer function from rows (value, r, g, b) and (value, opacity) in data units,
-    /// ascending, colours and opacities in [0, 1]; the opacity is for `unit_distance` world
-    /// units (None: the volume's mean spacing where it is used).
+    /// A transfer function from `rgb_points`, rows (value, r, g, b), and `opacity_points`,
+    /// rows (value, opacity), in data units, ascending, colours and opacities in [0, 1];
+    /// `name` is the preset's name; the opacity is for `unit_distance` world units (None:
+    /// the volume's mean spacing where it is used).
     #[staticmethod]
-    #[pyo3(signature = (rgb_points, opacity_points = Vec::new(), *, name = "tf".to_string(), unit_distance = None))]
+    #[pyo3(
+        signature = (rgb_points, opacity_points = Vec::new(), *, name = "tf".to_string(), unit_distance = None),
+        text_signature = "(rgb_points, opacity_points=(), *, name='tf', unit_distance=None)"
+    )]
     fn from_points(
         rgb_points: Vec<[f64; 4]>,
         opacity_points: Vec<[f64; 2]>,
@@ -78,8 +86,9 @@ impl PyTransferFunction {
         Ok(PyTransferFunction::rgb(tf))
     }
 
-    /// Write it in the format the extension names (.json, .xml or .ct), as `t2tf convert`
-    /// does (atomically).
+    /// Write it to `path` in the format the extension names (.json, .xml or .ct), as `t2tf
+    /// convert` does (atomically).
+    #[pyo3(text_signature = "($self, path)")]
     fn save(&self, path: PathBuf) -> PyResult<()> {
         write_preset(&path, &self.preset).map_err(errors::format)
     }
@@ -127,7 +136,7 @@ impl PyTransferFunction {
     /// `n` evenly spaced data values over `range` and the colour and opacity there:
     /// `(values (n,), rgba (n, 4))`, colours in RGB whatever the preset's colour space,
     /// opacity 1 where the preset has no opacity points.
-    #[pyo3(signature = (n = 256))]
+    #[pyo3(signature = (n = 256), text_signature = "($self, n=256)")]
     fn sample<'py>(&self, py: Python<'py>, n: usize) -> PyResult<Sampled<'py>> {
         // A table ParaView or VTK could hold (their lookup tables stop at 2^24 entries).
         const MAX_SAMPLES: usize = 1 << 24;
@@ -160,8 +169,25 @@ type Sampled<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>);
 /// One view of `volume` with `tf`, as `t2tf render` draws it: the exact TF through the
 /// renderer's LUT, the final-picture step and level, an orbit camera. Returns an array of
 /// uint8 (size, size, 3), row 0 at the top.
+///
+/// Parameters:
+///     volume: a Volume, a volume file's path or a 3-D array indexed [z, y, x].
+///     tf: a TransferFunction, or a TF file's path (its only preset).
+///     yaw: the camera's angle around the up axis, in degrees.
+///     pitch: the camera's angle above the horizontal plane, in degrees.
+///     distance: the camera's distance from the centre, in bounding radii.
+///     size: the picture's side in pixels.
+///     up: the world axis pointing up: x, y, z, -x, -y or -z.
+///     background: gray, gray:V (V in [0, 1]), white, black, checkerboard, noise or
+///         fourier.
+///     seed: seed of the noise and fourier backgrounds.
+///     unit_distance: the world distance tf's opacities are for; None: the TF's own,
+///         else the volume's mean spacing.
 #[pyfunction]
-#[pyo3(signature = (volume, tf, *, yaw = 30.0, pitch = 10.0, distance = 2.5, size = 512, up = "z", background = "gray:0.3", seed = 0, unit_distance = None))]
+#[pyo3(
+    signature = (volume, tf, *, yaw = 30.0, pitch = 10.0, distance = 2.5, size = 512, up = "z", background = "gray:0.3", seed = 0, unit_distance = None),
+    text_signature = "(volume, tf, *, yaw=30.0, pitch=10.0, distance=2.5, size=512, up='z', background='gray:0.3', seed=0, unit_distance=None)"
+)]
 #[allow(clippy::too_many_arguments)] // each is one keyword of the Python function
 pub fn render<'py>(
     py: Python<'py>,

@@ -146,7 +146,10 @@ fn geometry(shape: &[usize], spacing: [f64; 3], origin: [f64; 3]) -> Geometry {
 #[pymethods]
 impl PyVolume {
     #[new]
-    #[pyo3(signature = (values, spacing = None, origin = None))]
+    #[pyo3(
+        signature = (values, spacing = None, origin = None),
+        text_signature = "(values, spacing=None, origin=None)"
+    )]
     fn new(
         py: Python<'_>,
         values: &Bound<'_, PyAny>,
@@ -221,7 +224,7 @@ impl PyVolume {
 
     /// The file the volume was read from; None for an array.
     #[getter]
-    fn path(&self) -> Option<PathBuf> {
+    pub fn path(&self) -> Option<PathBuf> {
         self.file.as_ref().map(|(p, _)| p.clone())
     }
 
@@ -312,8 +315,22 @@ pub fn volume_arg(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<Py<PyVol
 }
 
 /// Read a volume file (`.raw`, `.vti`, `.vtk`) as `t2tf optimize` does.
+///
+/// Parameters:
+///     path: the file. A raw file named NAME_XxYxZ_DTYPE.raw describes itself; other
+///         raw files need dims and dtype.
+///     dims: a raw file's points per axis (x, y, z), x fastest; None: from its name.
+///     dtype: a raw file's scalar type ("uint16", np.uint16, ...); None: from its name.
+///     spacing: grid spacing (x, y, z) in world units, replacing the file's; None: the
+///         file's (1, 1, 1 for a raw file).
+///     byte_order: a raw file's byte order, "little" or "big"; None: little.
+///     array: the point-data array of a .vti or .vtk file; None: the active scalars,
+///         else the first array.
 #[pyfunction]
-#[pyo3(signature = (path, *, dims = None, dtype = None, spacing = None, byte_order = None, array = None))]
+#[pyo3(
+    signature = (path, *, dims = None, dtype = None, spacing = None, byte_order = None, array = None),
+    text_signature = "(path, *, dims=None, dtype=None, spacing=None, byte_order=None, array=None)"
+)]
 pub fn read_volume(
     py: Python<'_>,
     path: PathBuf,

@@ -85,6 +85,12 @@ pub struct ModelInfo {
     /// The Hub revision asked for (`None` for a local directory).
     #[serde(default)]
     pub revision: Option<String>,
+    /// The local model folder, absolute (`None` for a Hub model).
+    #[serde(default)]
+    pub folder: Option<String>,
+    /// The tokenizer.json used, absolute (the model's own, or the one given apart from it).
+    #[serde(default)]
+    pub tokenizer: Option<String>,
     /// SHA-256 of the weight files, shard after shard (hex): the key of the caption-embedding
     /// cache.
     pub weights_sha256: Option<String>,
@@ -99,12 +105,21 @@ pub struct ModelInfo {
 /// The volume used.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct VolumeInfo {
-    /// The file as given.
+    /// The file, absolute ("(in memory)" for an array).
     pub path: String,
     /// Points along x, y, z.
     pub dims: [usize; 3],
     /// Point spacing along x, y, z.
     pub spacing: [f64; 3],
+    /// A raw file's scalar type as read (`uint8`, `float32`, …).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dtype: Option<String>,
+    /// A raw file's byte order as read (`little` or `big`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub byte_order: Option<String>,
+    /// The point-data array read from a `.vti` or legacy `.vtk` file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub array: Option<String>,
     /// Finite data range.
     pub range: [f64; 2],
     /// Voxels that are NaN or infinite (left out of the range and histogram).
@@ -153,6 +168,38 @@ pub struct InitInfo {
     pub reached: bool,
 }
 
+/// A file a run read, to find it again and to tell whether it changed since.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct InputFile {
+    /// The file, absolute.
+    pub path: String,
+    /// SHA-256 of its bytes (hex).
+    pub sha256: String,
+}
+
+impl InputFile {
+    /// `path` made absolute (against the current folder, links kept) and its bytes hashed.
+    pub fn read(path: &Path) -> std::io::Result<InputFile> {
+        use sha2::Digest;
+        let mut file = std::fs::File::open(path)?;
+        let mut hash = sha2::Sha256::new();
+        std::io::copy(&mut file, &mut hash)?;
+        Ok(InputFile {
+            path: absolute(path),
+            sha256: hash.finalize().iter().map(|b| format!("{b:02x}")).collect(),
+        })
+    }
+}
+
+/// `path` absolute against the current folder (not resolving links), as text; the path as
+/// given where the current folder cannot be read.
+pub fn absolute(path: &Path) -> String {
+    std::path::absolute(path)
+        .unwrap_or_else(|_| path.to_path_buf())
+        .display()
+        .to_string()
+}
+
 // A struct of documented output fields, shaped like formats::WrittenFiles: alike in form only.
 /// The whole report.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -167,30 +214,54 @@ pub struct Report {
     /// The machine it ran on.
     #[serde(default)]
     pub machine: MachineInfo,
+    /// The command line as given, program name first (a run of `t2tf optimize`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub argv: Option<Vec<String>>,
+    /// The folder the run started in: relative paths of `argv` are relative to it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cwd: Option<String>,
+    /// The arguments of the Python call that ran it (`t2tf.optimize`), by keyword.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub python_call: Option<serde_json::Value>,
     /// The text prompt (absent in reference-image mode).
     pub prompt: Option<String>,
-    /// The reference image (reference-image mode).
+    /// The reference image as given (reference-image mode).
     pub reference_image: Option<String>,
+    /// The reference image, absolute, and its hash (reference-image mode).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_image_file: Option<InputFile>,
     /// The user's negatives (default "a blank image").
     pub negatives: Vec<String>,
-    /// "builtin" or the `--negatives-file` path.
+    /// "builtin" or the `--negatives-file` path, absolute.
     pub caption_pool: String,
+    /// The `--negatives-file`, absolute, and its hash.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub negatives_file: Option<InputFile>,
     /// Captions in the pool.
     pub caption_pool_size: usize,
-    /// The CLIP model.
-    pub model: ModelInfo,
+    /// The CLIP model; `None` (null) when the run needed none (0 steps from a TF with
+    /// opacity: no step, no CLIP score).
+    pub model: Option<ModelInfo>,
     /// The volume.
     pub volume: VolumeInfo,
     /// The optimizer's settings.
     pub settings: Settings,
-    /// Renderer settings as the CLI passed them (step size, level, threads, image size).
+    /// Renderer settings: as given (`up`, `step_size`, `level`, `render_size`, `max_memory`)
+    /// and as used (`step_voxels`, image size, LUT size, threads, CLIP's engine and precision).
     pub render: serde_json::Value,
     /// What the density initialization found.
     pub initialization: InitInfo,
-    /// The TF the run started from instead of the paper's initialization (file, and the
-    /// preset's name in it); absent for a fresh run.
+    /// The TF the run started from instead of the paper's initialization (file, absolute,
+    /// and the preset's name in it); absent for a fresh run.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub init: Option<String>,
+    /// The start's file, absolute, and its hash (absent for a fresh run and for a start
+    /// given as a Python `TransferFunction`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init_file: Option<InputFile>,
+    /// The name of the preset of `init_file` the run started from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init_preset: Option<String>,
     /// Data ranges [min, max] whose TF the run kept as it started.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub locks: Vec<[f64; 2]>,
@@ -255,6 +326,22 @@ mod tests {
                 r.machine
             );
         }
+    }
+
+    #[test]
+    fn an_input_file_is_recorded_absolute_with_its_hash() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("abc.txt");
+        std::fs::write(&path, b"abc").unwrap();
+        let f = InputFile::read(&path).unwrap();
+        // FIPS 180-2's example digest of "abc".
+        assert_eq!(
+            f.sha256,
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        assert_eq!(Path::new(&f.path), path);
+        assert!(Path::new(&absolute(Path::new("x.json"))).is_absolute());
+        assert!(InputFile::read(&dir.path().join("missing")).is_err());
     }
 
     #[test]

@@ -30,6 +30,7 @@ mod threads;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
 
 pub use model::{Model, ModelOptions};
 pub use outputs::{check_name, check_outputs, output_files};
@@ -39,17 +40,19 @@ pub use threads::{check_threads, workers, Workers};
 use crate::camera::{Camera, Orbit, ParaViewCamera, UpAxis};
 use crate::image::Image;
 use crate::memory::Budget;
-use crate::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer};
+use crate::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer, PREVIEW_SIZE};
 use crate::optimize::captions::{self, CacheOutcome, CaptionPool};
 use crate::optimize::driver::{self, Finished, Models, Positive};
-use crate::optimize::report::{Report, StepLog, VolumeInfo};
+use crate::optimize::report::{absolute, InputFile, PhaseTimes, Report, StepLog, VolumeInfo};
 use crate::optimize::settings::{Settings, ValidSettings};
 use crate::optimize::start::StartTf;
 use crate::optimize::tf_plot::Curve;
-use crate::optimize::{BoxError, Parameterization, PointGrad};
+use crate::optimize::{
+    BoxError, OptimizeError, Outcome, Parameterization, PointGrad, Renderer, View,
+};
 use crate::render::{CpuBackend, RenderOptions};
 use crate::tf::{ControlPoints, LutGrad};
-use crate::volume::Volume;
+use crate::volume::{ByteOrder, SourceFormat, Volume};
 
 /// Entries of the LUT the optimizer's renderer samples (one per histogram bin).
 pub const LUT_SIZE: usize = 256;
@@ -231,6 +234,14 @@ impl ValidJob {
         &self.pool
     }
 
+    /// Whether the run needs a CLIP model. Every run with steps does; one of 0 steps from a
+    /// TF with opacity (`Job::init`) does not: its result is that TF. The paper's
+    /// initialization, and the densities a colour map without opacity gets, are measured at
+    /// CLIP's image size, so a run of 0 steps that needs them needs the model too.
+    pub fn needs_model(&self) -> bool {
+        self.settings.steps > 0 || self.job.init.as_ref().is_none_or(InitTf::colours_only)
+    }
+
     /// The checks that need the volume (locks inside its data range, the init's range
     /// meeting it): [`optimize`] makes them first; a caller can make them before loading
     /// the model.
@@ -373,16 +384,44 @@ pub fn optimize(
     job: &ValidJob,
     on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
 ) -> Result<Optimized, PipelineError> {
+    run(volume, Some(model), job, on_event)
+}
+
+/// [`optimize`] for a job that needs no model ([`ValidJob::needs_model`] is false: 0 steps
+/// from a TF with opacity): the result is the start itself, its preview and files the same
+/// as [`optimize`] writes with a model whose image size is at most the preview's
+/// (`optimize::adapters::PREVIEW_SIZE`), and its report has no model and no CLIP scores. A
+/// job that needs a model is an error.
+pub fn optimize_without_model(
+    volume: &Volume,
+    job: &ValidJob,
+    on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
+) -> Result<Optimized, PipelineError> {
+    if job.needs_model() {
+        return Err(PipelineError::Job(
+            "only a run of 0 steps from a TF with opacity needs no CLIP model".into(),
+        ));
+    }
+    run(volume, None, job, on_event)
+}
+
+/// [`optimize`], with no model only where the job needs none ([`optimize_without_model`]).
+fn run(
+    volume: &Volume,
+    model: Option<&Model>,
+    job: &ValidJob,
+    on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
+) -> Result<Optimized, PipelineError> {
     let j = &job.job;
     job.check_volume(volume)?;
-    let clip = model.clip();
+    let clip = model.map(Model::clip);
     let stop = AtomicBool::new(false);
     let mut emit = |e: Event| {
         if on_event(e).is_break() {
             stop.store(true, Ordering::SeqCst);
         }
     };
-    if let Target::Prompt(p) = &j.target {
+    if let (Some(clip), Target::Prompt(p)) = (clip, &j.target) {
         // CLIP reads at most its context length; a prompt that fills it was cut (the
         // tokenizer truncates as transformers does). Say so rather than optimize for half a
         // sentence.
@@ -394,15 +433,6 @@ pub fn optimize(
             emit(Event::Warning(&w));
         }
     }
-    let reference = match &j.target {
-        Target::Image(p) => Some(Image::load_png_within(p, j.budget)?),
-        Target::Prompt(_) => None,
-    };
-    let positive = match (&reference, &j.target) {
-        (Some(im), _) => Positive::Image(im),
-        (None, Target::Prompt(p)) => Positive::Prompt(p),
-        (None, Target::Image(_)) => unreachable!("the image was loaded above"),
-    };
     let g = volume.geometry;
     let options = RenderOptions {
         step: j.step_size.unwrap_or(crate::render::DEFAULT_STEP),
@@ -410,32 +440,19 @@ pub fn optimize(
         ..Default::default()
     };
     let backend = CpuBackend::new(j.budget);
+    // Without CLIP nothing is rendered at its size: the one render that is not a preview
+    // (the start's mean transmittance, for the report) is made at the preview's.
+    let image_size = clip.map_or(PREVIEW_SIZE, |c| c.image_size());
     let renderer = VolumeRenderer {
         backend: &backend,
         volume,
         options,
         up: j.up,
-        size: clip.image_size(),
-        render_size: j.render_size.unwrap_or(clip.image_size()),
+        size: image_size,
+        render_size: j.render_size.unwrap_or(image_size),
         jitter: false,
     };
     let settings = &job.settings;
-    let cache = j
-        .caption_cache
-        .as_deref()
-        .map(|d| (d, model.cache_key().as_slice()));
-    let driver_job = driver::Job {
-        settings,
-        positive,
-        user_negatives: &job.user_negatives,
-        pool: &job.pool,
-        cache,
-        histogram: &volume.histogram,
-        logit_scale: model.info().logit_scale,
-        preview_views: PREVIEW_VIEWS,
-        start: None,
-    };
-    let clip_model = ClipModel(clip);
     let paper = PaperTf {
         k: settings.control_points,
         lut_size: LUT_SIZE,
@@ -464,28 +481,60 @@ pub fn optimize(
     let unit_distance = planned
         .as_ref()
         .map_or_else(|| crate::tf::default_unit_distance(&g), |p| p.unit_distance);
-    let driver_job = driver::Job {
-        start: planned.as_ref().map(|p| driver::Start {
-            control_points: &p.control_points,
-            init: paper_init.as_ref(),
-        }),
-        ..driver_job
+    let finished = match model {
+        Some(model) => {
+            let reference = match &j.target {
+                Target::Image(p) => Some(Image::load_png_within(p, j.budget)?),
+                Target::Prompt(_) => None,
+            };
+            let positive = match (&reference, &j.target) {
+                (Some(im), _) => Positive::Image(im),
+                (None, Target::Prompt(p)) => Positive::Prompt(p),
+                (None, Target::Image(_)) => unreachable!("the image was loaded above"),
+            };
+            let cache = j
+                .caption_cache
+                .as_deref()
+                .map(|d| (d, model.cache_key().as_slice()));
+            let driver_job = driver::Job {
+                settings,
+                positive,
+                user_negatives: &job.user_negatives,
+                pool: &job.pool,
+                cache,
+                histogram: &volume.histogram,
+                logit_scale: model.info().logit_scale,
+                preview_views: PREVIEW_VIEWS,
+                start: planned.as_ref().map(|p| driver::Start {
+                    control_points: &p.control_points,
+                    init: paper_init.as_ref(),
+                }),
+            };
+            let clip_model = ClipModel(model.clip());
+            let models = Models {
+                renderer: &renderer,
+                image_encoder: &clip_model,
+                text_encoder: &clip_model,
+                tf: &tf,
+            };
+            emit(Event::Phase(
+                "optimizing (caption embeddings are computed first if not cached)",
+            ));
+            let total = settings.steps;
+            let mut step = 0;
+            driver::run_job(&driver_job, &models, &stop, &mut |log, _| {
+                step += 1;
+                emit(Event::Step { step, total, log });
+            })?
+        }
+        None => {
+            let start = planned.as_ref().ok_or_else(|| {
+                PipelineError::Job("a run without a model starts from a given TF".into())
+            })?;
+            emit(Event::Phase("writing the start (0 steps: no model needed)"));
+            start_only(&renderer, &tf, &start.control_points, settings)?
+        }
     };
-    let models = Models {
-        renderer: &renderer,
-        image_encoder: &clip_model,
-        text_encoder: &clip_model,
-        tf: &tf,
-    };
-    emit(Event::Phase(
-        "optimizing (caption embeddings are computed first if not cached)",
-    ));
-    let total = settings.steps;
-    let mut step = 0;
-    let finished = driver::run_job(&driver_job, &models, &stop, &mut |log, _| {
-        step += 1;
-        emit(Event::Step { step, total, log });
-    })?;
     if let Some(CacheOutcome::NotStored(why)) = &finished.cache {
         emit(Event::Warning(&format!(
             "caption embeddings not cached: {why}"
@@ -500,40 +549,51 @@ pub fn optimize(
     let mut report = Report::new(settings.clone().into_inner());
     match &j.target {
         Target::Prompt(p) => report.prompt = Some(p.clone()),
-        Target::Image(p) => report.reference_image = Some(p.display().to_string()),
+        Target::Image(p) => {
+            report.reference_image = Some(p.display().to_string());
+            report.reference_image_file = Some(input_file(p, "the reference image")?);
+        }
     }
     report.negatives = job.user_negatives.clone();
     report.caption_pool = match &j.negatives_file {
-        Some(f) => f.display().to_string(),
+        Some(f) => absolute(f),
         None => "builtin".into(),
     };
-    report.caption_pool_size = job.pool.len();
-    report.model = model.info().clone();
-    report.volume = VolumeInfo {
-        path: volume.source.as_ref().map_or_else(
-            || "(in memory)".to_string(),
-            |s| s.path.display().to_string(),
-        ),
-        dims: g.dims,
-        spacing: g.spacing,
-        range: volume.range,
-        non_finite_voxels: volume.non_finite,
+    report.negatives_file = match &j.negatives_file {
+        Some(f) => Some(input_file(f, "the negatives file")?),
+        None => None,
     };
+    report.caption_pool_size = job.pool.len();
+    report.model = model.map(|m| m.info().clone());
+    report.volume = volume_info(volume);
     report.render = serde_json::json!({
+        // As given (null: the default).
+        "up": j.up.to_string(),
+        "step_size": j.step_size,
+        "level": j.level,
+        "max_memory": j.budget.limit(),
+        // As used.
         "step_voxels": options.step,
-        "level": options.level,
-        "image_size": clip.image_size(),
-        "render_size": renderer.render_size,
+        "image_size": clip.map(|c| c.image_size()),
+        "render_size": clip.map(|_| renderer.render_size),
         "lut_size": lut_size,
         "threads": rayon::current_num_threads(),
         // Which matrix kernel CLIP runs on this CPU (chosen at run time).
-        "clip_engine": clip.compute().describe(),
-        "clip_precision": clip.compute().precision.name(),
+        "clip_engine": clip.map(|c| c.compute().describe()),
+        "clip_precision": clip.map(|c| c.compute().precision.name()),
         // One or two packed copies of the image tower's weights (memory against backward speed).
-        "clip_weight_copies": clip.compute().backward_weight_copies(),
+        "clip_weight_copies": clip.map(|c| c.compute().backward_weight_copies()),
     });
     finished.fill_report(&mut report);
-    report.init = j.init.as_ref().map(InitTf::describe);
+    if let Some(init) = &j.init {
+        let file = init.source.is_file().then_some(init.source.as_path());
+        let source = file.map_or_else(|| init.source.display().to_string(), absolute);
+        report.init = Some(format!("{source} (preset {})", init.preset.tf.name));
+        report.init_file = file
+            .map(|f| input_file(f, "the TF started from"))
+            .transpose()?;
+        report.init_preset = Some(init.preset.tf.name.clone());
+    }
     report.locks = j.locks.clone();
     let view = script_view(settings, &g, j.up)?;
     Ok(Optimized {
@@ -546,6 +606,93 @@ pub fn optimize(
         tf_curve: Curve::Opacity {
             unit_over_length: unit_distance / g.longest_side(),
         },
+    })
+}
+
+/// What report.json says of the volume: its file absolute, and what its reader decoded.
+fn volume_info(volume: &Volume) -> VolumeInfo {
+    let g = volume.geometry;
+    let mut info = VolumeInfo {
+        path: volume
+            .source
+            .as_ref()
+            .map_or_else(|| "(in memory)".to_string(), |s| absolute(&s.path)),
+        dims: g.dims,
+        spacing: g.spacing,
+        range: volume.range,
+        non_finite_voxels: volume.non_finite,
+        ..VolumeInfo::default()
+    };
+    if let Some(source) = &volume.source {
+        match &source.format {
+            SourceFormat::Raw {
+                scalar_type,
+                byte_order,
+            } => {
+                info.dtype = Some(scalar_type.to_string());
+                info.byte_order = Some(
+                    match byte_order {
+                        ByteOrder::Little => "little",
+                        ByteOrder::Big => "big",
+                    }
+                    .into(),
+                );
+            }
+            SourceFormat::Vti { array } | SourceFormat::LegacyVtk { array } => {
+                info.array = Some(array.clone());
+            }
+        }
+    }
+    info
+}
+
+/// A file the run read, for report.json: absolute, hashed.
+fn input_file(path: &Path, what: &str) -> Result<InputFile, PipelineError> {
+    InputFile::read(path).map_err(|e| {
+        PipelineError::Job(format!(
+            "{}: {what} cannot be read again for report.json: {e}",
+            path.display()
+        ))
+    })
+}
+
+/// A run of 0 steps without CLIP: the start's parameters and TF (as the loop returns them
+/// after no step), its mean transmittance from the initial view, and the preview.
+fn start_only(
+    renderer: &VolumeRenderer,
+    tf: &RunTf,
+    control_points: &ControlPoints,
+    settings: &ValidSettings,
+) -> Result<Finished, PipelineError> {
+    let mut times = PhaseTimes::default();
+    let t0 = Instant::now();
+    let (params, init) = crate::optimize::start_from(renderer, tf, control_points, settings)?;
+    times.init = t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    let control_points = tf
+        .control_points(&params)
+        .map_err(OptimizeError::Parameters)?;
+    let lut = control_points.to_lut(tf.lut_size());
+    let pictures = View::orbit(settings, PREVIEW_VIEWS)
+        .iter()
+        .map(|v| renderer.render_preview(&lut, v))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(OptimizeError::Renderer)?;
+    let preview = driver::tile(&pictures);
+    times.other = t0.elapsed().as_secs_f64();
+    Ok(Finished {
+        outcome: Outcome {
+            params,
+            control_points,
+            steps: Vec::new(),
+            times: PhaseTimes::default(),
+            interrupted: false,
+        },
+        init,
+        scores: Vec::new(),
+        times,
+        cache: None,
+        preview,
     })
 }
 

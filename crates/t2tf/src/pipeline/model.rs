@@ -9,7 +9,7 @@ use super::PipelineError;
 use crate::clip::{Clip, ClipConfig, Compute, ModelFiles, ModelRequest, Precision};
 use crate::memory::Budget;
 use crate::optimize::captions;
-use crate::optimize::report::ModelInfo;
+use crate::optimize::report::{absolute, ModelInfo};
 
 /// What model to load and how it runs.
 #[derive(Clone, Debug)]
@@ -64,11 +64,16 @@ impl Model {
     pub fn load(opts: &ModelOptions) -> Result<Model, PipelineError> {
         let files = crate::clip::load::resolve(&opts.request())?;
         // A local folder has no revision.
-        let revision = (!Path::new(&opts.model).is_dir()).then(|| opts.revision.clone());
-        Model::load_files(&files, &opts.model, revision, opts.compute, opts.budget)
+        let local = Path::new(&opts.model).is_dir();
+        let revision = (!local).then(|| opts.revision.clone());
+        let mut model =
+            Model::load_files(&files, &opts.model, revision, opts.compute, opts.budget)?;
+        model.info.folder = local.then(|| absolute(Path::new(&opts.model)));
+        Ok(model)
     }
 
-    /// Load resolved files; `id` and `revision` are what the report names.
+    /// Load resolved files; `id` and `revision` are what the report names (its `folder`,
+    /// the local folder, is [`Model::load`]'s to set).
     pub fn load_files(
         files: &ModelFiles,
         id: &str,
@@ -106,6 +111,8 @@ impl Model {
         let info = ModelInfo {
             id: id.to_string(),
             revision,
+            folder: None,
+            tokenizer: Some(absolute(&files.tokenizer)),
             weights_sha256: Some(hex),
             tokenizer_sha256: Some(tokenizer_hash.iter().map(|b| format!("{b:02x}")).collect()),
             logit_scale: clip.logit_scale() as f64,
