@@ -28,7 +28,9 @@ def test_optimize_writes_the_clis_tf_bit_for_bit(tmp_path):
     flags = ["--model", str(MODEL), "--tokenizer", str(TOKENIZER), "--steps", "6",
              "--views", "2", "--seed", "3", "--negatives-per-step", "8", "--threads", "2",
              "--negative", "a blank image", "--negative", "a cat", "--l1", "1e-4",
-             "--control-points", "12"]
+             "--control-points", "12",
+             # Python's default precision; the command's may be another.
+             "--precision", "f32"]
     cli_out = tmp_path / "cli"
     subprocess.run([t2tf_command(), "optimize", str(NEGHIP), "--prompt", "a protein molecule",
                     "--out", str(cli_out), "--progress", "json"] + flags,
