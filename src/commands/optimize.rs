@@ -170,7 +170,12 @@ pub struct OptimizeArgs {
 
     /// Memory budget for sizes read from files and flags (e.g. 512M, 16G); default: what
     /// the system has available (MemAvailable, within `ulimit -v`).
-    #[arg(long, value_name = "SIZE", value_parser = crate::memory::parse_size)]
+    #[arg(
+        long,
+        value_name = "SIZE",
+        value_parser = crate::memory::parse_size,
+        allow_hyphen_values = true
+    )]
     pub max_memory: Option<u64>,
 }
 

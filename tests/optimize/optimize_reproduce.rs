@@ -458,6 +458,11 @@ fn negative_numbers_reach_the_validation() {
             "--step-size must be a positive number of voxels, got -1",
         ),
         ("--lr", "-0.5", "--lr: must be finite and ≥ 0, got -0.5"),
+        (
+            "--max-memory",
+            "-1G",
+            "invalid value '-1G' for '--max-memory <SIZE>'",
+        ),
     ] {
         let (ok, err) = t2tf(
             &repo(),
@@ -467,6 +472,10 @@ fn negative_numbers_reach_the_validation() {
         assert!(!ok, "{flag} {v} was accepted");
         assert!(err.contains(says), "{flag} {v}: {err}");
         assert!(!err.contains("tip:"), "{flag} {v}: {err}");
-        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        // Ours are one line; a value clap checks gets its own message and clap's pointer to
+        // --help.
+        if !says.starts_with("invalid value") {
+            assert_eq!(err.trim().lines().count(), 1, "{err}");
+        }
     }
 }
