@@ -1,7 +1,8 @@
 //! The main job as a library: load a volume and a model, optimize a transfer function for a
 //! prompt (Algorithm 1 with the paper's defaults), and write the output set `t2tf optimize`
 //! writes. The binary is flag parsing, progress printing and error printing around this;
-//! the Python module and the ParaView plugin call the same functions.
+//! the Python module and the ParaView plugin call the same functions. A run of 0 steps from
+//! a TF with opacity needs no model ([`optimize_without_model`]).
 //!
 //! Nothing here reads a process-wide setting: the memory budget, the model's compute
 //! settings and the thread pool the caller runs it in are values the caller chooses, and a
@@ -388,10 +389,11 @@ pub fn optimize(
 }
 
 /// [`optimize`] for a job that needs no model ([`ValidJob::needs_model`] is false: 0 steps
-/// from a TF with opacity): the result is the start itself, its preview and files the same
-/// as [`optimize`] writes with a model whose image size is at most the preview's
-/// (`optimize::adapters::PREVIEW_SIZE`), and its report has no model and no CLIP scores. A
-/// job that needs a model is an error.
+/// from a TF with opacity): the result is the start itself. Its TF files and preview are
+/// those [`optimize`] writes with a model whose image size is at most the preview's
+/// (`optimize::adapters::PREVIEW_SIZE`); its report has no model and no CLIP scores, and
+/// the start's mean transmittance measured at the preview's size. A job that needs a model
+/// is an error.
 pub fn optimize_without_model(
     volume: &Volume,
     job: &ValidJob,
