@@ -147,7 +147,7 @@ fn list(a: ListArgs) -> Result<()> {
 
 /// A repo is a CLIP model if a cached config.json describes a `CLIPModel` (it has both towers),
 /// or a cached open_clip_config.json has a `model_cfg` (OpenCLIP's layout).
-fn is_clip(r: &CachedRepo) -> bool {
+pub(crate) fn is_clip(r: &CachedRepo) -> bool {
     r.snapshots.iter().flat_map(|s| &s.files).any(|f| {
         let json = || {
             std::fs::read_to_string(&f.path)

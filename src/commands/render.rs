@@ -20,7 +20,9 @@ use t2tf::tf::Lut;
     t2tf render ../shared/data/volumes/neghip_64x64x64_uint8.raw --tf out/neghip.json --out view.png\n  \
     t2tf render head.vti --tf bone.json --out sheet.png --orbit 8 --size 256 --up -z\n\n\
     The preset's opacity is read with its own ScalarOpacityUnitDistance (t2tf writes it into \
-    every file) or --unit-distance; without either, the volume's mean voxel spacing.")]
+    every file) or --unit-distance; without either, the volume's mean voxel spacing. A colour \
+    map without opacity (a ParaView library preset such as \"Cool to Warm\") is drawn with the \
+    densities `t2tf optimize --init` starts it from: the paper's initial ones.")]
 pub struct RenderArgs {
     /// Volume file (.raw, .vti, .vtk).
     pub volume: PathBuf,

@@ -8,9 +8,15 @@ const MODEL: &str = "tests/fixtures/clip/quick_gelu";
 const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
 const VOLUME: &str = "tests/fixtures/volumes/ramp_7x6x5_uint16.raw";
 
+/// `t2tf ARGS` with the caption cache in `xdg` and the Hugging Face cache in `xdg/hf`
+/// (offline): nothing of this machine's caches is read.
 fn t2tf(xdg: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_t2tf"))
         .env("XDG_CACHE_HOME", xdg)
+        .env("HF_HOME", xdg.join("hf"))
+        .env_remove("HF_HUB_CACHE")
+        .env_remove("HUGGINGFACE_HUB_CACHE")
+        .env("HF_HUB_OFFLINE", "1")
         .args(args)
         .output()
         .unwrap()
@@ -62,7 +68,7 @@ fn list_shows_what_a_run_cached_and_clear_removes_only_that() {
     let lines: Vec<&str> = listed.lines().collect();
     assert!(lines.len() >= 2, "{listed}");
     for l in &lines[..lines.len() - 1] {
-        assert!(l.contains(".bin") && l.contains("captions ×"), "{l}");
+        assert!(l.contains("captions ×"), "{l}");
     }
     let files = lines.len() - 1;
     let total = lines.last().unwrap();
@@ -96,4 +102,131 @@ fn help_says_where_the_cache_is_with_examples() {
     }
     let help = ok(&t2tf(xdg.path(), &["cache", "--help"]));
     assert!(help.contains("$XDG_CACHE_HOME/t2tf"), "{help}");
+}
+
+/// The test model as the Hub cache holds a download of `acme/tiny-clip` at `main`: the
+/// weights a link to their blob (named by their SHA-256), config and tokenizer beside it.
+fn cache_hub_model(hf: &Path) {
+    let repo = hf.join("hub/models--acme--tiny-clip");
+    let commit = "0123456789abcdef0123456789abcdef01234567";
+    let snapshot = repo.join("snapshots").join(commit);
+    std::fs::create_dir_all(&snapshot).unwrap();
+    std::fs::create_dir_all(repo.join("blobs")).unwrap();
+    std::fs::create_dir_all(repo.join("refs")).unwrap();
+    std::fs::write(repo.join("refs/main"), commit).unwrap();
+    let weights = std::fs::read(Path::new(MODEL).join("model.safetensors")).unwrap();
+    let sha: String = {
+        use sha2::Digest;
+        sha2::Sha256::digest(&weights)
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect()
+    };
+    std::fs::write(repo.join("blobs").join(&sha), &weights).unwrap();
+    std::os::unix::fs::symlink(
+        format!("../../blobs/{sha}"),
+        snapshot.join("model.safetensors"),
+    )
+    .unwrap();
+    std::fs::copy(
+        Path::new(MODEL).join("config.json"),
+        snapshot.join("config.json"),
+    )
+    .unwrap();
+    std::fs::copy(TOKENIZER, snapshot.join("tokenizer.json")).unwrap();
+}
+
+/// A one-step run into `out` with `model` and `extra` flags.
+fn run(xdg: &Path, out: &Path, model: &str, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec![
+        "optimize",
+        VOLUME,
+        "--model",
+        model,
+        "--prompt",
+        "x",
+        "--steps",
+        "1",
+        "--views",
+        "1",
+        "--threads",
+        "1",
+        "--progress",
+        "none",
+        "--out",
+    ];
+    args.push(out.to_str().unwrap());
+    args.extend(extra);
+    ok(&t2tf(xdg, &args));
+    serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
+}
+
+#[cfg(unix)]
+#[test]
+fn list_names_the_model_of_each_file() {
+    let xdg = tempfile::tempdir().unwrap();
+    cache_hub_model(&xdg.path().join("hf"));
+    let files = || -> Vec<std::path::PathBuf> {
+        let dir = xdg.path().join("t2tf/text-embeddings");
+        let mut f: Vec<_> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        f.sort();
+        f
+    };
+
+    // A run of the Hub model: its file is listed by repo and revision (and bf16 where the run
+    // computed in bf16), with its size.
+    let report = run(xdg.path(), &xdg.path().join("a"), "acme/tiny-clip", &[]);
+    let precision = report["render"]["clip_precision"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let cached = files();
+    assert_eq!(cached.len(), 1);
+    let size = std::fs::metadata(&cached[0]).unwrap().len();
+    let pool = t2tf::optimize::captions::CaptionPool::builtin().len();
+    let label = format!(
+        "acme/tiny-clip@main{}",
+        if precision == "f32" { "" } else { " (bf16)" }
+    );
+    let line = format!(
+        "{label}  {:>10}  {pool} captions × 12",
+        t2tf::units::human_bytes(size.into())
+    );
+    let listed = ok(&t2tf(xdg.path(), &["cache", "list"]));
+    assert_eq!(listed.lines().next(), Some(line.as_str()), "{listed}");
+
+    // A model folder with a caption file of its own: no cached model is its, and the line says
+    // what it may be instead of a hash.
+    let captions = xdg.path().join("captions.txt");
+    std::fs::write(&captions, "a red car\na green tree\n").unwrap();
+    let extra = [
+        "--tokenizer",
+        TOKENIZER,
+        "--negatives-file",
+        captions.to_str().unwrap(),
+    ];
+    run(xdg.path(), &xdg.path().join("b"), MODEL, &extra);
+    assert_eq!(files().len(), 2);
+    let listed = ok(&t2tf(xdg.path(), &["cache", "list"]));
+    let lines: Vec<&str> = listed.lines().collect();
+    assert_eq!(lines.len(), 3, "{listed}");
+    assert!(lines.contains(&line.as_str()), "{listed}");
+    let other = lines.iter().find(|l| **l != line).unwrap();
+    assert!(
+        other.starts_with(
+            "(a model folder, or a run with its own --tokenizer or --negatives-file)  "
+        ) && other.contains(" 2 captions × 12"),
+        "{listed}"
+    );
+    for l in &lines {
+        assert!(
+            !files()
+                .iter()
+                .any(|f| { l.contains(f.file_stem().unwrap().to_str().unwrap()) }),
+            "a hash is shown: {l}"
+        );
+    }
 }

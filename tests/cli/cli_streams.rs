@@ -6,6 +6,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
+use crate::reap::Reaped;
+
 const MODEL: &str = "tests/fixtures/clip/quick_gelu";
 const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
 const VOLUME: &str = "tests/fixtures/volumes/ramp_7x6x5_uint16.raw";
@@ -20,11 +22,7 @@ fn t2tf() -> Command {
 /// Run with stdout a pipe whose reader left before the first write (what `| head -1` becomes
 /// once head has its line, and `| true` from the start).
 fn stdout_closed(cmd: &mut Command) -> Output {
-    let mut child = cmd
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("run t2tf");
+    let mut child = Reaped::spawn(cmd.stdout(Stdio::piped()).stderr(Stdio::piped()));
     drop(child.stdout.take());
     child.wait_with_output().expect("wait for t2tf")
 }
@@ -166,11 +164,11 @@ fn optimize_goes_on_when_its_progress_stream_fails() {
 
     // `2>&1 | head -1`: the log's reader leaves after the first line.
     let out = dir.path().join("pipe");
-    let mut child = optimize(&out, dir.path())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = Reaped::spawn(
+        optimize(&out, dir.path())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
     let mut stderr = child.stderr.take().unwrap();
     let mut first = [0u8; 1];
     std::io::Read::read_exact(&mut stderr, &mut first).unwrap();

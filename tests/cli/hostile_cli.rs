@@ -7,6 +7,7 @@
 //! previous complete set, cleaned up by the next run. Every bad file is made by the test.
 
 use crate::limits_util::limit_address_space;
+use crate::reap::Reaped;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -325,11 +326,10 @@ fn spacings_whose_box_single_precision_cannot_hold_are_refused() {
 }
 
 /// Start a long `optimize` and return once it has finished a step (its progress line).
-fn start_long_run(out: &Path, cache: &Path) -> Child {
-    let mut child = optimize(out, cache, &["--steps", "100000", "--prompt", "x"])
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+fn start_long_run(out: &Path, cache: &Path) -> Reaped {
+    let mut child = Reaped::spawn(
+        optimize(out, cache, &["--steps", "100000", "--prompt", "x"]).stderr(Stdio::piped()),
+    );
     let stderr = child.stderr.take().unwrap();
     let mut lines = BufReader::new(stderr).lines();
     loop {
@@ -596,10 +596,10 @@ fn a_signal_before_any_step_says_nothing_was_written() {
     for delay_ms in [0u64, 20, 80] {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("out");
-        let child = optimize(&out, dir.path(), &["--steps", "100000", "--prompt", "x"])
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
+        let child = Reaped::spawn(
+            optimize(&out, dir.path(), &["--steps", "100000", "--prompt", "x"])
+                .stderr(Stdio::piped()),
+        );
         std::thread::sleep(std::time::Duration::from_millis(delay_ms));
         signal(&child, libc::SIGTERM);
         let o = child.wait_with_output().unwrap();
@@ -684,11 +684,11 @@ fn a_killed_batch_leaves_a_library_of_its_finished_prompts_only() {
     assert_eq!(library(&out).len(), 2);
     // 3000 steps take seconds on the test model: killed as the second prompt starts, the
     // first one's files and the library are written and the second's are not.
-    let mut child = optimize(&out, dir.path(), &["--steps", "3000", "--prompt", "new"])
-        .args(["--prompt", "newer"])
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = Reaped::spawn(
+        optimize(&out, dir.path(), &["--steps", "3000", "--prompt", "new"])
+            .args(["--prompt", "newer"])
+            .stderr(Stdio::piped()),
+    );
     let lines = BufReader::new(child.stderr.take().unwrap()).lines();
     for line in lines {
         if line.unwrap().contains("prompt 2 of 2") {

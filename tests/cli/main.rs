@@ -14,6 +14,7 @@ mod hostile_cli;
 #[cfg(unix)]
 #[path = "../limits_util/mod.rs"]
 mod limits_util;
+mod reap;
 #[cfg(unix)]
 mod special_inputs;
 mod start_inputs;

@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use crate::reap::Reaped;
+
 const MODEL: &str = "tests/fixtures/clip/quick_gelu";
 const TOKENIZER: &str = "../shared/data/clip/tokenizer.json";
 const VOLUME: &str = "tests/fixtures/volumes/ramp_7x6x5_uint16.raw";
@@ -22,13 +24,13 @@ fn fifo(dir: &Path, name: &str) -> PathBuf {
 
 /// Run `t2tf args`, killed after 20 s: a hang is a failure, not a stuck test run.
 fn t2tf(args: &[&str]) -> (Option<i32>, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_t2tf"))
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = Reaped::spawn(
+        Command::new(env!("CARGO_BIN_EXE_t2tf"))
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
     let start = Instant::now();
     loop {
         if child.try_wait().unwrap().is_some() {
@@ -37,8 +39,7 @@ fn t2tf(args: &[&str]) -> (Option<i32>, String) {
             return (out.status.code(), err);
         }
         if start.elapsed() > Duration::from_secs(20) {
-            let _ = child.kill();
-            let _ = child.wait();
+            // Killed and reaped as `child` drops.
             return (None, format!("t2tf {args:?} hung"));
         }
         std::thread::sleep(Duration::from_millis(20));

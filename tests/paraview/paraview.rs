@@ -534,3 +534,46 @@ fn a_start_written_with_steps_0_is_the_init_as_paraview_samples_it() {
         );
     }
 }
+
+/// What `xvfb-run` leaves when it dies without cleaning up (killed outright): its Xvfb, in the
+/// process group the test started. The group's guard stops it, so no X server outlives the
+/// test that started it.
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn an_xvfb_left_by_a_killed_xvfb_run_is_stopped_with_its_group() {
+    paraview_util::require_tools(
+        "an_xvfb_left_by_a_killed_xvfb_run_is_stopped_with_its_group",
+        &["xvfb-run", "Xvfb"],
+    );
+    let mut command = std::process::Command::new("timeout");
+    command
+        .args(["60", "xvfb-run"])
+        .args(paraview_util::xvfb_display_args())
+        // The client kills xvfb-run (its parent) with SIGKILL, which no script can clean up
+        // after.
+        .args(["sh", "-c", "kill -9 $PPID"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null());
+    let (mut child, group) = paraview_util::spawn_in_group(&mut command).unwrap();
+    child.wait().unwrap();
+    let id = group.0;
+    let xvfb_in = |g: libc::pid_t| {
+        std::fs::read_dir("/proc").unwrap().flatten().any(|e| {
+            let stat = std::fs::read_to_string(e.path().join("stat")).unwrap_or_default();
+            let fields: Vec<&str> = stat.split(' ').collect();
+            // A zombie has ended; its parent (now init) reaps it.
+            stat.contains("(Xvfb) ")
+                && fields.get(2) != Some(&"Z")
+                && fields.get(4).and_then(|f| f.parse().ok()) == Some(g)
+        })
+    };
+    // Without the guard it would run on: the leak is real.
+    assert!(xvfb_in(id), "xvfb-run took its Xvfb with it");
+    assert!(paraview_util::group_alive(id));
+    drop(group);
+    assert!(
+        !paraview_util::group_alive(id),
+        "the group outlived its guard"
+    );
+    assert!(!xvfb_in(id));
+}

@@ -91,7 +91,7 @@ pub fn xvfb_pvpython(script: &Path, configure: impl Fn(&mut Command)) -> std::pr
             .args(["pvpython", "--dr"])
             .arg(script);
         configure(&mut command);
-        let out = command.output().expect("run timeout xvfb-run pvpython");
+        let out = output_in_group(&mut command).expect("run timeout xvfb-run pvpython");
         if attempt < 5 && lost_display(&out, "") {
             eprintln!("pvpython could not reach Xvfb (attempt {attempt}); retrying");
             std::thread::sleep(std::time::Duration::from_millis(500 * attempt));
@@ -99,6 +99,88 @@ pub fn xvfb_pvpython(script: &Path, configure: impl Fn(&mut Command)) -> std::pr
         }
         return out;
     }
+}
+
+/// Run `command` (`timeout 300 xvfb-run …`) in a process group of its own and collect its
+/// output; then stop whatever is left in that group, the command passed or not. `xvfb-run`
+/// stops its Xvfb only when it exits normally, and a program ParaView started (a `t2tf` run
+/// of the plugin) may outlive pvpython: anything in the group after the command returns
+/// (or if the test binary dies meanwhile: `timeout` gets SIGTERM, which it passes on to the
+/// group) does not outlive the test.
+pub fn output_in_group(command: &mut Command) -> std::io::Result<std::process::Output> {
+    use std::process::Stdio;
+    // What `Command::output` does: no input, both outputs captured.
+    command
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    let (child, _group) = spawn_in_group(command)?;
+    child.wait_with_output()
+}
+
+/// Start `command` as the leader of a new process group, with the guard that stops what is
+/// left of the group when dropped (see [`output_in_group`]).
+pub fn spawn_in_group(command: &mut Command) -> std::io::Result<(std::process::Child, Group)> {
+    use std::os::unix::process::CommandExt;
+    command.process_group(0);
+    #[cfg(target_os = "linux")]
+    // SAFETY: prctl is async-signal-safe; it only sets this child's parent-death signal.
+    unsafe {
+        command.pre_exec(|| {
+            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+            Ok(())
+        });
+    }
+    let child = command.spawn()?;
+    let group = Group(child.id() as libc::pid_t);
+    Ok((child, group))
+}
+
+/// A process group a test started (its leader's pid): dropped, whatever is still in it is
+/// stopped (SIGTERM, then SIGKILL after 5 s), even when the test panics.
+pub struct Group(pub libc::pid_t);
+
+impl Drop for Group {
+    fn drop(&mut self) {
+        stop_group(self.0);
+    }
+}
+
+/// Whether any process is still in process group `group` (the fifth field of
+/// `/proc/PID/stat`). A group's number is not given to a new process while a member lives,
+/// so signalling the group after this says yes reaches only what the test started.
+pub fn group_alive(group: libc::pid_t) -> bool {
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return false;
+    };
+    entries.flatten().any(|e| {
+        let stat = std::fs::read_to_string(e.path().join("stat")).unwrap_or_default();
+        // After the command name in parentheses: state, ppid, pgrp. A zombie has ended (its
+        // parent reaps it).
+        let fields: Vec<&str> = stat
+            .rsplit_once(") ")
+            .map_or(Vec::new(), |(_, rest)| rest.split(' ').take(3).collect());
+        fields.len() == 3 && fields[0] != "Z" && fields[2].parse() == Ok(group)
+    })
+}
+
+/// SIGTERM to what is left of process group `group`, SIGKILL to what still is after 5 s.
+pub fn stop_group(group: libc::pid_t) {
+    use std::time::{Duration, Instant};
+    if group <= 1 || !group_alive(group) {
+        return;
+    }
+    // SAFETY: kill(2) with a negative pid signals that process group only: one this test
+    // started and whose members are alive (checked above).
+    unsafe { libc::kill(-group, libc::SIGTERM) };
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_secs(5) {
+        if !group_alive(group) {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    unsafe { libc::kill(-group, libc::SIGKILL) };
 }
 
 /// Whether a failed run (with `extra` log text, e.g. a server's) lost its X display.

@@ -22,8 +22,10 @@ pub fn require_pvserver(test: &str) {
 /// over loopback TCP (`btl self,tcp`) rather than Open MPI's shared-memory transport, whose
 /// single-copy reads between sibling processes a sandbox may forbid.
 pub struct PvServer {
-    xvfb: Child,
-    mpiexec: Child,
+    // Dropped in this order: the ranks first (they hold connections to the X server), then
+    // Xvfb.
+    mpiexec: GroupLeader,
+    xvfb: GroupLeader,
     /// The port the server accepts its one client on.
     pub port: u16,
     log: PathBuf,
@@ -39,22 +41,25 @@ impl PvServer {
         let log = dir.join("pvserver.log");
         let file = std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
         let clone = || file.try_clone().map_err(|e| e.to_string());
-        let mut xvfb = Command::new("Xvfb")
-            .args(["-displayfd", "1", "-ac", "-nolisten", "tcp"])
-            .args(["-screen", "0", "1280x1024x24"])
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(clone()?)
-            .process_group(0)
-            .spawn()
-            .map_err(|e| format!("could not start Xvfb: {e}"))?;
+        // Stopped with its group when `xvfb` drops: on every early return below too.
+        let mut xvfb = GroupLeader(
+            Command::new("Xvfb")
+                .args(["-displayfd", "1", "-ac", "-nolisten", "tcp"])
+                .args(["-screen", "0", "1280x1024x24"])
+                .stdin(Stdio::null())
+                .stdout(Stdio::piped())
+                .stderr(clone()?)
+                .process_group(0)
+                .spawn()
+                .map_err(|e| format!("could not start Xvfb: {e}"))?,
+        );
         // Xvfb writes its display number once it accepts connections, or exits.
         let mut display = String::new();
         let read =
-            std::io::BufReader::new(xvfb.stdout.take().expect("piped")).read_line(&mut display);
+            std::io::BufReader::new(xvfb.0.stdout.take().expect("piped")).read_line(&mut display);
         let display = display.trim().to_string();
         if read.is_err() || display.parse::<u32>().is_err() {
-            stop_group(&mut xvfb);
+            drop(xvfb);
             let text = std::fs::read_to_string(&log).unwrap_or_default();
             return Err(format!("Xvfb did not start:\n{text}"));
         }
@@ -84,15 +89,12 @@ impl PvServer {
             .process_group(0)
             .spawn();
         let mpiexec = match mpiexec {
-            Ok(child) => child,
-            Err(e) => {
-                stop_group(&mut xvfb);
-                return Err(format!("could not start mpiexec pvserver: {e}"));
-            }
+            Ok(child) => GroupLeader(child),
+            Err(e) => return Err(format!("could not start mpiexec pvserver: {e}")),
         };
         let mut server = PvServer {
-            xvfb,
             mpiexec,
+            xvfb,
             port,
             log,
         };
@@ -102,7 +104,7 @@ impl PvServer {
             if text.contains("Accepting connection") {
                 return Ok(server);
             }
-            if let Ok(Some(status)) = server.mpiexec.try_wait() {
+            if let Ok(Some(status)) = server.mpiexec.0.try_wait() {
                 return Err(format!(
                     "pvserver exited ({status}) before accepting:\n{text}"
                 ));
@@ -120,27 +122,31 @@ impl PvServer {
     }
 }
 
-/// SIGTERM to the process group `child` leads, SIGKILL to what is left after 5 s.
-fn stop_group(child: &mut Child) {
-    let group = child.id() as libc::pid_t;
-    // SAFETY: kill(2) with a negative pid signals our own child's process group only.
-    unsafe { libc::kill(-group, libc::SIGTERM) };
-    let start = Instant::now();
-    while start.elapsed() < Duration::from_secs(5) {
-        if let Ok(Some(_)) = child.try_wait() {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    // The group may outlive its leader (orphaned ranks): kill what is left of it.
-    unsafe { libc::kill(-group, libc::SIGKILL) };
-    let _ = child.wait();
-}
+/// A child that leads its own process group; dropped, the group is stopped (SIGTERM, SIGKILL
+/// to what is left after 5 s), the leader reaped, and any member that outlived it (an
+/// orphaned rank) stopped too, whether the test passed, failed or panicked.
+struct GroupLeader(Child);
 
-impl Drop for PvServer {
+impl Drop for GroupLeader {
     fn drop(&mut self) {
-        // The ranks first (they hold connections to the X server), then Xvfb.
-        stop_group(&mut self.mpiexec);
-        stop_group(&mut self.xvfb);
+        let child = &mut self.0;
+        let group = child.id() as libc::pid_t;
+        // SAFETY: kill(2) with a negative pid signals the process group of our own child,
+        // which is not reaped yet, so the group's number is still its.
+        unsafe { libc::kill(-group, libc::SIGTERM) };
+        let start = Instant::now();
+        while start.elapsed() < Duration::from_secs(5) {
+            if let Ok(Some(_)) = child.try_wait() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        if let Ok(None) = child.try_wait() {
+            // SAFETY: as above; the leader still runs.
+            unsafe { libc::kill(-group, libc::SIGKILL) };
+        }
+        let _ = child.wait();
+        // The group may outlive its leader (orphaned ranks).
+        super::stop_group(group);
     }
 }
