@@ -62,12 +62,21 @@ try:
         # pointer comes to the Abort button first and presses it a moment later, once the
         # button stayed under it (the status bar moves it as the progress text changes).
         step = step_of(algo.GetProgressText())
-        if step is None or step < 3 or "pressed_at" in res:
+        if step is None or step < 3:
             return
+        if "pressed_at" in res:
+            # The status bar may have moved the button between the last look and the press
+            # (the click then lands beside it): a run still going a second later is pressed
+            # again.
+            if stop == "close" or time.time() - res["pressed_time"] < 1.0:
+                return
+            res.pop("pressed_at")
+            res.pop("pointer", None)
         if stop == "close":
             res["abort_enabled_during"] = enabled(abort)
             x.close_window(window)
             res["pressed_at"] = step
+            res["pressed_time"] = time.time()
             return
         center = screen_center(abort)
         if res.get("pointer") != [center.x, center.y]:
@@ -77,6 +86,8 @@ try:
             res["moves"] = res.get("moves", 0) + 1
         elif time.time() - res["pointer_at"] > 0.2:
             res["pressed_at"] = step
+            res["pressed_time"] = time.time()
+            res["presses"] = res.get("presses", 0) + 1
             x.press()
 
     interactor.AddObserver("TimerEvent", on_timer)
