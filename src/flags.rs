@@ -54,7 +54,7 @@ const LOCAL_MODEL: &str = ", or use a local `model` folder";
 /// model the cache lacks the command that fetches it. `fetching` is true for `t2tf model`,
 /// which takes no `--model` folder.
 pub fn say(message: &str, fetching: bool) -> String {
-    let mut m = without_command(message).to_string();
+    let mut m = message.to_string();
     if m.contains(LOCAL_MODEL) {
         let local = match (fetching, test_model()) {
             (true, _) => String::new(),
@@ -83,29 +83,6 @@ pub fn say(message: &str, fetching: bool) -> String {
         m = m.replace(option, flag);
     }
     m
-}
-
-/// `message` without a leading `t2tf COMMAND ` (a context naming the command line, as in
-/// `t2tf optimize head.vti: …`): the error line starts with `t2tf: error:` already, so the
-/// message goes on from what the command was given (`head.vti: …`).
-fn without_command(message: &str) -> &str {
-    use clap::CommandFactory;
-    let Some((command, rest)) = message
-        .strip_prefix("t2tf ")
-        .and_then(|m| m.split_once(' '))
-    else {
-        return message;
-    };
-    // Only a context (`… ARG: cause`), never a message that starts with advice to run a
-    // command line.
-    let known = crate::Cli::command()
-        .get_subcommands()
-        .any(|c| c.get_name() == command);
-    if known && rest.contains(": ") {
-        rest
-    } else {
-        message
-    }
 }
 
 /// The repository's tiny test model and the shared CLIP tokenizer, as absolute paths, where

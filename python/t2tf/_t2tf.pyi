@@ -167,7 +167,7 @@ def load_model(
     *,
     tokenizer: Optional[_Path] = None,
     revision: Optional[str] = None,
-    precision: str = "f32",
+    precision: str = "auto",
     max_memory: Optional[_Size] = None,
 ) -> Model:
     """Load a CLIP model once, to run several optimizations with (`optimize(model=...)`).
@@ -178,8 +178,9 @@ def load_model(
             DEFAULT_MODEL.
         tokenizer: a tokenizer.json to use instead of the model's own; None: its own.
         revision: branch, tag, pull-request ref or commit of a Hub model; None: main.
-        precision: number format of CLIP's products: "f32" (reproducible), "bf16" or
-            "auto" (bf16 where this CPU has it and runs it faster).
+        precision: number format of CLIP's products: "auto" (bf16 where this CPU has a
+            bf16 kernel, AMX or AVX512_BF16, and a calibration kept per CPU measures it
+            faster, else f32), "f32" (bit-reproducible) or "bf16".
         max_memory: memory budget for the weights, bytes (int) or a size like "16G";
             None: what the system has.
 
@@ -229,7 +230,7 @@ def optimize(  # type: ignore[overload-overlap]  # a str is also a Sequence[str]
     model: Union[None, _Path, Model] = None,
     tokenizer: Optional[_Path] = None,
     revision: Optional[str] = None,
-    precision: str = "f32",
+    precision: str = "auto",
     threads: Optional[int] = None,
     progress: Optional[Progress] = None,
     reference_image: Optional[_Path] = None,
@@ -265,7 +266,7 @@ def optimize(
     model: Union[None, _Path, Model] = None,
     tokenizer: Optional[_Path] = None,
     revision: Optional[str] = None,
-    precision: str = "f32",
+    precision: str = "auto",
     threads: Optional[int] = None,
     progress: Optional[Progress] = None,
     reference_image: Optional[_Path] = None,
@@ -308,7 +309,8 @@ def optimize(
             run of 0 steps from an init with opacity loads none.
         tokenizer: a tokenizer.json to use instead of the model's own.
         revision: branch, tag, pull-request ref or commit of a Hub model; None: main.
-        precision: number format of CLIP's products: "f32", "bf16" or "auto".
+        precision: number format of CLIP's products: "auto" (the default: bf16 where this
+            CPU runs it faster, else f32), "f32" (bit-reproducible) or "bf16".
         threads: worker threads; None: one per CPU. The same volume, settings, seed and
             threads give the CLI's TF bit for bit.
         progress: a function called with a dict per event (see below); returning False

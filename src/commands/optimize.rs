@@ -384,12 +384,12 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     let stop = signals::stop_flag();
     let invocation = Invocation::now();
     if !Path::new(&args.volume).exists() {
-        bail!("{}: volume file not found", args.volume.display());
+        bail!("{}: no such file", args.volume.display());
     }
     let volume_path = args.volume.clone();
     let run = args
         .validate()
-        .with_context(|| format!("t2tf optimize {}", volume_path.display()))?;
+        .with_context(|| volume_path.display().to_string())?;
     let args = run.args();
     let lock = claim_output(&args.out)?;
     let budget = Budget::new(args.max_memory);
@@ -403,7 +403,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         if let Some((job, _)) = run.runs.first() {
             job.check_volume(&volume)
                 .map_err(flags::pipeline)
-                .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
+                .with_context(|| args.volume.display().to_string())?;
         }
         // A run of 0 steps from a TF with opacity is that TF: no model is resolved or loaded.
         let model = if run.runs.iter().any(|(job, _)| job.needs_model()) {
@@ -528,7 +528,7 @@ impl One<'_> {
         };
         let mut result = result
             .map_err(flags::pipeline)
-            .with_context(|| format!("t2tf optimize {}", args.volume.display()))?;
+            .with_context(|| args.volume.display().to_string())?;
         progress.finish();
         if result.interrupted() {
             errln!(

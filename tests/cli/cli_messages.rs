@@ -260,8 +260,19 @@ fn a_missing_file_is_said_alike_by_every_command() {
     let gone_png = d.path().join("gone.png");
     let xml = d.path().join("out.xml");
     let said = |p: &Path| format!("t2tf: error: {}: no such file\n", p.display());
-    let cases: [(Vec<&str>, &Path); 6] = [
+    let cases: [(Vec<&str>, &Path); 7] = [
         (vec!["info", s(&gone_vol)], &gone_vol),
+        (
+            vec![
+                "optimize",
+                s(&gone_vol),
+                "--prompt",
+                "a skull",
+                "--out",
+                s(&out),
+            ],
+            &gone_vol,
+        ),
         (
             vec!["render", s(&gone_vol), "--tf", s(&tf), "--out", s(&out)],
             &gone_vol,

@@ -60,6 +60,9 @@ fn library_and_cli_write_the_same_files() {
             "6",
             "--negatives-per-step",
             "16",
+            // The library's `Compute::default()` is f32; the command's default is auto.
+            "--precision",
+            "f32",
         ])
         .args(["--name", "tf", "--out"])
         .arg(&cli_out)

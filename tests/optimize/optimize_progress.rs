@@ -109,11 +109,17 @@ fn json_progress_is_one_object_per_line() {
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     let engine = report["render"]["clip_engine"].as_str().unwrap_or_default();
     assert!(engine.contains("engine"), "{report}");
-    // And what else it takes to reproduce the run.
-    assert_eq!(report["render"]["clip_precision"], "f32", "{report}");
+    // And what else it takes to reproduce the run: the precision `auto` (the default) chose,
+    // and why; bf16 only where this CPU has a bf16 kernel.
+    let precision = match report["render"]["clip_precision"].as_str() {
+        Some("f32") => t2tf::clip::Precision::F32,
+        Some("bf16") if t2tf::clip::Precision::Bf16.native() => t2tf::clip::Precision::Bf16,
+        other => panic!("clip_precision {other:?} on this CPU: {report}"),
+    };
+    assert!(engine.contains("chosen by auto"), "{report}");
     // One copy of the image tower's weights where the f32 kernel reads it fast (AVX2), else
-    // two (this small model fits any budget twice).
-    let compute = t2tf::clip::Compute::default();
+    // two (this small model fits any budget twice; bf16 layers always keep two).
+    let compute = t2tf::clip::Compute::new(precision);
     let copies = if compute.prefers_one_copy() {
         1
     } else {

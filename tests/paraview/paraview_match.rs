@@ -105,6 +105,9 @@ fn optimize(out: &Path, steps: usize) -> (PathBuf, PathBuf) {
             "a protein molecule",
             "--steps",
             &steps.to_string(),
+            // f32: the comparison's margins were set on f32 runs (auto picks per CPU).
+            "--precision",
+            "f32",
         ])
         .arg("--model")
         .arg(repo().join("tests/fixtures/clip/quick_gelu"))

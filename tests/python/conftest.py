@@ -7,6 +7,7 @@ import importlib
 import importlib.util
 import os
 import shutil
+import subprocess
 import struct
 import sys
 import zlib
@@ -58,6 +59,35 @@ def xvfb_run():
     one ("bad X server connection")."""
     import random
     return ["xvfb-run", "-a", "-n", str(random.randrange(200, 30200))]
+
+
+def run_in_group(command, timeout, **kwargs):
+    """`subprocess.run(command, capture_output=True, text=True)` in a process group of its own,
+    which is stopped afterwards whatever happens: a timeout kills only the direct child in
+    `subprocess.run`, and `xvfb-run` killed that way leaves its Xvfb (and pvpython) running."""
+    import signal
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, **kwargs)
+
+    def stop_group():
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            try:
+                os.killpg(proc.pid, sig)
+            except (ProcessLookupError, PermissionError):
+                return
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                pass
+
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except BaseException:
+        stop_group()
+        proc.communicate()
+        raise
+    stop_group()
+    return subprocess.CompletedProcess(command, proc.returncode, out, err)
 
 
 def require(tool, env="T2TF_REQUIRE_PARAVIEW"):

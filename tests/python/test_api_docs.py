@@ -111,14 +111,13 @@ def test_the_stubs_agree_with_the_module():
 
 
 def test_optimize_defaults_are_the_cli_flags_defaults():
-    """The text signature is written out by hand: its numbers are the command's defaults.
-    (Not `precision`: Python's is f32, reproducible, where the command's may differ.)"""
+    """The text signature is written out by hand: its numbers are the command's defaults."""
     help_text = subprocess.run([t2tf_command(), "optimize", "--help"], capture_output=True,
                                text=True, check=True).stdout
     sig = inspect.signature(t2tf.optimize).parameters
     for keyword in ("steps", "views", "seed", "lr", "momentum", "prior_weight", "prior_ab",
                     "prior_start", "l1", "l2", "control_points", "negatives_per_step",
-                    "up"):
+                    "up", "precision"):
         flag = "--" + keyword.replace("_", "-")
         m = re.search(rf"{flag} <[^>]+>\n(?:.*\n)*?.*\[default: ([^\]]+)\]", help_text)
         assert m, f"{flag} has no default in --help"

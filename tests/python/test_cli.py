@@ -24,12 +24,12 @@ def test_the_command_is_the_rust_cli():
 
 def test_optimize_writes_the_clis_tf_bit_for_bit(tmp_path):
     settings = dict(QUICK, steps=6, views=2, negatives=["a blank image", "a cat"],
-                    l1=1e-4, control_points=12)
+                    l1=1e-4, control_points=12, precision="f32")
     flags = ["--model", str(MODEL), "--tokenizer", str(TOKENIZER), "--steps", "6",
              "--views", "2", "--seed", "3", "--negatives-per-step", "8", "--threads", "2",
              "--negative", "a blank image", "--negative", "a cat", "--l1", "1e-4",
              "--control-points", "12",
-             # Python's default precision; the command's may be another.
+             # f32 on both sides: bit for bit whatever auto would pick here.
              "--precision", "f32"]
     cli_out = tmp_path / "cli"
     subprocess.run([t2tf_command(), "optimize", str(NEGHIP), "--prompt", "a protein molecule",

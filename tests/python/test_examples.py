@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from conftest import REPO, read_png, require, require_module, xvfb_run
+from conftest import REPO, read_png, require, require_module, run_in_group, xvfb_run
 
 EXAMPLES = REPO / "examples" / "python"
 
@@ -26,7 +26,7 @@ def test_pyvista_renders_the_optimized_tf(tmp_path):
     if not os.environ.get("DISPLAY"):
         require("xvfb-run")
         command = xvfb_run() + command
-    out = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    out = run_in_group(command, cwd=tmp_path, timeout=300)
     assert out.returncode == 0, out.stdout + out.stderr
     picture = read_png(tmp_path / "view.png")
     assert picture.shape == (512, 512, 3)

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 import t2tf
-from conftest import MODEL, NEGHIP, REPO, TOKENIZER, require, xvfb_run
+from conftest import MODEL, NEGHIP, REPO, TOKENIZER, require, run_in_group, xvfb_run
 
 DRIVER = REPO / "tests" / "paraview_plugin" / "driver.py"
 PLUGIN = REPO / "paraview" / "t2tf_plugin.py"
@@ -36,8 +36,8 @@ def pv_env(tmp_path_factory):
 def pvpython(args, env, cwd):
     # A display lost to another X server starting at the same moment is retried.
     for _ in range(3):
-        out = subprocess.run(xvfb_run() + ["pvpython", "--dr"] + [str(a) for a in args],
-                             env=env, cwd=cwd, capture_output=True, text=True, timeout=600)
+        out = run_in_group(xvfb_run() + ["pvpython", "--dr"] + [str(a) for a in args],
+                           env=env, cwd=cwd, timeout=600)
         if out.returncode == 0 or "bad X server connection" not in out.stderr:
             break
     assert out.returncode == 0, out.stdout + out.stderr

@@ -63,16 +63,17 @@ fn budget(max_memory: Option<&Bound<'_, PyAny>>) -> PyResult<Budget> {
 ///         DEFAULT_MODEL.
 ///     tokenizer: a tokenizer.json to use instead of the model's own; None: its own.
 ///     revision: branch, tag, pull-request ref or commit of a Hub model; None: main.
-///     precision: number format of CLIP's products: "f32" (reproducible), "bf16" or
-///         "auto" (bf16 where this CPU has it and runs it faster).
+///     precision: number format of CLIP's products: "auto" (bf16 where this CPU has a
+///         bf16 kernel, AMX or AVX512_BF16, and a calibration kept per CPU measures it
+///         faster, else f32), "f32" (bit-reproducible) or "bf16".
 ///     max_memory: memory budget for the weights, bytes (int) or a size like "16G";
 ///         None: what the system has.
 ///
 /// Raises ModelError when the model cannot be found or loaded.
 #[pyfunction]
 #[pyo3(
-    signature = (model = None, *, tokenizer = None, revision = None, precision = "f32", max_memory = None),
-    text_signature = "(model=None, *, tokenizer=None, revision=None, precision='f32', max_memory=None)"
+    signature = (model = None, *, tokenizer = None, revision = None, precision = "auto", max_memory = None),
+    text_signature = "(model=None, *, tokenizer=None, revision=None, precision='auto', max_memory=None)"
 )]
 pub fn load_model(
     py: Python<'_>,
@@ -82,8 +83,7 @@ pub fn load_model(
     precision: &str,
     max_memory: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<PyModel> {
-    let precision =
-        Precision::resolve(precision).map_err(|e| errors::settings(format!("precision: {e}")))?;
+    let compute = compute(precision)?;
     let mut opts = ModelOptions::new(model.map_or_else(
         || t2tf::clip::DEFAULT_MODEL.to_string(),
         |m| m.to_string_lossy().into_owned(),
@@ -92,7 +92,7 @@ pub fn load_model(
         opts.revision = r;
     }
     opts.tokenizer = tokenizer;
-    opts.compute = Compute::new(precision);
+    opts.compute = compute;
     opts.budget = budget(max_memory)?;
     let model = py.detach(|| Model::load(&opts)).map_err(errors::pipeline)?;
     Ok(PyModel {
@@ -110,7 +110,7 @@ fn model_for(
     max_memory: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Arc<Model>> {
     if let Some(m) = model.and_then(|m| m.cast::<PyModel>().ok()) {
-        if tokenizer.is_some() || revision.is_some() || precision != "f32" {
+        if tokenizer.is_some() || revision.is_some() || precision != "auto" {
             return Err(errors::settings(
                 "tokenizer, revision and precision are the loaded model's: give them to load_model",
             ));
@@ -198,7 +198,8 @@ pub fn default_name(target: &Target, out: Option<&Path>) -> PyResult<String> {
 ///         run of 0 steps from an init with opacity loads none.
 ///     tokenizer: a tokenizer.json to use instead of the model's own.
 ///     revision: branch, tag, pull-request ref or commit of a Hub model; None: main.
-///     precision: number format of CLIP's products: "f32", "bf16" or "auto".
+///     precision: number format of CLIP's products: "auto" (the default: bf16 where this
+///         CPU runs it faster, else f32), "f32" (bit-reproducible) or "bf16".
 ///     threads: worker threads; None: one per CPU. The same volume, settings, seed and
 ///         threads give the CLI's TF bit for bit.
 ///     progress: a function called with a dict per event (see below); returning False
@@ -238,8 +239,8 @@ pub fn default_name(target: &Target, out: Option<&Path>) -> PyResult<String> {
 /// the partial result is dropped.
 #[pyfunction]
 #[pyo3(
-    signature = (volume, prompt = None, *, negatives = Vec::new(), steps = defaults::STEPS as i64, views = defaults::VIEWS as i64, seed = defaults::SEED, model = None, tokenizer = None, revision = None, precision = "f32", threads = None, progress = None, reference_image = None, max_memory = None, init = None, preset = None, lock = Vec::new(), **settings),
-    text_signature = "(volume, prompt=None, *, negatives=(), steps=300, views=3, seed=0, model=None, tokenizer=None, revision=None, precision='f32', threads=None, progress=None, reference_image=None, max_memory=None, init=None, preset=None, lock=(), lr=10.0, momentum=0.75, prior_weight=0.02, prior_ab=0.5, prior_start=100, l1=2e-05, l2=0.0008, control_points=32, negatives_per_step=128, negatives_file=None, up='z', step_size=None, level=None, render_size=None, caption_cache=True)"
+    signature = (volume, prompt = None, *, negatives = Vec::new(), steps = defaults::STEPS as i64, views = defaults::VIEWS as i64, seed = defaults::SEED, model = None, tokenizer = None, revision = None, precision = "auto", threads = None, progress = None, reference_image = None, max_memory = None, init = None, preset = None, lock = Vec::new(), **settings),
+    text_signature = "(volume, prompt=None, *, negatives=(), steps=300, views=3, seed=0, model=None, tokenizer=None, revision=None, precision='auto', threads=None, progress=None, reference_image=None, max_memory=None, init=None, preset=None, lock=(), lr=10.0, momentum=0.75, prior_weight=0.02, prior_ab=0.5, prior_start=100, l1=2e-05, l2=0.0008, control_points=32, negatives_per_step=128, negatives_file=None, up='z', step_size=None, level=None, render_size=None, caption_cache=True)"
 )]
 #[allow(clippy::too_many_arguments)] // each is one keyword of the Python function
 pub fn optimize<'py>(
@@ -510,4 +511,16 @@ fn init_tf(
     pipeline::InitTf::read(&path, preset.as_deref(), formats::DEFAULT_MAX_PRESET_SIZE)
         .map(Some)
         .map_err(errors::pipeline)
+}
+
+/// `precision` as the command's `--precision` resolves it: `auto`'s calibration kept in the
+/// cache folder (every run on a machine picks alike), the choice marked for report.json.
+fn compute(precision: &str) -> PyResult<Compute> {
+    let cache = t2tf::optimize::captions::cache_dir();
+    let chosen = Precision::resolve_cached(precision, cache.as_deref())
+        .map_err(|e| errors::settings(format!("precision: {e}")))?;
+    Ok(Compute {
+        auto: precision == "auto",
+        ..Compute::new(chosen)
+    })
 }
