@@ -1,6 +1,7 @@
 """t2tf.optimize: results, progress events, stopping (callback, exception, Ctrl-C), errors,
 and Result.save."""
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -301,3 +302,23 @@ def test_steps_0_from_a_tf_needs_no_model(tmp_path, volume, monkeypatch):
     with pytest.raises(t2tf.ModelError):
         t2tf.optimize(volume, "a protein molecule", steps=0, model="no-such-org/no-such-model",
                       threads=2)
+
+
+def test_offline_without_the_model_names_the_keyword_and_the_test_model(tmp_path):
+    """The README's example passes no `model=`: offline, the error says what to pass."""
+    env = dict(os.environ, HF_HUB_OFFLINE="1", HF_HUB_CACHE=str(tmp_path / "hub"),
+               XDG_CACHE_HOME=str(tmp_path / "cache"))
+    code = ("import numpy as np, t2tf\n"
+            "try:\n"
+            "    t2tf.optimize(np.zeros((8, 8, 8), np.float32), 'a skull', steps=1)\n"
+            "except t2tf.ModelError as e:\n"
+            "    print(e)\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    said = out.stdout
+    assert "offline mode is on" in said, said
+    assert "model=DIR" in said and "`model`" not in said, said
+    # As Python string literals (double-quoted, backslashes escaped).
+    assert f"model={json.dumps(str(MODEL.resolve()))}" in said, said
+    assert f"tokenizer={json.dumps(str(TOKENIZER.resolve()))}" in said, said

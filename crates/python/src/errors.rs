@@ -85,7 +85,7 @@ pub fn message(e: &(dyn std::error::Error + 'static)) -> String {
 pub fn pipeline(e: PipelineError) -> PyErr {
     match e {
         PipelineError::Volume(v) => VolumeError::new_err(message(&v)),
-        PipelineError::Clip(c) => ModelError::new_err(message(&c)),
+        PipelineError::Clip(c) => ModelError::new_err(model_hint(message(&c))),
         PipelineError::Memory(m) => BudgetError::new_err(message(&m)),
         PipelineError::Optimize(o) => optimize(o),
         PipelineError::Job(j) => SettingsError::new_err(j),
@@ -94,6 +94,34 @@ pub fn pipeline(e: PipelineError) -> PyErr {
         PipelineError::Format(f) => format(f),
         e @ (PipelineError::Output(_) | PipelineError::Fs(_)) => OutputError::new_err(message(&e)),
     }
+}
+
+/// The library's advice for a model the cache lacks ("or use a local `model` folder"), as
+/// Python says it: the keyword, and where this wheel's checkout still has them, the
+/// repository's test model and tokenizer by absolute path (every stage runs offline with them;
+/// its TFs mean nothing).
+fn model_hint(text: String) -> String {
+    const LOCAL_MODEL: &str = "or use a local `model` folder";
+    if !text.contains(LOCAL_MODEL) {
+        return text;
+    }
+    // Cargo gives the manifest's folder (crates/python) as an absolute path.
+    let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let model = repo.join("tests/fixtures/clip/quick_gelu");
+    let tokenizer = repo.join("../shared/data/clip/tokenizer.json");
+    let hint = match (
+        t2tf::platform::canonicalize(&model),
+        t2tf::platform::canonicalize(&tokenizer),
+    ) {
+        (Ok(m), Ok(t)) if m.is_dir() && t.is_file() => format!(
+            "or pass model=DIR, a local model folder (offline, the repository's test model \
+             runs every stage: model={:?}, tokenizer={:?})",
+            m.display().to_string(),
+            t.display().to_string()
+        ),
+        _ => "or pass model=DIR, a local model folder".to_string(),
+    };
+    text.replace(LOCAL_MODEL, &hint)
 }
 
 /// A TF file's error: one that could not be read is a `FormatError`, a failed write of an

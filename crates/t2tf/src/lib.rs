@@ -21,7 +21,7 @@ pub mod pipeline;
 
 pub use t2tf_clip as clip;
 pub use t2tf_clip::hub;
-pub use t2tf_core::{fs, image, input, memory, units};
+pub use t2tf_core::{fs, image, input, memory, platform, units};
 pub use t2tf_formats as formats;
 pub use t2tf_render as render;
 pub use t2tf_render::{background, camera};
