@@ -2,20 +2,20 @@
 paraview/bin/t2tf-paraview) for tests/paraview/paraview_plugin.rs: connects to a running
 `t2tf-paraview mpiexec -n 2 pvserver`, then uses the filter as a user does: Filters > t2tf >
 Text To Transfer Function on a volume the server reads, Apply clicked through the X server,
-and a second Apply after a change. Records whether the filter is in the Filters menu after
+and a second Apply after a change. Records whether the session defines the filter after
 connecting, any dialog ParaView opened (the Plugin Manager's warning), the progress bar's
 state while t2tf runs (Abort enabled, the GUI's input held), the display after each Apply and
 how many times t2tf ran. Writes JSON and exits (environment: T2TF_PORT, T2TF_VOLUME (a 64³
 uint8 .raw), T2TF_MODEL, T2TF_TOKENIZER, T2TF_RESULT, T2TF_RUNS)."""
+import ctypes
 import json
 import os
-import re
-import time
 
 import paraview.simple as pvs
 from paraview import servermanager
 from gui_steps import apply_and_wait, mark_modified, new_filter
-from qt_calls import X11, enabled, find_child, find_children, main_window, process_events, visible
+from qt_calls import (X11, enabled, find_child, find_children, function, main_window,
+                      process_events, visible)
 
 env = os.environ
 res = {}
@@ -54,8 +54,11 @@ try:
     res["remote"] = bool(conn.IsRemote())
     res["partitions"] = conn.GetNumberOfDataPartitions()
     res["dialogs_after_connect"] = len(dialogs(window))
-    res["filter_action"] = bool(find_child(window, "TextToTransferFunction",
-                                           "_ZN7QAction16staticMetaObjectE"))
+    res["modal_after_connect"] = bool(function("_ZN12QApplication17activeModalWidgetEv",
+                                               ctypes.c_void_p)())
+    # The server defines the filter for the session (else the Filters menu cannot make it).
+    res["filter_defined"] = conn.Session.GetProxyDefinitionManager().GetProxyDefinition(
+        "filters", "TextToTransferFunction") is not None
     reader = pvs.ImageReader(FileNames=[env["T2TF_VOLUME"]])
     reader.DataScalarType = "unsigned char"
     reader.DataExtent = [0, 63, 0, 63, 0, 63]
