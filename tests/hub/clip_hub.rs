@@ -116,6 +116,7 @@ fn settings(server: &HubServer, cache: &Path, offline: bool) -> HubSettings {
         token: None,
         offline,
         progress: false,
+        stall_timeout: t2tf::hub::env::DEFAULT_STALL,
     }
 }
 

@@ -65,6 +65,7 @@ fn settings(endpoint: &str, cache: &Path) -> HubSettings {
         token: None,
         offline: false,
         progress: false,
+        stall_timeout: t2tf::hub::env::DEFAULT_STALL,
     }
 }
 
@@ -418,6 +419,7 @@ fn endpoint_and_cache_come_from_hf_endpoint_and_hf_hub_cache() {
     assert_eq!(s.endpoint, hub_server.endpoint());
     let hub = Hub::new(HubSettings {
         progress: false,
+        stall_timeout: t2tf::hub::env::DEFAULT_STALL,
         ..s
     });
     let path = get(&hub, REPO, "main", CONFIG).unwrap().unwrap();

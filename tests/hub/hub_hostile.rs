@@ -44,6 +44,7 @@ fn hub(server: &HubServer, cache: &Path) -> Hub {
         token: None,
         offline: false,
         progress: false,
+        stall_timeout: t2tf::hub::env::DEFAULT_STALL,
     })
 }
 

@@ -36,7 +36,7 @@
 // The Hugging Face Hub client (feature `hub`, on by default; without it models load from
 // local folders only). Its own docs are inside the module.
 #[cfg(feature = "hub")]
-pub mod hub;
+pub use t2tf_hub as hub;
 
 mod attention;
 mod checkpoint;

@@ -19,10 +19,6 @@ use super::HubError;
 const MAX_REDIRECTS: usize = 5;
 /// Origins that always get the token, besides the endpoint's own (as `huggingface_hub`).
 const HUB_ORIGINS: [&str; 2] = ["https://huggingface.co", "https://hf.co"];
-/// The stall timeout unless `T2TF_HUB_STALL_TIMEOUT` says otherwise.
-const DEFAULT_STALL: Duration = Duration::from_secs(30);
-/// The variable that sets the stall timeout, in seconds (a decimal number above 0).
-pub(crate) const STALL_VAR: &str = "T2TF_HUB_STALL_TIMEOUT";
 
 /// An HTTP client bound to one endpoint and token.
 pub(crate) struct Client {
@@ -31,15 +27,6 @@ pub(crate) struct Client {
     token: Option<String>,
     /// The longest a read may wait, and the time a download must get 1 KiB within.
     pub(crate) stall: Duration,
-}
-
-/// The stall timeout from `T2TF_HUB_STALL_TIMEOUT`; the default when unset or not a positive
-/// number of seconds (up to a day).
-fn stall_timeout(value: Option<String>) -> Duration {
-    value
-        .and_then(|v| v.trim().parse::<f64>().ok())
-        .filter(|s| s.is_finite() && *s > 0.0 && *s <= 86_400.0)
-        .map_or(DEFAULT_STALL, Duration::from_secs_f64)
 }
 
 /// The file a request is about, for error messages.
@@ -73,9 +60,9 @@ pub(crate) enum Head {
 }
 
 impl Client {
-    /// A client with bounded timeouts; redirects and statuses are handled here, not by ureq.
-    pub(crate) fn new(endpoint: &str, token: Option<String>) -> Client {
-        let stall = stall_timeout(std::env::var(STALL_VAR).ok());
+    /// A client with bounded timeouts (`stall`: the longest a read may wait); redirects and
+    /// statuses are handled here, not by ureq.
+    pub(crate) fn new(endpoint: &str, token: Option<String>, stall: Duration) -> Client {
         let agent = Agent::config_builder()
             .max_redirects(0)
             .http_status_as_error(false)
@@ -406,7 +393,7 @@ mod tests {
 
     #[test]
     fn urls_quote_like_python() {
-        let c = Client::new("http://h:1", None);
+        let c = Client::new("http://h:1", None, Duration::from_secs(1));
         assert_eq!(
             c.file_url("o/n", "refs/pr/15", "sub dir/a+b.json"),
             "http://h:1/o/n/resolve/refs%2Fpr%2F15/sub%20dir/a%2Bb.json"
@@ -430,24 +417,16 @@ mod tests {
             join_url(base, "https://cdn/x?a=1").as_deref(),
             Some("https://cdn/x?a=1")
         );
-        let c = Client::new("http://127.0.0.1:8", Some("t".into()));
+        let c = Client::new(
+            "http://127.0.0.1:8",
+            Some("t".into()),
+            Duration::from_secs(1),
+        );
         assert!(c.token_for(base).is_some());
         assert!(c.token_for("http://localhost:8/cdn/x").is_none());
         assert!(c.token_for("http://127.0.0.1:9/x").is_none());
         assert!(c.token_for("https://huggingface.co/x").is_some());
         assert!(c.token_for("https://huggingface.co:444/x").is_none());
-    }
-
-    #[test]
-    fn the_stall_timeout_comes_from_the_environment_or_defaults() {
-        assert_eq!(stall_timeout(None), DEFAULT_STALL);
-        assert_eq!(
-            stall_timeout(Some("0.5".into())),
-            Duration::from_millis(500)
-        );
-        for bad in ["", "0", "-1", "nan", "inf", "1e9", "soon"] {
-            assert_eq!(stall_timeout(Some(bad.into())), DEFAULT_STALL, "{bad}");
-        }
     }
 
     #[test]

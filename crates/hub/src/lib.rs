@@ -59,6 +59,9 @@ pub struct HubSettings {
     pub offline: bool,
     /// Show download progress on stderr for large files.
     pub progress: bool,
+    /// The longest a read may wait, and the time a download must get 1 KiB within, on each of
+    /// its two tries (`T2TF_HUB_STALL_TIMEOUT`, seconds; 30 s by default).
+    pub stall_timeout: std::time::Duration,
 }
 
 /// A Hub client.
@@ -78,7 +81,11 @@ pub struct HubRepo<'a> {
 impl Hub {
     /// A client for `settings` (no request is made until a file is asked for).
     pub fn new(settings: HubSettings) -> Hub {
-        let client = Client::new(&settings.endpoint, settings.token.clone());
+        let client = Client::new(
+            &settings.endpoint,
+            settings.token.clone(),
+            settings.stall_timeout,
+        );
         Hub { settings, client }
     }
 
@@ -316,6 +323,7 @@ mod tests {
             token: None,
             offline: true,
             progress: false,
+            stall_timeout: crate::env::DEFAULT_STALL,
         }
     }
 

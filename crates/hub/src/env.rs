@@ -2,11 +2,23 @@
 //! and `utils/_auth.py`), so that `t2tf` and Python share one cache, token and endpoint.
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use super::HubSettings;
 
 /// The public Hub.
 pub(crate) const DEFAULT_ENDPOINT: &str = "https://huggingface.co";
+/// The stall timeout unless `T2TF_HUB_STALL_TIMEOUT` says otherwise.
+pub const DEFAULT_STALL: Duration = Duration::from_secs(30);
+
+/// The stall timeout from `T2TF_HUB_STALL_TIMEOUT`'s value; the default when unset or not a
+/// positive number of seconds (up to a day).
+fn stall_timeout(value: Option<String>) -> Duration {
+    value
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .filter(|s| s.is_finite() && *s > 0.0 && *s <= 86_400.0)
+        .map_or(DEFAULT_STALL, Duration::from_secs_f64)
+}
 
 impl HubSettings {
     /// Settings from this process's environment; see [`HubSettings::from_lookup`].
@@ -22,7 +34,8 @@ impl HubSettings {
     /// - token: `HF_TOKEN`, else `HUGGING_FACE_HUB_TOKEN`, else the file `HF_TOKEN_PATH`, else
     ///   `$HF_HOME/token` (what `huggingface-cli login` writes), trimmed;
     /// - offline: `HF_HUB_OFFLINE` (else `TRANSFORMERS_OFFLINE`) is 1, true, yes or on;
-    /// - progress: unless `HF_HUB_DISABLE_PROGRESS_BARS` is true.
+    /// - progress: unless `HF_HUB_DISABLE_PROGRESS_BARS` is true;
+    /// - stall timeout: `T2TF_HUB_STALL_TIMEOUT` seconds (above 0, up to a day), else 30.
     ///
     /// A leading `~` in a path is the home directory, found as Python's `expanduser` finds it:
     /// `HOME` on Unix; `USERPROFILE`, else `HOMEDRIVE` + `HOMEPATH`, on Windows (where Python
@@ -58,6 +71,7 @@ impl HubSettings {
             token,
             offline,
             progress: !is_true(var("HF_HUB_DISABLE_PROGRESS_BARS")),
+            stall_timeout: stall_timeout(lookup("T2TF_HUB_STALL_TIMEOUT")),
         }
     }
 }
@@ -204,5 +218,21 @@ mod tests {
             ("HUGGING_FACE_HUB_TOKEN", "x"),
         ]);
         assert_eq!(s.token.as_deref(), Some("hf_env"));
+    }
+
+    #[test]
+    fn the_stall_timeout_comes_from_the_environment_or_defaults() {
+        assert_eq!(stall_timeout(None), DEFAULT_STALL);
+        assert_eq!(
+            stall_timeout(Some("0.5".into())),
+            Duration::from_millis(500)
+        );
+        for bad in ["", "0", "-1", "nan", "inf", "1e9", "soon"] {
+            assert_eq!(stall_timeout(Some(bad.into())), DEFAULT_STALL, "{bad}");
+        }
+        let settings = HubSettings::from_lookup(|name| {
+            (name == "T2TF_HUB_STALL_TIMEOUT").then(|| "2.5".to_string())
+        });
+        assert_eq!(settings.stall_timeout, Duration::from_millis(2500));
     }
 }
