@@ -198,26 +198,6 @@ mod tests {
     }
 
     #[test]
-    fn the_command_is_not_said_after_the_prefix() {
-        assert_eq!(
-            say("t2tf optimize a b.raw: locked range 1,2 is outside", false),
-            "a b.raw: locked range 1,2 is outside"
-        );
-        assert_eq!(
-            say("t2tf render x.raw: `level` is wrong", false),
-            "x.raw: --level is wrong"
-        );
-        // Advice that names a command line, and words that are no command, stay.
-        for m in [
-            "t2tf convert --list shows the presets",
-            "t2tf nothing x: y",
-            "t2tf optimize",
-        ] {
-            assert_eq!(say(m, false), m);
-        }
-    }
-
-    #[test]
     fn memory_errors_name_the_budget_flag() {
         let m = crate::memory::Budget::bytes(1)
             .check("x", Some(2), 1, "ask for less")

@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use crate::clip::{Clip, Compute, ModelRequest, Precision, DEFAULT_MODEL, DEFAULT_REVISION};
+use crate::hub::HubSettings;
 use crate::memory::Budget;
 use crate::pipeline::{Model, ModelOptions};
 
@@ -69,6 +70,7 @@ impl ModelArgs {
             tokenizer: self.tokenizer.clone(),
             compute: self.compute()?,
             budget,
+            hub: HubSettings::from_env(),
         })
     }
 
@@ -89,6 +91,7 @@ impl ModelArgs {
             model: self.model.clone(),
             revision: self.revision.clone(),
             tokenizer: self.tokenizer.clone(),
+            hub: HubSettings::from_env(),
         }
     }
 }

@@ -75,6 +75,7 @@ fn hub_models() -> Vec<(String, String)> {
                 model: folder.to_string_lossy().into_owned(),
                 revision: DEFAULT_REVISION.to_string(),
                 tokenizer: None,
+                hub: settings.clone(),
             };
             // A snapshot without every file a run needs was never a run's model.
             let Ok(files) = crate::clip::load::resolve(&request) else {

@@ -81,12 +81,13 @@ fn fetch(a: FetchArgs) -> Result<()> {
             a.repo
         );
     }
-    let hub = Hub::new(settings);
     let req = ModelRequest {
         model: a.repo.clone(),
         revision: a.revision.clone(),
         tokenizer: None,
+        hub: settings.clone(),
     };
+    let hub = Hub::new(settings);
     let files = resolve_with(&req, &hub).with_context(|| format!("cannot fetch {}", a.repo))?;
     // Check what was downloaded before telling the user it is ready for offline use.
     let summary = crate::clip::Clip::check(&files)

@@ -241,6 +241,7 @@ impl OptimizeArgs {
 
     fn job(&self, target: Target, init: Option<pipeline::InitTf>) -> Result<Job> {
         let mut job = Job::new(target);
+        job.caption_cache = crate::optimize::captions::cache_dir();
         job.init = init;
         job.locks = self.locks.clone();
         job.negatives = self.negatives.clone();

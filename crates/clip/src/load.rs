@@ -73,15 +73,23 @@ pub struct ModelRequest {
     pub revision: String,
     /// `tokenizer.json` to use instead of the model's own.
     pub tokenizer: Option<PathBuf>,
+    /// How to reach the Hub and where its cache is, for a repo id. [`ModelRequest::new`] gives
+    /// the public Hub and Python's default cache folder; a front end that honours the
+    /// `HF_*` variables passes [`HubSettings::from_env`].
+    #[cfg(feature = "hub")]
+    pub hub: HubSettings,
 }
 
 impl ModelRequest {
-    /// `model` at the default revision, with its own tokenizer.
+    /// `model` at the default revision, with its own tokenizer, the public Hub and the
+    /// default cache (no environment variable read).
     pub fn new(model: &str) -> ModelRequest {
         ModelRequest {
             model: model.to_string(),
             revision: DEFAULT_REVISION.to_string(),
             tokenizer: None,
+            #[cfg(feature = "hub")]
+            hub: HubSettings::defaults(),
         }
     }
 }
@@ -151,10 +159,10 @@ impl ModelFiles {
     }
 }
 
-/// Resolve a request with the Hub settings of the environment (`HF_*` variables).
+/// Resolve a request with its Hub settings.
 #[cfg(feature = "hub")]
 pub fn resolve(req: &ModelRequest) -> Result<ModelFiles, ClipError> {
-    resolve_with(req, &Hub::new(HubSettings::from_env()))
+    resolve_with(req, &Hub::new(req.hub.clone()))
 }
 
 /// Resolve a request: a local folder only (this build has no Hub client, feature `hub`).

@@ -26,6 +26,13 @@ impl HubSettings {
         HubSettings::from_lookup(|name| std::env::var(name).ok())
     }
 
+    /// The settings of an environment that sets none of the variables: the public Hub,
+    /// Python's default cache folder under the user's home, no token, online, with progress,
+    /// the default stall timeout.
+    pub fn defaults() -> HubSettings {
+        HubSettings::from_lookup(|_| None)
+    }
+
     /// Settings from the variables `lookup` returns (empty values count as unset):
     ///
     /// - endpoint: `HF_ENDPOINT` (trailing `/` trimmed), else <https://huggingface.co>;

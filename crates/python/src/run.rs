@@ -93,6 +93,8 @@ pub fn load_model(
     }
     opts.tokenizer = tokenizer;
     opts.compute = compute;
+    // The `HF_*` variables, read here at the edge as the command reads them.
+    opts.hub = t2tf::hub::HubSettings::from_env();
     opts.budget = budget(max_memory)?;
     let model = py.detach(|| Model::load(&opts)).map_err(errors::pipeline)?;
     Ok(PyModel {
@@ -320,6 +322,7 @@ pub fn optimize<'py>(
     let mut jobs = Vec::with_capacity(targets.len());
     for target in &targets {
         let mut job = Job::new(target.clone());
+        job.caption_cache = t2tf::optimize::captions::cache_dir();
         job.negatives = negatives.clone();
         job.settings.steps = steps;
         job.settings.views = views;

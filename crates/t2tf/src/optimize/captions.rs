@@ -108,13 +108,20 @@ pub fn user_negatives(given: &[String]) -> Result<Vec<String>, OptimizeError> {
         .collect()
 }
 
-/// The cache directory of t2tf: `$XDG_CACHE_HOME/t2tf` where that is set (on every system, as
-/// `huggingface_hub` honours it), else the platform's per-user cache folder
+/// The cache directory of t2tf as the front ends (the CLI, the Python module) find it in the
+/// environment: `$XDG_CACHE_HOME/t2tf` where that is set (on every system, as `huggingface_hub`
+/// honours it), else the platform's per-user cache folder
 /// ([`t2tf_core::platform::cache_dir`]: `~/.cache/t2tf` on Linux, `~/Library/Caches/t2tf` on
-/// macOS, `%LOCALAPPDATA%\t2tf\cache` on Windows).
+/// macOS, `%LOCALAPPDATA%\t2tf\cache` on Windows). The library itself reads no variable:
+/// [`crate::pipeline::Job::new`] takes the platform's folder, and a front end sets
+/// `Job::caption_cache` to this.
 pub fn cache_dir() -> Option<PathBuf> {
-    let xdg = std::env::var_os("XDG_CACHE_HOME").filter(|v| !v.is_empty());
-    match xdg {
+    cache_dir_from(std::env::var_os("XDG_CACHE_HOME"))
+}
+
+/// [`cache_dir`] for a value of `XDG_CACHE_HOME` (empty counts as unset).
+pub fn cache_dir_from(xdg: Option<std::ffi::OsString>) -> Option<PathBuf> {
+    match xdg.filter(|v| !v.is_empty()) {
         Some(x) => Some(PathBuf::from(x).join("t2tf")),
         None => t2tf_core::platform::cache_dir(),
     }

@@ -129,8 +129,10 @@ pub struct Job {
     pub render_size: Option<usize>,
     /// What the renderer's copies of the volume may take.
     pub budget: Budget,
-    /// Where caption embeddings are cached; `None`: not cached. [`Job::new`] sets the user's
-    /// cache folder (`$XDG_CACHE_HOME/t2tf`, else `~/.cache/t2tf`).
+    /// Where caption embeddings are cached; `None`: not cached. [`Job::new`] sets the
+    /// platform's per-user cache folder ([`t2tf_core::platform::cache_dir`]); the CLI and the
+    /// Python module set the environment's ([`captions::cache_dir`], which honours
+    /// `XDG_CACHE_HOME` on every system).
     pub caption_cache: Option<PathBuf>,
     /// Start from this TF instead of the paper's initialization (a refine).
     pub init: Option<InitTf>,
@@ -152,7 +154,7 @@ impl Job {
             level: None,
             render_size: None,
             budget: Budget::system(),
-            caption_cache: captions::cache_dir(),
+            caption_cache: t2tf_core::platform::cache_dir(),
             init: None,
             locks: Vec::new(),
         }

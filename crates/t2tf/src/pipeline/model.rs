@@ -25,6 +25,10 @@ pub struct ModelOptions {
     pub compute: Compute,
     /// What the weights may take.
     pub budget: Budget,
+    /// How to reach the Hugging Face Hub for a repo id; [`ModelOptions::new`] gives the
+    /// public Hub and the default cache, the CLI and the Python module the `HF_*` variables'
+    /// ([`crate::hub::HubSettings::from_env`]).
+    pub hub: crate::hub::HubSettings,
 }
 
 impl ModelOptions {
@@ -37,6 +41,7 @@ impl ModelOptions {
             tokenizer: None,
             compute: Compute::default(),
             budget: Budget::system(),
+            hub: crate::hub::HubSettings::defaults(),
         }
     }
 
@@ -46,6 +51,7 @@ impl ModelOptions {
             model: self.model.clone(),
             revision: self.revision.clone(),
             tokenizer: self.tokenizer.clone(),
+            hub: self.hub.clone(),
         }
     }
 }
