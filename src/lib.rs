@@ -11,6 +11,7 @@
 mod out;
 
 mod commands;
+pub mod download_progress;
 mod flags;
 mod model_args;
 mod preset_args;

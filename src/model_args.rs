@@ -70,7 +70,7 @@ impl ModelArgs {
             tokenizer: self.tokenizer.clone(),
             compute: self.compute()?,
             budget,
-            hub: HubSettings::from_env(),
+            hub: hub_settings(),
         })
     }
 
@@ -91,7 +91,12 @@ impl ModelArgs {
             model: self.model.clone(),
             revision: self.revision.clone(),
             tokenizer: self.tokenizer.clone(),
-            hub: HubSettings::from_env(),
+            hub: hub_settings(),
         }
     }
+}
+
+/// The `HF_*` variables' Hub settings, downloads shown on stderr.
+pub fn hub_settings() -> HubSettings {
+    crate::download_progress::on_stderr(HubSettings::from_env())
 }

@@ -343,8 +343,11 @@ def optimize(
 
     Progress events: {"event": "phase", "phase": ...} as a phase begins; after each step
     {"event": "step", "step": 1-based, "total": the run's steps, "loss": the loss, and its
-    parts "clip", "prior", "l1", "l2", with "prompt_probability", "lr", ...}; and
-    {"event": "warning", "message": ...}. Returning False stops the run after that step
+    parts "clip", "prior", "l1", "l2", with "prompt_probability", "lr", ...};
+    {"event": "warning", "message": ...}; and while a model downloads (files of 10 MiB or
+    more), {"event": "download", "file": ..., "state": "started" | "progress" | "finished" |
+    "stopped", "done": bytes, "total": bytes or None}, which cannot stop the download
+    (without a callback, downloads are shown on stderr). Returning False stops the run after that step
     and the partial result is returned (its `interrupted` is True). Ctrl-C, or an exception
     raised by `progress`, also stops the run after the current step and is then raised;
     the partial result is dropped.

@@ -74,7 +74,7 @@ fn fetch(a: FetchArgs) -> Result<()> {
             a.repo
         );
     }
-    let settings = HubSettings::from_env();
+    let settings = crate::model_args::hub_settings();
     if settings.offline {
         bail!(
             "HF_HUB_OFFLINE is set, and `t2tf model fetch` needs the network: unset it to download {}",

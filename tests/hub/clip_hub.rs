@@ -117,6 +117,7 @@ fn settings(server: &HubServer, cache: &Path, offline: bool) -> HubSettings {
         offline,
         progress: false,
         stall_timeout: t2tf::hub::env::DEFAULT_STALL,
+        on_event: None,
     }
 }
 

@@ -12,7 +12,7 @@ use std::process::Command;
 
 use hub_server::{files_in, hex, Fault, HubServer, HubSpec};
 use sha2::{Digest, Sha256};
-use t2tf::hub::{cached_repos, Hub, HubError, HubSettings, RepoKind};
+use t2tf::hub::{cached_repos, EventSink, Hub, HubError, HubEvent, HubSettings, RepoKind};
 
 const REPO: &str = "acme/tiny";
 const GATED: &str = "acme/gated";
@@ -66,6 +66,7 @@ fn settings(endpoint: &str, cache: &Path) -> HubSettings {
         offline: false,
         progress: false,
         stall_timeout: t2tf::hub::env::DEFAULT_STALL,
+        on_event: None,
     }
 }
 
@@ -183,18 +184,70 @@ fn nested_file_name_links_back_to_blobs() {
 }
 
 #[test]
-fn progress_output_does_not_disturb_a_large_download() {
-    // Above the quiet size, so the progress code runs (plain lines: stderr is not a terminal here).
+fn a_large_download_reports_its_progress_to_the_front_end_only() {
+    // Above the quiet size: the client tells its sink, in order, that the file started, how
+    // far it got (never past its size) and that it finished whole; with progress off, or a
+    // small file, it tells nothing. The library itself writes nothing to stderr.
     let big = blob(11 << 20, 9);
     let mut spec = HubSpec::new();
-    spec.repo(REPO).revision("main", [(WEIGHTS, big.clone())]);
+    spec.repo(REPO)
+        .revision("main", [(WEIGHTS, big.clone()), (CONFIG, config())]);
     let hub_server = HubServer::start(spec);
-    let cache = tempfile::tempdir().unwrap();
-    let hub = Hub::new(HubSettings {
-        progress: true,
-        ..settings(&hub_server.endpoint(), cache.path())
-    });
-    assert!(read(get(&hub, REPO, "main", WEIGHTS).unwrap()) == big);
+    let run = |progress: bool, file: &str| {
+        let cache = tempfile::tempdir().unwrap();
+        let events = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        let seen = events.clone();
+        let hub = Hub::new(HubSettings {
+            progress,
+            on_event: Some(EventSink::new(move |e| {
+                seen.lock().unwrap().push(e.clone())
+            })),
+            ..settings(&hub_server.endpoint(), cache.path())
+        });
+        let bytes = read(get(&hub, REPO, "main", file).unwrap());
+        let events = events.lock().unwrap().clone();
+        (bytes, events)
+    };
+    let (bytes, events) = run(true, WEIGHTS);
+    assert!(bytes == big);
+    let total = big.len() as u64;
+    assert_eq!(
+        events.first(),
+        Some(&HubEvent::Started {
+            file: WEIGHTS.into(),
+            total: Some(total)
+        }),
+        "{events:?}"
+    );
+    assert_eq!(
+        events.last(),
+        Some(&HubEvent::Finished {
+            file: WEIGHTS.into(),
+            done: total,
+            ok: true
+        }),
+        "{events:?}"
+    );
+    let mut last = 0;
+    for e in &events[1..events.len() - 1] {
+        let HubEvent::Progress {
+            file,
+            done,
+            total: t,
+        } = e
+        else {
+            panic!("{e:?} between start and finish");
+        };
+        assert!(
+            file == WEIGHTS && *t == Some(total) && (last..=total).contains(done),
+            "{e:?}"
+        );
+        last = *done;
+    }
+    let (bytes, events) = run(false, WEIGHTS);
+    assert!(bytes == big && events.is_empty(), "{events:?}");
+    let (bytes, events) = run(true, CONFIG);
+    assert!(bytes == config() && events.is_empty(), "{events:?}");
 }
 
 #[test]
@@ -420,6 +473,7 @@ fn endpoint_and_cache_come_from_hf_endpoint_and_hf_hub_cache() {
     let hub = Hub::new(HubSettings {
         progress: false,
         stall_timeout: t2tf::hub::env::DEFAULT_STALL,
+        on_event: None,
         ..s
     });
     let path = get(&hub, REPO, "main", CONFIG).unwrap().unwrap();

@@ -45,6 +45,7 @@ fn hub(server: &HubServer, cache: &Path) -> Hub {
         offline: false,
         progress: false,
         stall_timeout: t2tf::hub::env::DEFAULT_STALL,
+        on_event: None,
     })
 }
 
@@ -98,7 +99,7 @@ fn an_endless_config_json_stops_at_the_cap() {
         .get(CONFIG)
         .unwrap_err();
     assert!(matches!(e, HubError::TooLarge { .. }), "{e}");
-    one_line(&e, &[CONFIG, REPO, "32.00 MiB", "not weights"]);
+    one_line(&e, &[CONFIG, REPO, "32.0 MiB", "not weights"]);
     nothing_kept(cache.path(), 0);
     // The next try, the server behaving, gets the file.
     let path = hub(&server, cache.path())

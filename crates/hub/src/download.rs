@@ -12,22 +12,22 @@
 //! following a symlink (one planted there is replaced, its target untouched).
 
 use std::fs::{self, File, OpenOptions};
-use std::io::{IsTerminal, Read, Write};
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use indicatif::{HumanBytes, ProgressBar, ProgressStyle};
 use sha2::{Digest, Sha256};
+use t2tf_core::units::human_bytes;
 
 use super::http::{header, Client, Target};
-use super::HubError;
+use super::{HubError, HubEvent, HubSettings};
 
 /// Further tries after a transient failure (the HEAD said the file exists; the GET broke).
 const RETRIES: u32 = 2;
 /// Files below this size download without any output.
 const QUIET_BELOW: u64 = 10 << 20;
-/// Seconds between plain progress lines when stderr is not a terminal.
-const LINE_EVERY: Duration = Duration::from_secs(5);
+/// The shortest time between two progress events of a file.
+const EVENT_EVERY: Duration = Duration::from_millis(100);
 /// The most bytes a file that is not weights may have. Tokenizers are the largest such files
 /// (`tokenizer.json` of an XLM-RoBERTa text tower is 17 MB); configs and index files are KBs.
 pub(crate) const SMALL_FILE_CAP: u64 = 32 << 20;
@@ -62,7 +62,8 @@ pub(crate) struct Download<'a> {
     pub etag: &'a str,
     /// The size the HEAD announced, if it did.
     pub size: Option<u64>,
-    pub progress: bool,
+    /// Where progress goes (`HubSettings::on_event`).
+    pub settings: &'a HubSettings,
 }
 
 /// Whether an etag is an LFS sha256 (and so the file's checksum).
@@ -84,7 +85,7 @@ impl Download<'_> {
         if part.len > expected.unwrap_or(self.cap()) {
             part.restart()?;
         }
-        let mut progress = Progress::new(self.progress, self.target.file, expected);
+        let mut progress = Progress::new(self.settings, self.target.file, expected);
         let (mut tries, mut stalls) = (0, 0);
         while expected != Some(part.len) {
             match self.fetch(&mut part, &mut expected, &mut progress) {
@@ -190,7 +191,7 @@ impl Download<'_> {
                     Some(want) => format!("the body is longer than the {want} bytes declared"),
                     None => format!(
                         "more than {} arrived, the most a file that is not weights may have",
-                        HumanBytes(limit)
+                        human_bytes(limit as u128)
                     ),
                 }));
             }
@@ -226,8 +227,8 @@ impl Download<'_> {
         if size > self.cap() {
             return Err(self.too_large(format!(
                 "the Hub declares {}, more than the {} a file that is not weights may have",
-                HumanBytes(size),
-                HumanBytes(self.cap())
+                human_bytes(size as u128),
+                human_bytes(self.cap() as u128)
             )));
         }
         Ok(())
@@ -376,71 +377,57 @@ fn remove_name(path: &Path) -> Result<(), HubError> {
     }
 }
 
-/// Progress on stderr: a bar on a terminal, a line every few seconds otherwise, nothing for
-/// small files.
-enum Progress {
-    Silent,
-    Bar(ProgressBar),
-    Lines {
-        file: String,
-        last: Instant,
-        done: u64,
-    },
+/// A download's progress as events for the front end (`HubSettings::on_event`): nothing for
+/// small files, or where progress is not wanted.
+struct Progress<'a> {
+    settings: Option<&'a HubSettings>,
+    file: String,
+    total: Option<u64>,
+    done: u64,
+    last: Instant,
 }
 
-impl Progress {
-    fn new(enabled: bool, file: &str, total: Option<u64>) -> Progress {
-        if !enabled || total.is_some_and(|t| t < QUIET_BELOW) {
-            return Progress::Silent;
-        }
-        if std::io::stderr().is_terminal() {
-            let bar = ProgressBar::new(total.unwrap_or(0));
-            if let Ok(style) = ProgressStyle::with_template(
-                "{msg} [{bar:30}] {bytes}/{total_bytes} {bytes_per_sec} {eta}",
-            ) {
-                bar.set_style(style.progress_chars("=> "));
-            }
-            bar.set_message(file.to_string());
-            return Progress::Bar(bar);
-        }
-        let size = total.map_or("unknown size".into(), |t| HumanBytes(t).to_string());
-        super::note(format_args!("downloading {file} ({size})"));
-        Progress::Lines {
+impl<'a> Progress<'a> {
+    fn new(settings: &'a HubSettings, file: &str, total: Option<u64>) -> Progress<'a> {
+        let quiet = !settings.progress || total.is_some_and(|t| t < QUIET_BELOW);
+        let progress = Progress {
+            settings: (!quiet).then_some(settings),
             file: file.to_string(),
-            last: Instant::now(),
+            total,
             done: 0,
+            last: Instant::now(),
+        };
+        if let Some(s) = progress.settings {
+            s.tell(HubEvent::Started {
+                file: progress.file.clone(),
+                total,
+            });
         }
+        progress
     }
 
     fn set(&mut self, done_now: u64, total: Option<u64>) {
-        match self {
-            Progress::Silent => {}
-            Progress::Bar(bar) => {
-                if let Some(t) = total {
-                    bar.set_length(t);
-                }
-                bar.set_position(done_now);
-            }
-            Progress::Lines { file, last, done } => {
-                *done = done_now;
-                if last.elapsed() >= LINE_EVERY {
-                    *last = Instant::now();
-                    let of = total.map_or(String::new(), |t| format!(" of {}", HumanBytes(t)));
-                    super::note(format_args!("{file}: {}{of}", HumanBytes(done_now)));
-                }
+        self.done = done_now;
+        self.total = total.or(self.total);
+        if let Some(s) = self.settings {
+            if self.last.elapsed() >= EVENT_EVERY {
+                self.last = Instant::now();
+                s.tell(HubEvent::Progress {
+                    file: self.file.clone(),
+                    done: done_now,
+                    total: self.total,
+                });
             }
         }
     }
 
     fn finish(&mut self, ok: bool) {
-        match self {
-            Progress::Silent => {}
-            Progress::Bar(bar) if ok => bar.finish(),
-            Progress::Bar(bar) => bar.abandon(),
-            Progress::Lines { file, done, .. } => {
-                let how = if ok { "downloaded" } else { "stopped" };
-                super::note(format_args!("{file}: {how} ({})", HumanBytes(*done)));
-            }
+        if let Some(s) = self.settings {
+            s.tell(HubEvent::Finished {
+                file: self.file.clone(),
+                done: self.done,
+                ok,
+            });
         }
     }
 }

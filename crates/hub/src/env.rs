@@ -79,6 +79,7 @@ impl HubSettings {
             offline,
             progress: !is_true(var("HF_HUB_DISABLE_PROGRESS_BARS")),
             stall_timeout: stall_timeout(lookup("T2TF_HUB_STALL_TIMEOUT")),
+            on_event: None,
         }
     }
 }

@@ -37,12 +37,65 @@ pub use list::{cached_repos, CachedFile, CachedRepo, CachedSnapshot, RepoKind};
 use cache::{Cached, RepoCache};
 use http::{Client, Head, Metadata, Target};
 
-/// A line for the person running the download, on stderr. Never a panic, as `eprintln!` would
-/// be on a closed stream (a log pipe whose reader left): a download does not fail over what it
-/// says about itself.
-pub(crate) fn note(args: std::fmt::Arguments) {
-    use std::io::Write;
-    let _ = writeln!(std::io::stderr().lock(), "{args}");
+/// What the client tells its front end while it works (`HubSettings::on_event`): the
+/// library draws nothing and prints nothing itself.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum HubEvent {
+    /// A download of at least 10 MiB (or of unknown size) starts; smaller files say nothing.
+    Started {
+        /// The file's name in the repo.
+        file: String,
+        /// Its size, where the Hub said.
+        total: Option<u64>,
+    },
+    /// Bytes of it on disk so far (at most every 100 ms).
+    Progress {
+        /// The file's name in the repo.
+        file: String,
+        /// Bytes so far, a resumed part included.
+        done: u64,
+        /// Its size, where known.
+        total: Option<u64>,
+    },
+    /// The download ended: `ok`, or stopped by an error.
+    Finished {
+        /// The file's name in the repo.
+        file: String,
+        /// Bytes on disk.
+        done: u64,
+        /// Whether the file is complete and checked.
+        ok: bool,
+    },
+    /// Something the user should know, e.g. that a cached file is used because the Hub could
+    /// not be reached.
+    Warning(String),
+}
+
+/// Where [`HubEvent`]s go: a front end's function (a progress bar, lines in a log, a Python
+/// callback).
+#[derive(Clone)]
+pub struct EventSink(pub std::sync::Arc<dyn Fn(&HubEvent) + Send + Sync>);
+
+impl EventSink {
+    /// A sink calling `f`.
+    pub fn new(f: impl Fn(&HubEvent) + Send + Sync + 'static) -> EventSink {
+        EventSink(std::sync::Arc::new(f))
+    }
+}
+
+impl std::fmt::Debug for EventSink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("EventSink(..)")
+    }
+}
+
+impl HubSettings {
+    /// Tell the front end `event`, if it listens.
+    pub(crate) fn tell(&self, event: HubEvent) {
+        if let Some(sink) = &self.on_event {
+            (sink.0)(&event);
+        }
+    }
 }
 
 /// How to reach the Hub and where the cache is; [`HubSettings::from_env`] reads them as
@@ -57,11 +110,13 @@ pub struct HubSettings {
     pub token: Option<String>,
     /// Answer from the cache only, with no request (`HF_HUB_OFFLINE`).
     pub offline: bool,
-    /// Show download progress on stderr for large files.
+    /// Report download progress for large files (`HF_HUB_DISABLE_PROGRESS_BARS` unset).
     pub progress: bool,
     /// The longest a read may wait, and the time a download must get 1 KiB within, on each of
     /// its two tries (`T2TF_HUB_STALL_TIMEOUT`, seconds; 30 s by default).
     pub stall_timeout: std::time::Duration,
+    /// Where progress and warnings go; `None`: nowhere.
+    pub on_event: Option<EventSink>,
 }
 
 /// A Hub client.
@@ -134,10 +189,10 @@ impl HubRepo<'_> {
             Err(e) => {
                 let cached = self.cached(filename)?;
                 if cached != Cached::Unknown {
-                    note(format_args!(
-                        "warning: using the cached {filename} of {} at {} ({e})",
+                    self.hub.settings.tell(HubEvent::Warning(format!(
+                        "using the cached {filename} of {} at {} ({e})",
                         self.repo_id, self.revision
-                    ));
+                    )));
                     return Ok(cached.into_path());
                 }
                 if !e.is_transient() {
@@ -191,7 +246,7 @@ impl HubRepo<'_> {
                 url: &meta.location,
                 etag: &meta.etag,
                 size: meta.size,
-                progress: self.hub.settings.progress,
+                settings: &self.hub.settings,
             };
             download.run(&self.cache.incomplete(&meta.etag), &blob)?;
         }
@@ -324,6 +379,7 @@ mod tests {
             offline: true,
             progress: false,
             stall_timeout: crate::env::DEFAULT_STALL,
+            on_event: None,
         }
     }
 

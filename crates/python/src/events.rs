@@ -179,3 +179,52 @@ fn call(py: Python<'_>, progress: Option<&Py<PyAny>>, event: &Owned) -> PyResult
     let ret = f.bind(py).call1((event.to_dict(py)?,))?;
     Ok(!matches!(ret.extract::<bool>(), Ok(false)))
 }
+
+/// A Hub download's events for the run's progress callback: `{"event": "download", "file",
+/// "state": "started" | "progress" | "finished" | "stopped", "done", "total"}`, and its warnings
+/// as `{"event": "warning", "message"}`. Called on the loading thread, which takes the GIL for
+/// the call; what the callback returns or raises does not stop a download.
+pub fn download_sink(callback: Py<PyAny>) -> t2tf::hub::EventSink {
+    use t2tf::hub::HubEvent;
+    t2tf::hub::EventSink::new(move |event| {
+        Python::attach(|py| {
+            let d = PyDict::new(py);
+            let filled = (|| -> PyResult<()> {
+                match event {
+                    HubEvent::Started { file, total } => {
+                        d.set_item("event", "download")?;
+                        d.set_item("file", file)?;
+                        d.set_item("state", "started")?;
+                        d.set_item("done", 0)?;
+                        d.set_item("total", *total)?;
+                    }
+                    HubEvent::Progress { file, done, total } => {
+                        d.set_item("event", "download")?;
+                        d.set_item("file", file)?;
+                        d.set_item("state", "progress")?;
+                        d.set_item("done", *done)?;
+                        d.set_item("total", *total)?;
+                    }
+                    HubEvent::Finished { file, done, ok } => {
+                        d.set_item("event", "download")?;
+                        d.set_item("file", file)?;
+                        d.set_item("state", if *ok { "finished" } else { "stopped" })?;
+                        d.set_item("done", *done)?;
+                    }
+                    HubEvent::Warning(w) => {
+                        d.set_item("event", "warning")?;
+                        d.set_item("message", w)?;
+                    }
+                }
+                Ok(())
+            })();
+            if filled.is_ok() {
+                if let Err(e) = callback.bind(py).call1((d,)) {
+                    // Said, not raised: the download goes on, and the run's own events will
+                    // meet the callback again.
+                    e.print(py);
+                }
+            }
+        })
+    })
+}

@@ -83,6 +83,20 @@ pub fn load_model(
     precision: &str,
     max_memory: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<PyModel> {
+    load_model_reporting(py, model, tokenizer, revision, precision, max_memory, None)
+}
+
+/// `load_model`, with a download's progress given to `progress` (a run's callback) as
+/// `{"event": "download", …}` dicts, or shown on stderr as the command shows it.
+fn load_model_reporting(
+    py: Python<'_>,
+    model: Option<PathBuf>,
+    tokenizer: Option<PathBuf>,
+    revision: Option<String>,
+    precision: &str,
+    max_memory: Option<&Bound<'_, PyAny>>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<PyModel> {
     let compute = compute(precision)?;
     let mut opts = ModelOptions::new(model.map_or_else(
         || t2tf::clip::DEFAULT_MODEL.to_string(),
@@ -94,7 +108,13 @@ pub fn load_model(
     opts.tokenizer = tokenizer;
     opts.compute = compute;
     // The `HF_*` variables, read here at the edge as the command reads them.
-    opts.hub = t2tf::hub::HubSettings::from_env();
+    opts.hub = match progress {
+        Some(callback) => t2tf::hub::HubSettings {
+            on_event: Some(crate::events::download_sink(callback)),
+            ..t2tf::hub::HubSettings::from_env()
+        },
+        None => t2tf_cli::download_progress::on_stderr(t2tf::hub::HubSettings::from_env()),
+    };
     opts.budget = budget(max_memory)?;
     let model = py.detach(|| Model::load(&opts)).map_err(errors::pipeline)?;
     Ok(PyModel {
@@ -110,6 +130,7 @@ fn model_for(
     revision: Option<String>,
     precision: &str,
     max_memory: Option<&Bound<'_, PyAny>>,
+    progress: Option<Py<PyAny>>,
 ) -> PyResult<Arc<Model>> {
     if let Some(m) = model.and_then(|m| m.cast::<PyModel>().ok()) {
         if tokenizer.is_some() || revision.is_some() || precision != "auto" {
@@ -120,7 +141,9 @@ fn model_for(
         return Ok(m.get().model.clone());
     }
     let path = model.map(|m| m.extract::<PathBuf>()).transpose()?;
-    let loaded = load_model(py, path, tokenizer, revision, precision, max_memory)?;
+    let loaded = load_model_reporting(
+        py, path, tokenizer, revision, precision, max_memory, progress,
+    )?;
     Ok(loaded.model)
 }
 
@@ -234,8 +257,11 @@ pub fn default_name(target: &Target, out: Option<&Path>) -> PyResult<String> {
 ///
 /// Progress events: {"event": "phase", "phase": ...} as a phase begins; after each step
 /// {"event": "step", "step": 1-based, "total": the run's steps, "loss": the loss, and its
-/// parts "clip", "prior", "l1", "l2", with "prompt_probability", "lr", ...}; and
-/// {"event": "warning", "message": ...}. Returning False stops the run after that step
+/// parts "clip", "prior", "l1", "l2", with "prompt_probability", "lr", ...};
+/// {"event": "warning", "message": ...}; and while a model downloads (files of 10 MiB or
+/// more), {"event": "download", "file": ..., "state": "started" | "progress" | "finished" |
+/// "stopped", "done": bytes, "total": bytes or None}, which cannot stop the download
+/// (without a callback, downloads are shown on stderr). Returning False stops the run after that step
 /// and the partial result is returned (its `interrupted` is True). Ctrl-C, or an exception
 /// raised by `progress`, also stops the run after the current step and is then raised;
 /// the partial result is dropped.
@@ -344,7 +370,13 @@ pub fn optimize<'py>(
     let given = model.and_then(|m| m.cast::<PyModel>().ok());
     let model = if given.is_some() || jobs.iter().any(|j| j.needs_model()) {
         Some(model_for(
-            py, model, tokenizer, revision, precision, max_memory,
+            py,
+            model,
+            tokenizer,
+            revision,
+            precision,
+            max_memory,
+            progress.as_ref().map(|p| p.clone_ref(py)),
         )?)
     } else {
         None
