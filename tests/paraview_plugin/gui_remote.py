@@ -10,10 +10,11 @@ uint8 .raw), T2TF_MODEL, T2TF_TOKENIZER, T2TF_RESULT, T2TF_RUNS)."""
 import ctypes
 import json
 import os
+import time
 
 import paraview.simple as pvs
 from paraview import servermanager
-from gui_steps import apply_and_wait, mark_modified, new_filter
+from gui_steps import apply_and_wait, apply_button, mark_modified, new_filter
 from qt_calls import (X11, enabled, find_child, find_children, function, main_window,
                       process_events, visible)
 
@@ -116,6 +117,40 @@ try:
         if presets.GetPresetName(i) == "t2tf: a protein molecule":
             res["preset"] = json.loads(presets.GetPresetAsString(i))
     interactor.DestroyTimer(timer)
+
+    # The macro's route, text_to_transfer_function on the reader: the progress bar shows it,
+    # Abort is enabled, and the GUI's input is held, so the Apply button of the filter,
+    # changed again and clicked through the X server during the run, starts nothing.
+    import t2tf_plugin
+    f.Steps = 6
+    mark_modified(f)
+    apply = apply_button(window)
+    macro = {"abort_enabled": False, "pressed": False}
+    before = runs()
+
+    def on_macro_timer(_obj, _event):
+        if runs() <= before:
+            return
+        macro["abort_enabled"] = macro["abort_enabled"] or enabled(abort)
+        if "pointer_at" not in macro:
+            x.move_to(apply)
+            macro["pointer_at"] = time.time()
+        elif not macro["pressed"] and time.time() - macro["pointer_at"] > 0.3:
+            x.press()
+            macro["pressed"] = True
+
+    interactor.AddObserver("TimerEvent", on_macro_timer)
+    timer = interactor.CreateRepeatingTimer(50)
+    result, _local = t2tf_plugin.text_to_transfer_function(
+        reader, "a protein molecule", steps=400, views=4, seed=5, model=env["T2TF_MODEL"],
+        tokenizer=env["T2TF_TOKENIZER"], proxy_size=32, view=view, camera=False)
+    interactor.DestroyTimer(timer)
+    res["macro_runs"] = runs() - before
+    res["macro_during"] = {k: v for k, v in macro.items() if k != "pointer_at"}
+    res["macro_steps_run"] = json.loads(result["report"])["steps_run"]
+    process_events(1.0)  # a press held back during the run is not replayed after it
+    res["runs_after_macro"] = runs() - before
+    res["apply_enabled_after_macro"] = enabled(apply)
 except Exception:  # reported in the JSON: the GUI would swallow it
     import traceback
     res["exception"] = traceback.format_exc()
