@@ -27,6 +27,9 @@ fn prints_cosines_and_probabilities_of_each_caption() {
         MODEL,
         "--tokenizer",
         TOKENIZER,
+        // The library's `Clip::load_with_tokenizer` below is f32; the command's default is auto.
+        "--precision",
+        "f32",
     ]);
     for c in captions {
         cmd.args(["--caption", c]);
