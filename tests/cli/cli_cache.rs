@@ -123,11 +123,16 @@ fn cache_hub_model(hf: &Path) {
             .collect()
     };
     std::fs::write(repo.join("blobs").join(&sha), &weights).unwrap();
+    #[cfg(unix)]
     std::os::unix::fs::symlink(
         format!("../../blobs/{sha}"),
         snapshot.join("model.safetensors"),
     )
     .unwrap();
+    // Where symlinks need a privilege (Windows), `huggingface_hub` copies the blob into the
+    // snapshot: the listing then hashes the file instead of reading the link's target name.
+    #[cfg(not(unix))]
+    std::fs::write(snapshot.join("model.safetensors"), &weights).unwrap();
     std::fs::copy(
         Path::new(MODEL).join("config.json"),
         snapshot.join("config.json"),
