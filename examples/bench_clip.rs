@@ -612,7 +612,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "\nerror against {} (relative L2, worst view / caption):",
         run[reference].name()
     );
-    for (setup, model) in run.iter().zip(&models) {
+    // With `--amx-emulated`, the AMX path's accuracy where the CPU has no AMX: its exact
+    // software model, one untimed pass (the emulation is scalar), against the same reference.
+    let emulated = if amx_emulated {
+        Some(Setup::Packed(Kernel::AmxEmulated).build(&cfg)?)
+    } else {
+        None
+    };
+    let rows = run.iter().map(|s| s.name()).zip(&models).chain(
+        emulated
+            .iter()
+            .map(|m| (format!("{} (untimed)", Kernel::AmxEmulated.name()), m)),
+    );
+    for (name, model) in rows {
         let (e, c) = model.encode_images(&views)?;
         let g = model.image_backward(&c, &d)?;
         let te = model.encode_tokens(&ids[..8])?;
@@ -628,33 +640,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .map(|(x, y)| rel_err(&x.data, &y.data))
             .fold(0.0, f64::max);
         println!(
-            "  {}: image embedding {:.1e}, input gradient {gw:.1e}, text embedding {:.1e}",
-            setup.name(),
+            "  {name}: image embedding {:.1e}, input gradient {gw:.1e}, text embedding {:.1e}",
             worst(&e, &emb32),
             worst(&te, &t32)
-        );
-    }
-    // The AMX path's accuracy where the CPU has no AMX: its exact software model, one
-    // untimed pass (the emulation is scalar), against the same f32 reference.
-    if amx_emulated {
-        let model = Setup::Packed(Kernel::AmxEmulated).build(&cfg)?;
-        let (e, c) = model.encode_images(&views)?;
-        let g = model.image_backward(&c, &d)?;
-        let worst = |a: &[Vec<f32>], b: &[Vec<f32>]| {
-            a.iter()
-                .zip(b)
-                .map(|(x, y)| rel_err(x, y))
-                .fold(0.0, f64::max)
-        };
-        let gw = g
-            .iter()
-            .zip(&g32)
-            .map(|(x, y)| rel_err(&x.data, &y.data))
-            .fold(0.0, f64::max);
-        println!(
-            "  {} (untimed): image embedding {:.1e}, input gradient {gw:.1e}",
-            Kernel::AmxEmulated.name(),
-            worst(&e, &emb32)
         );
     }
     if pool {

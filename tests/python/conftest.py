@@ -66,6 +66,9 @@ def run_in_group(command, timeout, **kwargs):
     which is stopped afterwards whatever happens: a timeout kills only the direct child in
     `subprocess.run`, and `xvfb-run` killed that way leaves its Xvfb (and pvpython) running."""
     import signal
+    if os.name != "posix":
+        # No process groups to stop elsewhere (these commands need xvfb-run, a Unix tool).
+        return subprocess.run(command, capture_output=True, text=True, timeout=timeout, **kwargs)
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, **kwargs)
 

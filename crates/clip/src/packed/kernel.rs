@@ -109,7 +109,7 @@ impl Kernel {
 
     /// The fastest kernel for `precision` on this CPU (f32: always one, `Portable` at worst;
     /// bf16: only a native one, AMX before `vdpbf16ps`: the same bf16 operands and f32
-    /// accumulation, 5–6× the products per core on ViT-B/32's shapes).
+    /// accumulation, on matrix units that do a tile product per instruction).
     pub fn best(precision: Precision) -> Option<Kernel> {
         let order: &[Kernel] = match precision {
             Precision::F32 => &[Kernel::Avx512F, Kernel::Avx2Fma, Kernel::Portable],

@@ -475,28 +475,20 @@ pub(super) unsafe fn run_tile(
                 )
             }
         }
-        (Kernel::AmxEmulated, APacked::Pairs { data, kq }) => {
+        (Kernel::AmxEmulated | Kernel::Amx, APacked::Pairs { data, kq }) => {
             let apanel = &data[i * amx::ROWS * kq + kb..];
-            // SAFETY: forwarded from the caller; the panel holds `amx::ROWS` rows of kq u32s.
+            // The AMX units, or their exact software model: the same steps either way.
+            let tile_fn = match kernel {
+                #[cfg(target_arch = "x86_64")]
+                Kernel::Amx => amx::tile,
+                #[cfg(not(target_arch = "x86_64"))]
+                Kernel::Amx => unreachable!("AMX is never available off x86-64"),
+                _ => amx::tile_emulated,
+            };
+            // SAFETY: forwarded from the caller (for `Amx`, the tile state was granted before
+            // it was packed for); the panel holds `amx::ROWS` rows of kq u32s.
             unsafe {
-                amx::tile_emulated(
-                    kc,
-                    apanel.as_ptr(),
-                    *kq,
-                    bpanel.as_ptr().cast(),
-                    crow,
-                    ldc,
-                    tile,
-                )
-            }
-        }
-        #[cfg(target_arch = "x86_64")]
-        (Kernel::Amx, APacked::Pairs { data, kq }) => {
-            let apanel = &data[i * amx::ROWS * kq + kb..];
-            // SAFETY: forwarded from the caller (the tile state was granted before `Amx` was
-            // packed for); the panel holds `amx::ROWS` rows of kq u32s.
-            unsafe {
-                amx::tile(
+                tile_fn(
                     kc,
                     apanel.as_ptr(),
                     *kq,
