@@ -449,6 +449,7 @@ fn main() -> anyhow::Result<()> {
         let renderer = VolumeRenderer {
             backend: t2tf::render::shared_backend(),
             volume: &volume,
+            series: None,
             options: row.options(),
             up: UpAxis::Z,
             size: clip.image_size(),
@@ -625,6 +626,7 @@ fn held_out_renders(
     let eval = VolumeRenderer {
         backend: t2tf::render::shared_backend(),
         volume,
+        series: None,
         options: RenderOptions::default(),
         up: UpAxis::Z,
         size,

@@ -45,6 +45,7 @@ fn held_out(volume: &Volume, run: &Optimized) -> anyhow::Result<Image> {
     let eval = VolumeRenderer {
         backend: t2tf::render::shared_backend(),
         volume,
+        series: None,
         options: RenderOptions::default(),
         up: UpAxis::Z,
         size: 224,

@@ -66,6 +66,7 @@ fn views(n: usize, offset: f64, pitch: f64, textured: bool) -> Vec<View> {
                 Background::Gray { level: 0.15 }
             },
             seed: 0,
+            time: 0,
         })
         .collect()
 }
@@ -117,6 +118,7 @@ fn main() -> Result<()> {
     let r = VolumeRenderer {
         backend: t2tf::render::shared_backend(),
         volume: &volume,
+        series: None,
         options: RenderOptions::default(),
         up: UpAxis::Z,
         size: SIZE,

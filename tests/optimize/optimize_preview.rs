@@ -83,6 +83,7 @@ fn a_large_volumes_preview_is_rendered_on_a_coarser_level_within_40_db_of_level_
     let renderer = VolumeRenderer {
         backend: t2tf::render::shared_backend(),
         volume: &volume,
+        series: None,
         options: RenderOptions::default(),
         up: UpAxis::Z,
         size: 224,

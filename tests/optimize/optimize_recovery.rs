@@ -40,6 +40,7 @@ fn renderer(v: &Volume) -> VolumeRenderer<'_> {
     VolumeRenderer {
         backend: t2tf::render::shared_backend(),
         volume: v,
+        series: None,
         options: RenderOptions::default(),
         up: t2tf::camera::UpAxis::Z,
         size: SIZE,
@@ -78,6 +79,7 @@ fn training_views() -> Vec<View> {
             distance: 3.0,
             background: Background::Checkerboard { seed: i },
             seed: 0,
+            time: 0,
         })
         .collect()
 }
@@ -96,6 +98,7 @@ fn held_out_views() -> Vec<View> {
                 Background::Noise { seed: 100 + i }
             },
             seed: 0,
+            time: 0,
         })
         .collect()
 }

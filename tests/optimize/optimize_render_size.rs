@@ -38,6 +38,7 @@ fn below_clip_size_gradient_matches_finite_differences() {
     let r = VolumeRenderer {
         backend: t2tf::render::shared_backend(),
         volume: &v,
+        series: None,
         options: smooth_opts(),
         up: UpAxis::Z,
         size,
@@ -50,6 +51,7 @@ fn below_clip_size_gradient_matches_finite_differences() {
         distance: 2.2,
         background: Background::Checkerboard { seed: 3 },
         seed: 5,
+        time: 0,
     };
     let (wi, wt) = weights(size, size, 7);
     let lut = random_lut(8, 5.0, 60.0, 2);

@@ -421,6 +421,7 @@ pub fn target_view() -> View {
         distance: 3.0,
         background: Background::Gray { level: 0.5 },
         seed: 0,
+        time: 0,
     }
 }
 

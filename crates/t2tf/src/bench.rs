@@ -55,6 +55,7 @@ pub fn held_out_views(
             distance: 0.5 * (settings.distance[0] + settings.distance[1]),
             background: crate::optimize::Background::Gray { level: 1.0 },
             seed: 0,
+            time: 0,
         })
         .collect()
 }

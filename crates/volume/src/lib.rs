@@ -21,6 +21,7 @@ mod pages;
 mod pyramid;
 mod raw;
 mod read;
+mod series;
 mod source;
 mod stats;
 mod stream;
@@ -32,6 +33,7 @@ pub use buffer::{ByteOrder, ScalarType, TextValueError, TypedBuffer, UnknownScal
 pub use pyramid::Narrow;
 pub use pyramid::{BrickGrid, Level, LevelCell, BRICK_CELLS};
 pub use read::{decode, decode_bytes, load, Decoded, ReadOptions};
+pub use series::{is_series_path, Series, SeriesStats, SeriesStep, TimeSelection};
 pub use summary::{summarize, Summary};
 
 use std::path::{Path, PathBuf};
@@ -193,6 +195,9 @@ pub struct Volume {
     pub levels: Vec<Level>,
     /// The file this volume was read from, if any.
     pub source: Option<VolumeSource>,
+    /// The time series this volume is one step of (`Series::load_step`), normalized over
+    /// the series' range; scripts then open the series.
+    pub series: Option<Arc<Series>>,
 }
 
 impl Volume {
@@ -216,7 +221,7 @@ impl Volume {
         check_in_memory(name, &geometry, buffer.len(), budget)?;
         let source = source::Source::memory(name, buffer.clone());
         let ty = buffer.scalar_type();
-        Self::streamed(name, geometry, ty, source, stream::Hold::All, budget)
+        Self::streamed(name, geometry, ty, source, stream::Hold::All, budget, None)
     }
 
     /// [`Volume::from_buffer_within`] over values of type `scalar_type` in `byte_order` that
@@ -247,19 +252,22 @@ impl Volume {
             source,
             stream::Hold::All,
             budget,
+            None,
         )
     }
 
     /// Stream `source` into a volume (`stream` module docs): the statistics and every level's
     /// brick ranges are computed now, the coarse levels are held, level 0 and any level finer
     /// than 512³ are made when asked for. Bit for bit what [`Volume::from_buffer`] gives for
-    /// the same values.
+    /// the same values. `norm_range`: normalize over this range instead of the values' own
+    /// (`ReadOptions::norm_range`).
     pub(crate) fn from_source(
         name: &Path,
         geometry: Geometry,
         scalar_type: ScalarType,
         source: source::Source,
         budget: Budget,
+        norm_range: Option<[f64; 2]>,
     ) -> Result<Volume, VolumeError> {
         Self::streamed(
             name,
@@ -268,6 +276,7 @@ impl Volume {
             source,
             stream::Hold::Fit,
             budget,
+            norm_range,
         )
     }
 
@@ -279,9 +288,11 @@ impl Volume {
         source: source::Source,
         hold: stream::Hold,
         budget: Budget,
+        norm_range: Option<[f64; 2]>,
     ) -> Result<Volume, VolumeError> {
         check_geometry(name, &geometry, source.len())?;
-        let Some(s) = stream::stream(geometry, scalar_type, source, hold, budget)? else {
+        let Some(s) = stream::stream(geometry, scalar_type, source, hold, budget, norm_range)?
+        else {
             return Err(GeometryError::NoFiniteValues.at(name));
         };
         Ok(Volume {
@@ -293,6 +304,7 @@ impl Volume {
             histogram: s.stats.histogram,
             levels: s.levels,
             source: None,
+            series: None,
         })
     }
 

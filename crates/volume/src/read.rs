@@ -27,6 +27,9 @@ pub struct ReadOptions {
     /// What the reader may allocate for sizes the file declares (default: what the system
     /// has, [`Budget::system`]).
     pub budget: Budget,
+    /// Normalize over this data range instead of the file's own finite range (the steps of
+    /// a series share one, [`crate::Series::scan`]). It must hold every finite value.
+    pub norm_range: Option<[f64; 2]>,
 }
 
 /// A decoded file before normalization: geometry, values in the file's own type, and how a
@@ -46,7 +49,14 @@ pub struct Decoded {
 /// either way its f32 samples are made only when asked for.
 pub fn load(path: &Path, opts: &ReadOptions) -> Result<Volume, VolumeError> {
     let (geometry, declared, format, source) = open(path, opts)?;
-    let mut volume = Volume::from_source(path, geometry, declared, source, opts.budget)?;
+    let mut volume = Volume::from_source(
+        path,
+        geometry,
+        declared,
+        source,
+        opts.budget,
+        opts.norm_range,
+    )?;
     volume.source = Some(VolumeSource {
         path: path.to_path_buf(),
         format,

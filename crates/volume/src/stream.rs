@@ -365,16 +365,17 @@ pub(crate) fn stream(
     source: Source,
     hold: Hold,
     budget: Budget,
+    fixed: Option<[f64; 2]>,
 ) -> Result<Option<Streaming>, VolumeError> {
     let shapes = pyramid::level_shapes(geometry);
     let kept = match hold {
         Hold::Fit => keep(&shapes, budget.available()),
         Hold::All => (0..shapes.len()).map(|l| l > 0).collect(),
     };
-    stream_keeping(geometry, declared, source, shapes, &kept, budget)
+    stream_keeping(geometry, declared, source, shapes, &kept, budget, fixed)
 }
 
-/// [`stream`], holding the levels `kept` says.
+/// [`stream`], holding the levels `kept` says; normalized over `fixed` when given.
 fn stream_keeping(
     geometry: Geometry,
     declared: ScalarType,
@@ -382,6 +383,7 @@ fn stream_keeping(
     shapes: Vec<([usize; 3], [f64; 3])>,
     kept: &[bool],
     budget: Budget,
+    fixed: Option<[f64; 2]>,
 ) -> Result<Option<Streaming>, VolumeError> {
     // Held whatever is kept: every level's brick ranges (`level_bytes` less the samples, plus
     // the builder's NaN flag per brick of about 512 points), and a slice of level 0 as f32
@@ -413,7 +415,13 @@ fn stream_keeping(
     // Two passes for normalized units: the statistics first.
     let first = match units {
         Units::Normalized => match source.stats()? {
-            Some((stats, _)) => Some((Norm::new(source.ty(), stats.norm_range), stats)),
+            Some((mut stats, _)) => {
+                if let Some(f) = fixed {
+                    check_within(&source, stats.range, f)?;
+                    stats.norm_range = f;
+                }
+                Some((Norm::new(source.ty(), stats.norm_range), stats))
+            }
             None => return Ok(None),
         },
         Units::Codes(_) => None,
@@ -442,7 +450,12 @@ fn stream_keeping(
             (norm, stats)
         }
         (None, Some(counts)) => {
-            let stats = code_stats(source.ty(), &counts);
+            let mut stats = code_stats(source.ty(), &counts);
+            if let Some(f) = fixed {
+                check_within(&source, stats.range, f)?;
+                stats.norm_range = f;
+                stats.histogram = code_histogram(source.ty(), &counts, f);
+            }
             (Norm::new(source.ty(), stats.norm_range), stats)
         }
         (None, None) => unreachable!("code units count codes"),
@@ -477,6 +490,31 @@ fn stream_keeping(
         })
         .collect();
     Ok(Some(Streaming { stats, levels }))
+}
+
+/// A fixed normalization range must hold the values' own finite range.
+fn check_within(source: &Source, range: [f64; 2], fixed: [f64; 2]) -> Result<(), VolumeError> {
+    if fixed[0] <= range[0] && range[1] <= fixed[1] {
+        return Ok(());
+    }
+    Err(VolumeError::file(
+        source.path(),
+        format!(
+            "its values span {} to {}, outside the range {} to {} it is normalized over",
+            range[0], range[1], fixed[0], fixed[1]
+        ),
+    ))
+}
+
+/// The histogram of 8/16-bit code counts over `norm_range` (`code_stats` bins over the
+/// codes' own range).
+fn code_histogram(ty: ScalarType, counts: &[u64], norm_range: [f64; 2]) -> Vec<u64> {
+    let scale = super::half_scale(norm_range);
+    let mut histogram = vec![0u64; super::HISTOGRAM_BINS];
+    for (c, &k) in counts.iter().enumerate().filter(|(_, &k)| k > 0) {
+        histogram[super::normalize_value(code_value(ty, c), norm_range, scale).1] += k;
+    }
+    histogram
 }
 
 /// Which levels a stream keeps: the coarse ones that fit half of `budget` bytes (counted as
@@ -704,7 +742,7 @@ mod tests {
         let source = Source::memory(path, buffer);
         let shapes = pyramid::level_shapes(geometry);
         let none = vec![false; shapes.len()];
-        let s = stream_keeping(geometry, ty, source, shapes, &none, Budget::system())
+        let s = stream_keeping(geometry, ty, source, shapes, &none, Budget::system(), None)
             .unwrap()
             .unwrap();
         assert_eq!(s.stats.histogram, reference.histogram);

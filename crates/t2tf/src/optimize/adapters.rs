@@ -12,6 +12,7 @@ use crate::tf::{ControlPoints, Lut, LutGrad, TfParams};
 use crate::volume::Volume;
 
 use super::driver::TextEncoder;
+use super::series::SeriesSteps;
 use super::{BoxError, ImageEncoder, Parameterization, PointGrad, Renderer, View};
 
 /// Side of each view in preview.png when CLIP's input is smaller.
@@ -21,8 +22,11 @@ pub const PREVIEW_SIZE: usize = 256;
 pub struct VolumeRenderer<'a> {
     /// The backend that renders (with its memory budget and its copies of levels).
     pub backend: &'a CpuBackend,
-    /// The volume rendered.
+    /// The volume rendered; for a series, the one that stands for it
+    /// (`SeriesSteps::representative`: geometry, data range).
     pub volume: &'a Volume,
+    /// The time series whose steps `View::time` picks; `None`: `volume` at every time.
+    pub series: Option<&'a SeriesSteps>,
     /// Render options of the loop (step, level, skipping).
     pub options: RenderOptions,
     /// Which world axis is up in the views.
@@ -62,16 +66,25 @@ impl VolumeRenderer<'_> {
     ) -> Result<Image, BoxError> {
         let size = self.size.max(PREVIEW_SIZE);
         let camera = self.camera(view)?;
+        let volume = self.at(view)?;
         let bg = view.background.draw(size, size);
         let opts = RenderOptions {
-            level: Some(level.unwrap_or_else(|| render::choose_level(self.volume, &camera, size))),
+            level: Some(level.unwrap_or_else(|| render::choose_level(&volume, &camera, size))),
             ..RenderOptions::final_quality()
         };
         // A picture has no backward: render without recording the rays' steps.
         Ok(self
             .backend
-            .render(self.volume, lut, &camera, &bg, &opts)?
+            .render(&volume, lut, &camera, &bg, &opts)?
             .image)
+    }
+
+    /// The volume `view` renders: its time step of the series, else the volume.
+    fn at(&self, view: &View) -> Result<Frame<'_>, BoxError> {
+        match self.series {
+            Some(s) => Ok(Frame::Step(s.step(view.time)?)),
+            None => Ok(Frame::One(self.volume)),
+        }
     }
 
     fn camera(&self, view: &View) -> Result<Camera, BoxError> {
@@ -107,9 +120,27 @@ impl VolumeRenderer<'_> {
     ) -> Result<(Camera, Image, B::Prepared), BoxError> {
         let camera = self.camera(view)?;
         let bg = view.background.draw(self.size, self.size);
-        let level = render::level_for(self.volume, lut, &camera, self.cast(), opts)?;
-        let prepared = backend.prepare(self.volume, level)?;
+        let volume = self.at(view)?;
+        let level = render::level_for(&volume, lut, &camera, self.cast(), opts)?;
+        let prepared = backend.prepare(&volume, level)?;
         Ok((camera, bg, prepared))
+    }
+}
+
+/// A volume the renderer draws: borrowed, or a step of a series shared with its cache.
+enum Frame<'a> {
+    One(&'a Volume),
+    Step(std::sync::Arc<Volume>),
+}
+
+impl std::ops::Deref for Frame<'_> {
+    type Target = Volume;
+
+    fn deref(&self) -> &Volume {
+        match self {
+            Frame::One(v) => v,
+            Frame::Step(v) => v,
+        }
     }
 }
 
@@ -133,6 +164,10 @@ impl Renderer for VolumeRenderer<'_> {
     /// preview.png views at least `PREVIEW_SIZE` pixels wide, whatever CLIP's input size.
     fn render_preview(&self, lut: &Lut, view: &View) -> Result<Image, BoxError> {
         self.render_picture(lut, view, None)
+    }
+
+    fn time_steps(&self) -> usize {
+        self.series.map_or(1, SeriesSteps::len)
     }
 
     // The signature of `Renderer::backward` in optimize/mod.rs, which this implements.

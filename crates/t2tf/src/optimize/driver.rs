@@ -90,6 +90,8 @@ pub struct Finished {
     pub init: Initialization,
     /// Positive first (caption "reference image" in image mode), then the user's negatives.
     pub scores: Vec<Score>,
+    /// For a time series, `scores` of each step alone (empty for one volume).
+    pub time_scores: Vec<Vec<Score>>,
     /// Phases of the whole run (output time is added by [`write_outputs`]).
     pub times: PhaseTimes,
     /// How the pool embeddings were obtained (`None` when no pool negatives are drawn).
@@ -181,13 +183,15 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
 
     // Final scores and the preview from the same fixed orbit.
     let t0 = Instant::now();
-    let (scores, preview) = score_and_preview(job, models, &outcome, &positive, &user)?;
+    let (scores, time_scores, preview) =
+        score_and_preview(job, models, &outcome, &positive, &user)?;
     times.other += t0.elapsed().as_secs_f64();
 
     Ok(Finished {
         outcome,
         init,
         scores,
+        time_scores,
         times,
         cache,
         preview,
@@ -269,40 +273,80 @@ fn score_and_preview<R: Renderer, E: ImageEncoder, T, P: Parameterization>(
     outcome: &Outcome,
     positive: &[f32],
     user: &[Vec<f32>],
-) -> Result<(Vec<Score>, Image), OptimizeError> {
+) -> Result<(Vec<Score>, Vec<Vec<Score>>, Image), OptimizeError> {
     let (renderer, image_encoder, tf) = (models.renderer, models.image_encoder, models.tf);
     let lut = outcome.control_points.to_lut(tf.lut_size());
-    let views = View::orbit(job.settings, job.preview_views.max(1));
+    let orbit = View::orbit(job.settings, job.preview_views.max(1));
+    let at = |t: usize| -> Vec<View> {
+        orbit
+            .iter()
+            .map(|v| View {
+                time: t,
+                ..v.clone()
+            })
+            .collect()
+    };
     let mut classes: Vec<&[f32]> = vec![positive];
     classes.extend(user.iter().map(Vec::as_slice));
-    let mut images = Vec::with_capacity(views.len());
-    for v in &views {
-        images.push(renderer.render(&lut, v).map_err(OptimizeError::Renderer)?.0);
-    }
-    let sc = scores(image_encoder, &images, &classes, job.logit_scale)?;
     let mut names = vec![match job.positive {
         Positive::Prompt(p) => p.to_owned(),
         Positive::Image(_) => "reference image".to_owned(),
     }];
     names.extend(job.user_negatives.iter().cloned());
-    let scores = names
-        .into_iter()
-        .zip(sc)
-        .map(|(caption, (cosine, logit))| Score {
-            caption,
-            cosine,
-            logit,
-        })
-        .collect();
-    let mut pictures = Vec::with_capacity(views.len());
-    for v in &views {
-        pictures.push(
-            renderer
-                .render_preview(&lut, v)
-                .map_err(OptimizeError::Renderer)?,
-        );
+    let named = |sc: Vec<(f64, f64)>| -> Vec<Score> {
+        names
+            .iter()
+            .zip(sc)
+            .map(|(caption, (cosine, logit))| Score {
+                caption: caption.clone(),
+                cosine,
+                logit,
+            })
+            .collect()
+    };
+    // Scores per time step (one for a volume); the run's scores are their mean.
+    let times = renderer.time_steps();
+    let mut per_time = Vec::with_capacity(times);
+    let mut mean = vec![(0.0, 0.0); classes.len()];
+    for t in 0..times {
+        let mut images = Vec::with_capacity(orbit.len());
+        for v in &at(t) {
+            images.push(renderer.render(&lut, v).map_err(OptimizeError::Renderer)?.0);
+        }
+        let sc = scores(image_encoder, &images, &classes, job.logit_scale)?;
+        for (m, s) in mean.iter_mut().zip(&sc) {
+            m.0 += s.0 / times as f64;
+            m.1 += s.1 / times as f64;
+        }
+        per_time.push(named(sc));
     }
-    Ok((scores, tile(&pictures)))
+    // One row of the orbit per time step shown (the first, middle and last of a series).
+    let shown = super::schedule::preview_times(times);
+    let mut pictures = Vec::with_capacity(orbit.len() * shown.len());
+    for &t in &shown {
+        for v in &at(t) {
+            pictures.push(
+                renderer
+                    .render_preview(&lut, v)
+                    .map_err(OptimizeError::Renderer)?,
+            );
+        }
+    }
+    let preview = if times == 1 {
+        tile(&pictures)
+    } else {
+        Image::grid(&pictures, orbit.len())
+    };
+    let overall = if times == 1 {
+        per_time.pop().expect("one time step")
+    } else {
+        named(mean)
+    };
+    Ok((
+        overall,
+        if times == 1 { Vec::new() } else { per_time },
+        preview,
+    ))
 }
 
 /// Images side by side in rows of ⌈√n⌉ (see `Image::grid`).

@@ -21,6 +21,7 @@ pub mod loss;
 pub mod recover;
 pub mod report;
 pub mod schedule;
+pub mod series;
 pub mod settings;
 pub(crate) mod sgd;
 pub mod start;
@@ -68,6 +69,19 @@ pub trait Renderer {
     /// is only as large as the encoder's input (32 px for a tiny model).
     fn render_preview(&self, lut: &Lut, view: &View) -> Result<Image, BoxError> {
         Ok(self.render(lut, view)?.0)
+    }
+
+    /// Time steps the renderer holds (`View::time` is below it): 1 for one volume.
+    fn time_steps(&self) -> usize {
+        1
+    }
+}
+
+/// The view the initialization measures (paper's V0), at the middle time step of a series.
+fn initial_view<R: Renderer>(renderer: &R, settings: &Settings) -> View {
+    View {
+        time: renderer.time_steps() / 2,
+        ..View::initial(settings)
     }
 }
 
@@ -426,7 +440,8 @@ pub fn optimize<R: Renderer, E: ImageEncoder, P: Parameterization>(
             interrupted = true;
             break;
         }
-        let plan = schedule::plan(settings, targets.pool.len(), step);
+        let mut plan = schedule::plan(settings, targets.pool.len(), step);
+        schedule::assign_times(&mut plan, problem.renderer.time_steps(), settings.seed);
         let (log, grad) = step_gradient(problem, &plan, &params, &mut times)?;
         if !log.total.is_finite() {
             return Err(OptimizeError::NonFinite {
@@ -511,7 +526,7 @@ pub fn initialize<R: Renderer, P: Parameterization>(
     // The colours get their own stream so they do not shift when the schedule changes.
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(settings.seed);
     rng.set_stream(u64::MAX);
-    let view = View::initial(settings);
+    let view = initial_view(renderer, settings);
     let dense = ControlPoints {
         x: x.clone(),
         sigma: vec![255.0; k],
@@ -559,7 +574,7 @@ pub fn start_from<R: Renderer, P: Parameterization>(
 ) -> Result<(Vec<f64>, init::Initialization), OptimizeError> {
     let params = tf.params_for(cp).map_err(OptimizeError::Parameters)?;
     let lut = cp.to_lut(tf.lut_size());
-    let mean = mean_transmittance(renderer, &lut, &View::initial(settings), None)?;
+    let mean = mean_transmittance(renderer, &lut, &initial_view(renderer, settings), None)?;
     let found = init::Initialization {
         control_points: cp.clone(),
         scale: 1.0,

@@ -126,6 +126,37 @@ pub struct VolumeInfo {
     pub non_finite_voxels: usize,
 }
 
+/// The time series a run optimized one TF for.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TimeSeriesInfo {
+    /// The `.pvd` or `.series` file, absolute; absent for a list of files.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub collection: Option<String>,
+    /// Steps in the whole series (before `--time-range` / `--time-steps`).
+    pub total_steps: usize,
+    /// Data range over the steps used (the TF's range).
+    pub range: [f64; 2],
+    /// Times a step was read from its file during the run.
+    pub loads: usize,
+    /// The steps used, in time order.
+    pub steps: Vec<TimeStepInfo>,
+}
+
+/// One step of a time series in report.json.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TimeStepInfo {
+    /// Its time value.
+    pub time: f64,
+    /// Its file, absolute.
+    pub path: String,
+    /// Its own finite data range.
+    pub range: [f64; 2],
+    /// Views of the run that rendered it.
+    pub views: usize,
+    /// The final TF's scores on this step alone (prompt first, then the user's negatives).
+    pub final_scores: Vec<Score>,
+}
+
 /// The machine a run ran on: what decides which CLIP kernel runs and so the last bits of
 /// the result.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -271,8 +302,12 @@ pub struct Report {
     pub steps_run: usize,
     /// True when a stop signal ended the run early.
     pub interrupted: bool,
-    /// Prompt first, then the user's negatives, on the evaluation views.
+    /// Prompt first, then the user's negatives, on the evaluation views (for a time series,
+    /// averaged over its steps).
     pub final_scores: Vec<Score>,
+    /// For a time series: the steps used, each with its time, file and final scores.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_series: Option<TimeSeriesInfo>,
     /// Wall time per phase.
     pub timings: PhaseTimes,
     /// Files written (names inside the output folder).

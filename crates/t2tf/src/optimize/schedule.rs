@@ -29,6 +29,9 @@ pub struct View {
     /// Seed for any randomness of the renderer in this view (e.g. per-ray sample jitter;
     /// forward and backward of the view must use the same one).
     pub seed: u64,
+    /// The time step rendered (an index into the renderer's steps; 0 for one volume).
+    #[serde(default)]
+    pub time: usize,
 }
 
 impl View {
@@ -41,6 +44,7 @@ impl View {
             distance: 0.5 * (settings.distance[0] + settings.distance[1]),
             background: Background::Gray { level: 0.5 },
             seed: 0,
+            time: 0,
         }
     }
 
@@ -54,6 +58,7 @@ impl View {
                 distance: 0.5 * (settings.distance[0] + settings.distance[1]),
                 background: Background::Gray { level: 1.0 },
                 seed: 0,
+                time: 0,
             })
             .collect()
     }
@@ -110,6 +115,7 @@ pub fn plan(settings: &Settings, pool_size: usize, step: usize) -> StepPlan {
                 distance,
                 background,
                 seed: rng.random(),
+                time: 0,
             }
         })
         .collect();
@@ -121,6 +127,42 @@ pub fn plan(settings: &Settings, pool_size: usize, step: usize) -> StepPlan {
         negatives,
         prior: step >= settings.prior_start,
     }
+}
+
+/// Give the views of `plan` time steps of a series of `count` (nothing changes for one).
+///
+/// The views of step s take entries s, s + 1, … of one sequence that visits every time step
+/// once per round, in a seeded random order per round (stratified: over `count` consecutive
+/// entries each step appears once). Consecutive steps thus share all views' time steps but
+/// one, so a run loads about one new time step per step however long the series is, while
+/// every step's gradient still mixes several times and the run covers all of them evenly.
+pub fn assign_times(plan: &mut StepPlan, count: usize, seed: u64) {
+    if count <= 1 {
+        return;
+    }
+    for (v, view) in plan.views.iter_mut().enumerate() {
+        view.time = time_order(plan.step + v, count, seed);
+    }
+}
+
+/// Entry `j` of the sequence [`assign_times`] draws from: round `j / count` is a
+/// permutation of the time steps drawn from its own random stream.
+pub fn time_order(j: usize, count: usize, seed: u64) -> usize {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7469_6d65_7374_6570);
+    rng.set_stream((j / count) as u64);
+    let mut order: Vec<usize> = (0..count).collect();
+    for i in (1..count).rev() {
+        order.swap(i, rng.random_range(0..=i));
+    }
+    order[j % count]
+}
+
+/// The time steps preview.png shows: the first, the middle and the last (fewer when the
+/// series is shorter).
+pub fn preview_times(count: usize) -> Vec<usize> {
+    let mut t = vec![0, count / 2, count.saturating_sub(1)];
+    t.dedup();
+    t
 }
 
 #[cfg(test)]
@@ -205,5 +247,29 @@ mod tests {
         assert_eq!((v0.yaw, v0.pitch, v0.distance), (0.0, 0.0, 3.0));
         let o = View::orbit(&s, 4);
         assert!((o[1].yaw - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
+    }
+
+    #[test]
+    fn time_steps_are_stratified_and_shared_between_steps() {
+        let s = Settings::default();
+        let n = 7;
+        // Over each round every time step appears once.
+        for round in 0..3 {
+            let mut seen: Vec<usize> = (0..n).map(|k| time_order(round * n + k, n, 5)).collect();
+            seen.sort();
+            assert_eq!(seen, (0..n).collect::<Vec<_>>());
+        }
+        let mut a = plan(&s, 10, 4);
+        let mut b = plan(&s, 10, 5);
+        assign_times(&mut a, n, 5);
+        assign_times(&mut b, n, 5);
+        assert_eq!(a.views[1].time, b.views[0].time);
+        assert_eq!(a.views[2].time, b.views[1].time);
+        // One volume: nothing changes.
+        let mut c = plan(&s, 10, 4);
+        assign_times(&mut c, 1, 5);
+        assert_eq!(c, plan(&s, 10, 4));
+        assert_eq!(preview_times(1), [0]);
+        assert_eq!(preview_times(9), [0, 4, 8]);
     }
 }

@@ -44,7 +44,10 @@ use crate::memory::Budget;
 use crate::optimize::adapters::{ClipModel, PaperTf, VolumeRenderer, PREVIEW_SIZE};
 use crate::optimize::captions::{self, CacheOutcome, CaptionPool};
 use crate::optimize::driver::{self, Finished, Models, Positive};
-use crate::optimize::report::{absolute, InputFile, PhaseTimes, Report, StepLog, VolumeInfo};
+use crate::optimize::report::{
+    absolute, InputFile, PhaseTimes, Report, StepLog, TimeSeriesInfo, TimeStepInfo, VolumeInfo,
+};
+use crate::optimize::series::SeriesSteps;
 use crate::optimize::settings::{Settings, ValidSettings};
 use crate::optimize::start::StartTf;
 use crate::optimize::tf_plot::Curve;
@@ -387,7 +390,22 @@ pub fn optimize(
     job: &ValidJob,
     on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
 ) -> Result<Optimized, PipelineError> {
-    run(volume, Some(model), job, on_event)
+    run(volume, None, Some(model), job, on_event)
+}
+
+/// [`optimize`] for a time series: one TF for all its steps. Each view of a step renders a
+/// time step of the schedule (`optimize::schedule::assign_times`); the data range, the
+/// histogram of the initialization and the exported TF's range are the series'. The report
+/// lists the steps with their own final scores; preview.png has one row per time step shown
+/// (first, middle, last); the scripts open the series.
+pub fn optimize_series(
+    series: &SeriesSteps,
+    model: &Model,
+    job: &ValidJob,
+    on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
+) -> Result<Optimized, PipelineError> {
+    let volume = series.representative()?;
+    run(&volume, Some(series), Some(model), job, on_event)
 }
 
 /// [`optimize`] for a job that needs no model ([`ValidJob::needs_model`] is false: 0 steps
@@ -406,12 +424,13 @@ pub fn optimize_without_model(
             "only a run of 0 steps from a TF with opacity needs no CLIP model".into(),
         ));
     }
-    run(volume, None, job, on_event)
+    run(volume, None, None, job, on_event)
 }
 
 /// [`optimize`], with no model only where the job needs none ([`optimize_without_model`]).
 fn run(
     volume: &Volume,
+    series: Option<&SeriesSteps>,
     model: Option<&Model>,
     job: &ValidJob,
     on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
@@ -450,6 +469,7 @@ fn run(
     let renderer = VolumeRenderer {
         backend: &backend,
         volume,
+        series,
         options,
         up: j.up,
         size: image_size,
@@ -570,6 +590,7 @@ fn run(
     report.caption_pool_size = job.pool.len();
     report.model = model.map(|m| m.info().clone());
     report.volume = volume_info(volume);
+    report.time_series = series.map(|s| time_series_info(s, &finished, settings));
     report.render = serde_json::json!({
         // As given (null: the default).
         "up": j.up.to_string(),
@@ -611,6 +632,41 @@ fn run(
             unit_over_length: unit_distance / g.longest_side(),
         },
     })
+}
+
+/// What report.json says of a time series: its steps, how often the run drew each, and the
+/// final scores on each.
+fn time_series_info(
+    series: &SeriesSteps,
+    finished: &Finished,
+    settings: &ValidSettings,
+) -> TimeSeriesInfo {
+    let n = series.len();
+    let mut views = vec![0usize; n];
+    for step in 0..finished.outcome.steps.len() {
+        for v in 0..settings.views {
+            views[crate::optimize::schedule::time_order(step + v, n, settings.seed)] += 1;
+        }
+    }
+    let s = series.series();
+    TimeSeriesInfo {
+        collection: s.collection.as_deref().map(absolute),
+        total_steps: s.total_steps,
+        range: series.stats().range,
+        loads: series.loads(),
+        steps: s
+            .steps
+            .iter()
+            .enumerate()
+            .map(|(i, step)| TimeStepInfo {
+                time: step.time,
+                path: absolute(&step.path),
+                range: series.stats().step_ranges[i],
+                views: views[i],
+                final_scores: finished.time_scores.get(i).cloned().unwrap_or_default(),
+            })
+            .collect(),
+    }
 }
 
 /// What report.json says of the volume: its file absolute, and what its reader decoded.
@@ -694,6 +750,7 @@ fn start_only(
         },
         init,
         scores: Vec::new(),
+        time_scores: Vec::new(),
         times,
         cache: None,
         preview,

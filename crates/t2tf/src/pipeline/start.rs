@@ -101,6 +101,7 @@ impl InitTf {
         let renderer = VolumeRenderer {
             backend: &backend,
             volume,
+            series: None,
             options: RenderOptions {
                 step: crate::render::DEFAULT_STEP,
                 level: None,

@@ -1,0 +1,109 @@
+//! The steps of a time series as the renderer reads them: loaded on demand, normalized over
+//! the series' range, a few recent ones kept.
+//!
+//! The optimizer's schedule (`schedule::assign_times`) lets consecutive steps share all their
+//! views' time steps but one, so a cache of `views + 1` volumes makes a run load about one
+//! time step per optimizer step, and memory holds that many volumes (their coarse levels and
+//! the renderer's copies of the levels drawn) however long the series is. A volume dropped
+//! from the cache takes the renderer's copies of its levels with it (the backend keys them
+//! by the level's allocation).
+
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
+use crate::volume::{ReadOptions, Series, SeriesStats, Volume, VolumeError};
+
+/// A series opened for a run: its steps, its statistics, and the cache of loaded steps.
+#[derive(Debug)]
+pub struct SeriesSteps {
+    series: Arc<Series>,
+    stats: SeriesStats,
+    opts: ReadOptions,
+    capacity: usize,
+    cache: Mutex<VecDeque<(usize, Arc<Volume>)>>,
+    loads: AtomicUsize,
+}
+
+impl SeriesSteps {
+    /// Open `series` for a run: its statistics streamed step by step (`on_step(i)` as step
+    /// `i` is read), steps read with `opts`, at most `capacity` (≥ 1) kept loaded.
+    pub fn open(
+        series: Series,
+        opts: ReadOptions,
+        capacity: usize,
+        on_step: &mut dyn FnMut(usize),
+    ) -> Result<SeriesSteps, VolumeError> {
+        let stats = series.scan(&opts, on_step)?;
+        Ok(SeriesSteps {
+            series: Arc::new(series),
+            stats,
+            opts,
+            capacity: capacity.max(1),
+            cache: Mutex::new(VecDeque::new()),
+            loads: AtomicUsize::new(0),
+        })
+    }
+
+    /// The series (steps used, collection).
+    pub fn series(&self) -> &Arc<Series> {
+        &self.series
+    }
+
+    /// Statistics over every step used.
+    pub fn stats(&self) -> &SeriesStats {
+        &self.stats
+    }
+
+    /// Steps used.
+    pub fn len(&self) -> usize {
+        self.series.steps.len()
+    }
+
+    /// Whether the series has no step (never: a series has at least one).
+    pub fn is_empty(&self) -> bool {
+        self.series.steps.is_empty()
+    }
+
+    /// Times a step was read from its file (cache misses).
+    pub fn loads(&self) -> usize {
+        self.loads.load(Ordering::Relaxed)
+    }
+
+    /// Step `t`, normalized over the series' range: from the cache, else read and cached
+    /// (the least recently used step leaves).
+    pub fn step(&self, t: usize) -> Result<Arc<Volume>, VolumeError> {
+        {
+            let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(k) = cache.iter().position(|(i, _)| *i == t) {
+                let hit = cache.remove(k).expect("found above");
+                cache.push_back(hit.clone());
+                return Ok(hit.1);
+            }
+        }
+        let volume = Arc::new(
+            self.series
+                .load_step(t, self.stats.norm_range, &self.opts)?,
+        );
+        self.loads.fetch_add(1, Ordering::Relaxed);
+        let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
+        if !cache.iter().any(|(i, _)| *i == t) {
+            while cache.len() >= self.capacity {
+                cache.pop_front();
+            }
+            cache.push_back((t, volume.clone()));
+        }
+        Ok(volume)
+    }
+
+    /// The volume that stands for the whole series where one is needed (the data range of
+    /// the exports, the histogram of the initialization, the locks' checks, the geometry of
+    /// the scripts): the first step, with the series' range and histogram.
+    pub fn representative(&self) -> Result<Volume, VolumeError> {
+        let mut v = (*self.step(0)?).clone();
+        v.range = self.stats.range;
+        v.non_finite = self.stats.non_finite;
+        v.histogram = self.stats.histogram.clone();
+        Ok(v)
+    }
+}
