@@ -1,10 +1,13 @@
 //! Flags shared by every command that reads a volume (`#[command(flatten)]` them).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use crate::memory::Budget;
-use crate::volume::{self, ByteOrder, ReadOptions, ScalarType, Volume};
+use crate::volume::{
+    self, is_series_path, ByteOrder, ReadOptions, ScalarType, Series, TimeSelection, Volume,
+    VolumeError,
+};
 
 /// How to read a volume file. `.vti` and `.vtk` files describe themselves; a `.raw` file
 /// named `NAME_XxYxZ_DTYPE.raw` does too, other raw files need `--dims` and `--dtype`.
@@ -29,6 +32,12 @@ pub struct VolumeArgs {
     /// first array)
     #[arg(long, value_name = "NAME")]
     pub array: Option<String>,
+    /// Time series: use the steps whose time is in T0..T1 (inclusive)
+    #[arg(long, value_name = "T0,T1", value_parser = parse_time_range, allow_hyphen_values = true)]
+    pub time_range: Option<[f64; 2]>,
+    /// Time series: use these steps, by index (0 = first), e.g. 0,4,8
+    #[arg(long, value_name = "I,J,...", value_delimiter = ',', num_args = 1..)]
+    pub time_steps: Option<Vec<usize>>,
 }
 
 impl VolumeArgs {
@@ -46,7 +55,33 @@ impl VolumeArgs {
             byte_order: self.byte_order,
             array: self.array.clone(),
             budget,
+            norm_range: None,
         }
+    }
+
+    /// The time series `paths` name (a `.pvd` or `.series` file, a glob pattern, or several
+    /// files), with `--time-range`/`--time-steps` applied; `None` for one volume file (where
+    /// those flags are an error).
+    pub fn series(&self, paths: &[PathBuf]) -> Result<Option<Series>, VolumeError> {
+        let is_series = paths.len() > 1 || paths.first().is_some_and(|p| is_series_path(p));
+        if !is_series {
+            if self.time_range.is_some() || self.time_steps.is_some() {
+                let path = paths.first().map_or(Path::new(""), PathBuf::as_path);
+                return Err(VolumeError::file(
+                    path,
+                    "--time-range and --time-steps select steps of a time series (a .pvd or \
+                     .series file, a pattern such as 'name_*.vti', or several files); this is \
+                     one volume",
+                ));
+            }
+            return Ok(None);
+        }
+        let series = Series::open(paths)?;
+        let selection = TimeSelection {
+            range: self.time_range,
+            indices: self.time_steps.clone(),
+        };
+        Ok(Some(series.select(&selection)?))
     }
 
     /// Read and normalize the volume at `path` with these flags, within `budget`.
@@ -96,6 +131,24 @@ fn parse_triple<T: FromStr>(s: &str, what: &str) -> Result<[T; 3], String> {
     }
     out.try_into()
         .map_err(|_| format!("expected three {what}, got '{s}'"))
+}
+
+fn parse_time_range(s: &str) -> Result<[f64; 2], String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    let [a, b] = parts[..] else {
+        return Err(format!("expected two times T0,T1, got '{s}'"));
+    };
+    let t = |p: &str| {
+        p.parse::<f64>()
+            .ok()
+            .filter(|t| t.is_finite())
+            .ok_or_else(|| format!("'{p}' in '{s}' is not a finite number"))
+    };
+    let (t0, t1) = (t(a)?, t(b)?);
+    if t0 > t1 {
+        return Err(format!("T0 must not exceed T1, got '{s}'"));
+    }
+    Ok([t0, t1])
 }
 
 fn parse_dims(s: &str) -> Result<[usize; 3], String> {

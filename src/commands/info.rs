@@ -19,8 +19,12 @@ const BAR_WIDTH: usize = 40;
     t2tf info ../shared/data/volumes/aneurism_256x256x256_uint8.raw\n  \
     t2tf info scan.bin --dims 512,512,128 --dtype int16 --byte-order big --json")]
 pub struct InfoArgs {
-    /// Volume file: .raw (NAME_XxYxZ_DTYPE.raw or with --dims/--dtype), .vti or .vtk
+    /// Volume file: .raw (NAME_XxYxZ_DTYPE.raw or with --dims/--dtype), .vti or .vtk; or a
+    /// time series: .pvd, .series, a quoted pattern such as 'name_*.vti'
     pub volume: PathBuf,
+    /// More files of a time series that begins with VOLUME
+    #[arg(value_name = "MORE")]
+    pub more_volumes: Vec<PathBuf>,
     #[command(flatten)]
     pub read: VolumeArgs,
     /// Histogram rows (1-256)
@@ -44,6 +48,11 @@ pub struct InfoArgs {
 
 pub fn run(args: InfoArgs) -> Result<()> {
     let start = Instant::now();
+    let mut paths = vec![args.volume.clone()];
+    paths.extend(args.more_volumes.iter().cloned());
+    if let Some(series) = args.read.series(&paths)? {
+        return series_info(&args, &series);
+    }
     // Statistics only: no f32 copy and no pyramid, and the file is read as a load reads it
     // (mapped or block by block), so a volume larger than memory can be inspected
     // (volume::summarize).
@@ -58,6 +67,63 @@ pub fn run(args: InfoArgs) -> Result<()> {
         json_report(&args, &volume, file_bytes, &rows, seconds)
     } else {
         text_report(&args, &volume, file_bytes, &rows, seconds)
+    };
+    crate::out::out(format_args!("{text}"))?;
+    Ok(())
+}
+
+/// A time series: its steps (time, file, range) and the range over all of them, each step
+/// read as `info` reads one file.
+fn series_info(args: &InfoArgs, series: &volume::Series) -> Result<()> {
+    let n = series.steps.len();
+    let stats = series.scan(&args.read.read_options(), &mut |_| {})?;
+    let text = if args.json {
+        let steps: Vec<_> = series
+            .steps
+            .iter()
+            .zip(&stats.step_ranges)
+            .map(|(s, r)| json!({"time": s.time, "path": s.path, "range": r}))
+            .collect();
+        let v = json!({
+            "time_series": {
+                "collection": series.collection,
+                "total_steps": series.total_steps,
+                "steps": steps,
+            },
+            "range": stats.range,
+            "non_finite": stats.non_finite,
+        });
+        format!("{}\n", serde_json::to_string_pretty(&v)?)
+    } else {
+        let mut t = String::new();
+        let from = series.collection.as_ref().map_or_else(
+            || "a list of files".to_string(),
+            |c| c.display().to_string(),
+        );
+        let _ = writeln!(
+            t,
+            "time series: {n} of {} steps, from {from}",
+            series.total_steps
+        );
+        let _ = writeln!(t, "  {:>5}  {:>14}  {:>27}  file", "step", "time", "range");
+        for (i, (s, r)) in series.steps.iter().zip(&stats.step_ranges).enumerate() {
+            let range = format!("{} .. {}", r[0], r[1]);
+            let _ = writeln!(
+                t,
+                "  {i:>5}  {:>14}  {range:>27}  {}",
+                s.time,
+                s.path.display()
+            );
+        }
+        let _ = writeln!(
+            t,
+            "range over all steps: {} .. {} (one TF covers it)",
+            stats.range[0], stats.range[1]
+        );
+        if stats.non_finite > 0 {
+            let _ = writeln!(t, "non-finite values: {} over all steps", stats.non_finite);
+        }
+        t
     };
     crate::out::out(format_args!("{text}"))?;
     Ok(())

@@ -11,9 +11,11 @@ use std::ops::ControlFlow;
 use anyhow::{bail, Context, Result};
 
 use crate::memory::Budget;
+use crate::optimize::series::SeriesSteps;
 use crate::optimize::settings::{defaults, Settings};
 use crate::pipeline::{self, Event, Job, Target, ValidJob};
 use crate::progress::{Progress, ProgressMode, StepReport};
+use crate::volume;
 use crate::{flags, signals, ModelArgs, VolumeArgs};
 
 /// Output folder when `--out` is not given.
@@ -25,8 +27,15 @@ use crate::pipeline::naming::{batch_names, DEFAULT_OUT};
     after_help = "Example:\n  t2tf optimize bonsai_256x256x256_uint8.raw --prompt \"a potted tree\" --out bonsai-tf"
 )]
 pub struct OptimizeArgs {
-    /// The volume (.vti, legacy .vtk, or .raw named NAME_XxYxZ_DTYPE.raw).
+    /// The volume (.vti, legacy .vtk, or .raw named NAME_XxYxZ_DTYPE.raw), or a time series:
+    /// a .pvd or .series file, or a quoted pattern such as 'name_*.vti': one TF for all
+    /// its steps
     pub volume: PathBuf,
+
+    /// More files of a time series that begins with VOLUME (ordered as ParaView orders a
+    /// file series)
+    #[arg(value_name = "MORE")]
+    pub more_volumes: Vec<PathBuf>,
 
     #[command(flatten)]
     pub volume_args: VolumeArgs,
@@ -384,7 +393,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     // written (a result, or nothing).
     let stop = signals::stop_flag();
     let invocation = Invocation::now();
-    if !Path::new(&args.volume).exists() {
+    if !Path::new(&args.volume).exists() && !volume::is_series_path(&args.volume) {
         bail!("{}: no such file", args.volume.display());
     }
     let volume_path = args.volume.clone();
@@ -396,13 +405,16 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     let budget = Budget::new(args.max_memory);
     let pool = crate::thread_pool(args.threads()?)?;
     let sets_written = pool.install(|| -> Result<usize> {
-        let volume = args
-            .volume_args
-            .load_within(&args.volume, budget)
-            .map_err(flags::volume)?;
+        // A series keeps the views of a step and one more loaded: consecutive steps share
+        // all their views' time steps but one (`optimize::schedule::assign_times`).
+        let keep = run
+            .runs
+            .first()
+            .map_or(1, |(job, _)| job.settings().views + 1);
+        let input = args.input(budget, keep)?;
         // Locks and the init's range against the data, before the model loads.
         if let Some((job, _)) = run.runs.first() {
-            job.check_volume(&volume)
+            job.check_volume(input.volume())
                 .map_err(flags::pipeline)
                 .with_context(|| args.volume.display().to_string())?;
         }
@@ -447,7 +459,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
                 model: model.as_ref(),
                 stop,
             };
-            written.push(run.optimize(&volume, &out, name)?);
+            written.push(run.optimize(&input, &out, name)?);
             if batch {
                 crate::formats::write_library(&library, &written)?;
             }
@@ -495,12 +507,7 @@ impl One<'_> {
     /// The run with progress on stderr, its output set written to `out` with TF files
     /// `name`; returns the TF. A signal stops the run after the current step (its TF is the
     /// result).
-    fn optimize(
-        &self,
-        volume: &crate::volume::Volume,
-        out: &Path,
-        name: &str,
-    ) -> Result<crate::formats::ExportTf> {
+    fn optimize(&self, input: &Input, out: &Path, name: &str) -> Result<crate::formats::ExportTf> {
         let (args, job, stop) = (self.args, self.job, self.stop);
         let steps = job.settings().steps;
         let mut progress = Progress::new(args.progress, steps);
@@ -523,9 +530,12 @@ impl One<'_> {
                 ControlFlow::Continue(())
             }
         };
-        let result = match self.model {
-            Some(model) => pipeline::optimize(volume, model, job, &mut on_event),
-            None => pipeline::optimize_without_model(volume, job, &mut on_event),
+        let result = match (self.model, input) {
+            (Some(model), Input::Volume(v)) => pipeline::optimize(v, model, job, &mut on_event),
+            (Some(model), Input::Series(s, _)) => {
+                pipeline::optimize_series(s, model, job, &mut on_event)
+            }
+            (None, input) => pipeline::optimize_without_model(input.volume(), job, &mut on_event),
         };
         let mut result = result
             .map_err(flags::pipeline)
@@ -544,6 +554,46 @@ impl One<'_> {
         errln!("wrote {} files to {}", report.outputs.len(), out.display());
         progress.done(out, &report.outputs, result.interrupted());
         Ok(result.transfer_function(name))
+    }
+}
+
+/// What a run optimizes for: one volume, or a time series (with the volume that stands for
+/// it: its first step over the series' range).
+enum Input {
+    Volume(crate::volume::Volume),
+    Series(SeriesSteps, crate::volume::Volume),
+}
+
+impl Input {
+    /// The volume, or the one that stands for the series.
+    fn volume(&self) -> &crate::volume::Volume {
+        match self {
+            Input::Volume(v) | Input::Series(_, v) => v,
+        }
+    }
+}
+
+impl OptimizeArgs {
+    /// The volume or time series the arguments name, read within `budget`. A series'
+    /// statistics are streamed over its steps first (with a line per step on a long one).
+    fn input(&self, budget: Budget, keep: usize) -> Result<Input> {
+        let mut paths = vec![self.volume.clone()];
+        paths.extend(self.more_volumes.iter().cloned());
+        let Some(series) = self.volume_args.series(&paths).map_err(flags::volume)? else {
+            let v = self
+                .volume_args
+                .load_within(&self.volume, budget)
+                .map_err(flags::volume)?;
+            return Ok(Input::Volume(v));
+        };
+        let n = series.steps.len();
+        errln!("reading the statistics of {n} time steps");
+        let opts = self.volume_args.read_options_within(budget);
+        let steps = SeriesSteps::open(series, opts, keep, &mut |_| {}).map_err(flags::volume)?;
+        let first = steps.representative().map_err(flags::volume)?;
+        self.volume_args
+            .warn_thin(&self.volume, first.geometry.dims);
+        Ok(Input::Series(steps, first))
     }
 }
 
