@@ -21,3 +21,4 @@ mod optimize_recovery;
 mod optimize_refine;
 mod optimize_render_size;
 mod optimize_reproduce;
+mod optimize_series;

@@ -13,5 +13,6 @@ mod volume_errors;
 mod volume_fixtures;
 #[cfg(unix)]
 mod volume_large_cli;
+mod volume_series;
 mod volume_shared;
 mod volume_stream;
