@@ -51,7 +51,7 @@ pub struct OptimizeArgs {
     pub prompts: Vec<String>,
 
     /// Start from this TF file (ParaView .json/.xml, VisIt .ct) instead of the paper's
-    /// initialization: a refine. About 50 steps reach what 300 give, in a sixth of the time
+    /// initialization: a refine. About 50 steps reach what 300 give, in about a fifth of the time
     /// (BENCHMARKS.md, "Design loop"); with 0 steps it writes the start itself. A TF with
     /// opacity keeps its data values; a colour map without opacity (a library preset) is
     /// spread over the data range, as ParaView applies it, with the paper's densities.

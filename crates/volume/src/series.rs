@@ -443,15 +443,67 @@ fn from_files(mut files: Vec<PathBuf>, named: &Path) -> Result<Series, VolumeErr
     }
     files.sort_by(|a, b| natural_key(a).cmp(&natural_key(b)));
     files.dedup();
+    // ParaView takes an XML file's `TimeValue` field as its time; where every file has one,
+    // so does t2tf (else the index, as ParaView does for files without one).
+    let xml = ext(&files[0]).as_deref() == Some("vti");
+    let times: Option<Vec<f64>> = xml
+        .then(|| files.iter().map(|f| xml_time_value(f)).collect())
+        .flatten();
     let steps = files
         .into_iter()
         .enumerate()
         .map(|(i, path)| SeriesStep {
-            time: i as f64,
+            time: times.as_ref().map_or(i as f64, |t| t[i]),
             path,
         })
         .collect();
     finish(steps, None, named)
+}
+
+/// The `TimeValue` a VTK XML file holds in its field data: the value of an ASCII array, or
+/// the range VTK writes beside a binary one of one tuple (`RangeMin` = `RangeMax`, 11
+/// significant digits). Only the head of the file is read.
+fn xml_time_value(path: &Path) -> Option<f64> {
+    let mut head = vec![0u8; 64 << 10];
+    let mut file = t2tf_core::input::open(path).ok()?;
+    let n = std::io::Read::read(&mut file, &mut head).ok()?;
+    let text = String::from_utf8_lossy(&head[..n]);
+    let end = text.find("<AppendedData").unwrap_or(text.len());
+    let mut reader = Reader::from_str(&text[..end]);
+    let mut in_time = false;
+    loop {
+        match reader.read_event().ok()? {
+            Event::Start(t) | Event::Empty(t) if t.name().as_ref() == "DataArray" => {
+                let get = |key: &str| {
+                    t.attributes()
+                        .flatten()
+                        .find(|a| a.key.as_ref() == key)
+                        .and_then(|a| {
+                            a.normalized_value(quick_xml::XmlVersion::Implicit1_0)
+                                .ok()
+                                .map(|v| v.trim().to_string())
+                        })
+                };
+                if get("Name").as_deref() != Some("TimeValue") {
+                    continue;
+                }
+                if get("format").as_deref() == Some("ascii") {
+                    in_time = true;
+                    continue;
+                }
+                let (lo, hi) = (get("RangeMin")?, get("RangeMax")?);
+                let t = lo.parse::<f64>().ok().filter(|t| t.is_finite())?;
+                return (lo == hi && get("NumberOfTuples").as_deref() == Some("1")).then_some(t);
+            }
+            Event::Text(t) if in_time => {
+                let text = t.as_ref().to_string();
+                return text.trim().parse::<f64>().ok().filter(|t| t.is_finite());
+            }
+            Event::Start(t) if t.name().as_ref() == "Piece" => return None,
+            Event::Eof => return None,
+            _ => {}
+        }
+    }
 }
 
 /// A name's text and digit runs, digits compared as numbers: the order of a file series.
@@ -579,5 +631,50 @@ mod tests {
                 indices: Some(vec![5])
             })
             .is_err());
+    }
+
+    #[test]
+    fn xml_files_carry_their_time_value() {
+        let dir = tempfile::tempdir().unwrap();
+        // As vtkXMLImageDataWriter writes a TimeValue: binary with its range, or ASCII.
+        let head = |array: &str| {
+            format!(
+                "<VTKFile type=\"ImageData\" version=\"0.1\">\n<ImageData WholeExtent=\"0 0 0 0 0 \
+                 0\">\n<FieldData>\n{array}\n</FieldData>\n<Piece Extent=\"0 0 0 0 0 0\">"
+            )
+        };
+        let binary = "<DataArray type=\"Float64\" Name=\"TimeValue\" NumberOfTuples=\"1\" \
+                      format=\"appended\" RangeMin=\"400\"   RangeMax=\"400\"   offset=\"0\" />";
+        let ascii = "<DataArray type=\"Float64\" Name=\"TimeValue\" NumberOfTuples=\"1\" \
+                     format=\"ascii\">\n 2.5e-3\n</DataArray>";
+        let other = "<DataArray type=\"Float64\" Name=\"Other\" NumberOfTuples=\"1\" \
+                     format=\"ascii\">7</DataArray>";
+        let write = |name: &str, array: &str| {
+            let p = dir.path().join(name);
+            std::fs::write(&p, head(array)).unwrap();
+            p
+        };
+        assert_eq!(xml_time_value(&write("a.vti", binary)), Some(400.0));
+        assert_eq!(xml_time_value(&write("b.vti", ascii)), Some(2.5e-3));
+        assert_eq!(xml_time_value(&write("c.vti", other)), None);
+        // A list takes the files' times only when every file has one.
+        let s = from_files(
+            vec![dir.path().join("a.vti"), dir.path().join("b.vti")],
+            Path::new("a.vti"),
+        )
+        .unwrap();
+        assert_eq!(
+            s.steps.iter().map(|s| s.time).collect::<Vec<_>>(),
+            [2.5e-3, 400.0]
+        );
+        let s = from_files(
+            vec![dir.path().join("a.vti"), dir.path().join("c.vti")],
+            Path::new("a.vti"),
+        )
+        .unwrap();
+        assert_eq!(
+            s.steps.iter().map(|s| s.time).collect::<Vec<_>>(),
+            [0.0, 1.0]
+        );
     }
 }
