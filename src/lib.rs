@@ -22,7 +22,7 @@ mod volume_args;
 pub use commands::optimize::OptimizeArgs;
 pub use model_args::ModelArgs;
 pub use preset_args::PresetFileArgs;
-pub use volume_args::VolumeArgs;
+pub use volume_args::{SeriesArgs, VolumeArgs};
 
 use commands::{clip_score, convert, info, model};
 #[allow(unused_imports)]

@@ -32,6 +32,12 @@ pub struct VolumeArgs {
     /// first array)
     #[arg(long, value_name = "NAME")]
     pub array: Option<String>,
+}
+
+/// Which steps of a time series to use (`#[command(flatten)]` into the commands that read
+/// one: `info`, `optimize`).
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct SeriesArgs {
     /// Time series: use the steps whose time is in T0..T1 (inclusive)
     #[arg(long, value_name = "T0,T1", value_parser = parse_time_range, allow_hyphen_values = true)]
     pub time_range: Option<[f64; 2]>,
@@ -57,31 +63,6 @@ impl VolumeArgs {
             budget,
             norm_range: None,
         }
-    }
-
-    /// The time series `paths` name (a `.pvd` or `.series` file, a glob pattern, or several
-    /// files), with `--time-range`/`--time-steps` applied; `None` for one volume file (where
-    /// those flags are an error).
-    pub fn series(&self, paths: &[PathBuf]) -> Result<Option<Series>, VolumeError> {
-        let is_series = paths.len() > 1 || paths.first().is_some_and(|p| is_series_path(p));
-        if !is_series {
-            if self.time_range.is_some() || self.time_steps.is_some() {
-                let path = paths.first().map_or(Path::new(""), PathBuf::as_path);
-                return Err(VolumeError::file(
-                    path,
-                    "--time-range and --time-steps select steps of a time series (a .pvd or \
-                     .series file, a pattern such as 'name_*.vti', or several files); this is \
-                     one volume",
-                ));
-            }
-            return Ok(None);
-        }
-        let series = Series::open(paths)?;
-        let selection = TimeSelection {
-            range: self.time_range,
-            indices: self.time_steps.clone(),
-        };
-        Ok(Some(series.select(&selection)?))
     }
 
     /// Read and normalize the volume at `path` with these flags, within `budget`.
@@ -111,6 +92,33 @@ impl VolumeArgs {
                 thin.join(" and ")
             );
         }
+    }
+}
+
+impl SeriesArgs {
+    /// The time series `paths` name (a `.pvd` or `.series` file, a glob pattern, or several
+    /// files), with `--time-range`/`--time-steps` applied; `None` for one volume file (where
+    /// those flags are an error).
+    pub fn series(&self, paths: &[PathBuf]) -> Result<Option<Series>, VolumeError> {
+        let is_series = paths.len() > 1 || paths.first().is_some_and(|p| is_series_path(p));
+        if !is_series {
+            if self.time_range.is_some() || self.time_steps.is_some() {
+                let path = paths.first().map_or(Path::new(""), PathBuf::as_path);
+                return Err(VolumeError::file(
+                    path,
+                    "--time-range and --time-steps select steps of a time series (a .pvd or \
+                     .series file, a pattern such as 'name_*.vti', or several files); this is \
+                     one volume",
+                ));
+            }
+            return Ok(None);
+        }
+        let series = Series::open(paths)?;
+        let selection = TimeSelection {
+            range: self.time_range,
+            indices: self.time_steps.clone(),
+        };
+        Ok(Some(series.select(&selection)?))
     }
 }
 

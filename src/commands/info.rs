@@ -27,6 +27,8 @@ pub struct InfoArgs {
     pub more_volumes: Vec<PathBuf>,
     #[command(flatten)]
     pub read: VolumeArgs,
+    #[command(flatten)]
+    pub series: crate::SeriesArgs,
     /// Histogram rows (1-256)
     // A negative count reaches the range check (which says what is allowed) instead of clap
     // taking it for a flag.
@@ -50,7 +52,7 @@ pub fn run(args: InfoArgs) -> Result<()> {
     let start = Instant::now();
     let mut paths = vec![args.volume.clone()];
     paths.extend(args.more_volumes.iter().cloned());
-    if let Some(series) = args.read.series(&paths)? {
+    if let Some(series) = args.series.series(&paths)? {
         return series_info(&args, &series);
     }
     // Statistics only: no f32 copy and no pyramid, and the file is read as a load reads it

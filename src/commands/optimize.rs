@@ -40,6 +40,9 @@ pub struct OptimizeArgs {
     #[command(flatten)]
     pub volume_args: VolumeArgs,
 
+    #[command(flatten)]
+    pub series: crate::SeriesArgs,
+
     /// What the renderings should show, e.g. "a potted tree". Repeat it for one TF per
     /// prompt in one run (model, volume and captions loaded once): each goes to its own
     /// sub-folder of --out, named from the prompt, and OUT/presets.json holds all of them.
@@ -579,7 +582,7 @@ impl OptimizeArgs {
     fn input(&self, budget: Budget, keep: usize) -> Result<Input> {
         let mut paths = vec![self.volume.clone()];
         paths.extend(self.more_volumes.iter().cloned());
-        let Some(series) = self.volume_args.series(&paths).map_err(flags::volume)? else {
+        let Some(series) = self.series.series(&paths).map_err(flags::volume)? else {
             let v = self
                 .volume_args
                 .load_within(&self.volume, budget)

@@ -244,3 +244,49 @@ fn the_command_takes_a_pattern_and_selects_steps() {
     );
     assert!(!dir.path().join("none").exists());
 }
+
+#[test]
+fn a_series_in_memory_renders_as_the_same_series_from_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let files = drifting_series(dir.path());
+    let from_files = open(&files, 3);
+    let norm = from_files.stats().norm_range;
+    let geometry = from_files.representative().unwrap().geometry;
+    let volume = |i: usize, range: Option<[f64; 2]>| {
+        let bytes: t2tf::volume::SharedBytes =
+            std::sync::Arc::new(std::fs::read(&files[i]).unwrap());
+        t2tf::volume::Volume::from_shared_over(
+            Path::new("array"),
+            geometry,
+            t2tf::volume::ScalarType::U8,
+            t2tf::volume::ByteOrder::Little,
+            bytes,
+            Default::default(),
+            range,
+        )
+        .unwrap()
+    };
+    let steps: Vec<(f64, _)> = (0..3)
+        .map(|i| (i as f64 * 0.5, volume(i, Some(norm))))
+        .collect();
+    let held = SeriesSteps::from_volumes("array", steps).unwrap();
+    assert_eq!(held.len(), 3);
+    assert_eq!(held.stats().range, from_files.stats().range);
+    assert_eq!(held.stats().step_ranges, from_files.stats().step_ranges);
+    for t in 0..3 {
+        let (a, b) = (held.step(t).unwrap(), from_files.step(t).unwrap());
+        assert_eq!(a.norm_range, b.norm_range);
+        let bits = |d: &[f32]| d.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(a.data()), bits(b.data()), "step {t}");
+    }
+    assert_eq!(held.loads(), 0);
+    // Steps normalized over their own ranges cannot share one TF: refused, naming the step.
+    let own: Vec<(f64, _)> = (0..2).map(|i| (i as f64, volume(i, None))).collect();
+    let err = SeriesSteps::from_volumes("array", own)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("time step 1") && err.contains("same range"),
+        "{err}"
+    );
+}

@@ -236,6 +236,21 @@ impl Volume {
         bytes: SharedBytes,
         budget: Budget,
     ) -> Result<Volume, VolumeError> {
+        Self::from_shared_over(name, geometry, scalar_type, byte_order, bytes, budget, None)
+    }
+
+    /// [`Volume::from_shared_within`], normalized over `norm_range` when given instead of
+    /// the values' own range (the steps of a series in memory share one; it must hold every
+    /// finite value).
+    pub fn from_shared_over(
+        name: &Path,
+        geometry: Geometry,
+        scalar_type: ScalarType,
+        byte_order: ByteOrder,
+        bytes: SharedBytes,
+        budget: Budget,
+        norm_range: Option<[f64; 2]>,
+    ) -> Result<Volume, VolumeError> {
         let len = (*bytes).as_ref().len();
         if len % scalar_type.size() != 0 {
             return Err(VolumeError::file(
@@ -252,7 +267,7 @@ impl Volume {
             source,
             stream::Hold::All,
             budget,
-            None,
+            norm_range,
         )
     }
 

@@ -12,9 +12,12 @@ use std::collections::VecDeque;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
-use crate::volume::{ReadOptions, Series, SeriesStats, Volume, VolumeError};
+use crate::volume::{
+    ReadOptions, Series, SeriesStats, SeriesStep, Volume, VolumeError, HISTOGRAM_BINS,
+};
 
-/// A series opened for a run: its steps, its statistics, and the cache of loaded steps.
+/// A series opened for a run: its steps, its statistics, and the cache of loaded steps (or
+/// every step, for a series held in memory).
 #[derive(Debug)]
 pub struct SeriesSteps {
     series: Arc<Series>,
@@ -22,6 +25,7 @@ pub struct SeriesSteps {
     opts: ReadOptions,
     capacity: usize,
     cache: Mutex<VecDeque<(usize, Arc<Volume>)>>,
+    held: Vec<Arc<Volume>>,
     loads: AtomicUsize,
 }
 
@@ -41,6 +45,78 @@ impl SeriesSteps {
             opts,
             capacity: capacity.max(1),
             cache: Mutex::new(VecDeque::new()),
+            held: Vec::new(),
+            loads: AtomicUsize::new(0),
+        })
+    }
+
+    /// A series held in memory: `steps` (time, volume), every volume normalized over the
+    /// same range (e.g. `Volume::from_shared_over` with the range of all of them), in
+    /// increasing time. Each step is named `name` and its index in errors and the report.
+    pub fn from_volumes(name: &str, steps: Vec<(f64, Volume)>) -> Result<SeriesSteps, VolumeError> {
+        let named = |i: usize| std::path::PathBuf::from(format!("{name} (time step {i})"));
+        let Some((_, first)) = steps.first() else {
+            return Err(VolumeError::file(
+                &named(0),
+                "a series needs at least one step",
+            ));
+        };
+        let (norm_range, dims) = (first.norm_range, first.geometry.dims);
+        let mut histogram = vec![0u64; HISTOGRAM_BINS];
+        for (i, (t, v)) in steps.iter().enumerate() {
+            let why = if v.norm_range != norm_range {
+                "is not normalized over the same range as the first step"
+            } else if v.geometry.dims != dims {
+                "differs in size from the first step"
+            } else if !t.is_finite() || (i > 0 && *t <= steps[i - 1].0) {
+                "has a time that is not finite or not after the previous step's"
+            } else {
+                ""
+            };
+            if !why.is_empty() {
+                return Err(VolumeError::file(&named(i), why));
+            }
+            for (h, k) in histogram.iter_mut().zip(&v.histogram) {
+                *h += k;
+            }
+        }
+        let step_ranges: Vec<[f64; 2]> = steps.iter().map(|(_, v)| v.range).collect();
+        let non_finite = steps.iter().map(|(_, v)| v.non_finite).sum();
+        let range = step_ranges
+            .iter()
+            .fold([f64::INFINITY, f64::NEG_INFINITY], |r, s| {
+                [r[0].min(s[0]), r[1].max(s[1])]
+            });
+        let series = Arc::new(Series {
+            collection: None,
+            steps: (0..steps.len())
+                .map(|i| SeriesStep {
+                    time: steps[i].0,
+                    path: named(i),
+                })
+                .collect(),
+            total_steps: steps.len(),
+        });
+        let held = steps
+            .into_iter()
+            .map(|(_, mut v)| {
+                v.series = Some(series.clone());
+                Arc::new(v)
+            })
+            .collect();
+        Ok(SeriesSteps {
+            stats: SeriesStats {
+                range,
+                norm_range,
+                non_finite,
+                step_ranges,
+                histogram,
+            },
+            series,
+            opts: ReadOptions::default(),
+            capacity: 1,
+            cache: Mutex::new(VecDeque::new()),
+            held,
             loads: AtomicUsize::new(0),
         })
     }
@@ -73,6 +149,9 @@ impl SeriesSteps {
     /// Step `t`, normalized over the series' range: from the cache, else read and cached
     /// (the least recently used step leaves).
     pub fn step(&self, t: usize) -> Result<Arc<Volume>, VolumeError> {
+        if let Some(v) = self.held.get(t) {
+            return Ok(v.clone());
+        }
         {
             let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
             if let Some(k) = cache.iter().position(|(i, _)| *i == t) {
