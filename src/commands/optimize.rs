@@ -417,7 +417,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         let input = args.input(budget, keep)?;
         // Locks and the init's range against the data, before the model loads.
         if let Some((job, _)) = run.runs.first() {
-            job.check_volume(input.volume())
+            job.check_volume(input.scene().volume().map_err(flags::pipeline)?)
                 .map_err(flags::pipeline)
                 .with_context(|| args.volume.display().to_string())?;
         }
@@ -533,13 +533,7 @@ impl One<'_> {
                 ControlFlow::Continue(())
             }
         };
-        let result = match (self.model, input) {
-            (Some(model), Input::Volume(v)) => pipeline::optimize(v, model, job, &mut on_event),
-            (Some(model), Input::Series(s, _)) => {
-                pipeline::optimize_series(s, model, job, &mut on_event)
-            }
-            (None, input) => pipeline::optimize_without_model(input.volume(), job, &mut on_event),
-        };
+        let result = pipeline::optimize_scene(input.scene(), self.model, job, &mut on_event);
         let mut result = result
             .map_err(flags::pipeline)
             .with_context(|| args.volume.display().to_string())?;
@@ -560,18 +554,17 @@ impl One<'_> {
     }
 }
 
-/// What a run optimizes for: one volume, or a time series (with the volume that stands for
-/// it: its first step over the series' range).
+/// What a run optimizes for: one volume, or a time series.
 enum Input {
     Volume(crate::volume::Volume),
-    Series(SeriesSteps, crate::volume::Volume),
+    Series(SeriesSteps),
 }
 
 impl Input {
-    /// The volume, or the one that stands for the series.
-    fn volume(&self) -> &crate::volume::Volume {
+    fn scene(&self) -> pipeline::Scene<'_> {
         match self {
-            Input::Volume(v) | Input::Series(_, v) => v,
+            Input::Volume(v) => pipeline::Scene::Volume(v),
+            Input::Series(s) => pipeline::Scene::Series(s),
         }
     }
 }
@@ -596,7 +589,7 @@ impl OptimizeArgs {
         let first = steps.representative().map_err(flags::volume)?;
         self.volume_args
             .warn_thin(&self.volume, first.geometry.dims);
-        Ok(Input::Series(steps, first))
+        Ok(Input::Series(steps))
     }
 }
 

@@ -64,7 +64,7 @@ fn open(files: &[PathBuf], keep: usize) -> SeriesSteps {
 fn each_view_renders_its_time_step() {
     let dir = tempfile::tempdir().unwrap();
     let steps = open(&drifting_series(dir.path()), 2);
-    let first = steps.representative().unwrap();
+    let first = steps.representative().unwrap().clone();
     let backend = CpuBackend::new(Default::default());
     let renderer = VolumeRenderer {
         backend: &backend,

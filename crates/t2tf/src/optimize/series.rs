@@ -10,7 +10,7 @@
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use crate::volume::{
     ReadOptions, Series, SeriesStats, SeriesStep, Volume, VolumeError, HISTOGRAM_BINS,
@@ -27,6 +27,7 @@ pub struct SeriesSteps {
     cache: Mutex<VecDeque<(usize, Arc<Volume>)>>,
     held: Vec<Arc<Volume>>,
     loads: AtomicUsize,
+    representative: OnceLock<Volume>,
 }
 
 impl SeriesSteps {
@@ -47,6 +48,7 @@ impl SeriesSteps {
             cache: Mutex::new(VecDeque::new()),
             held: Vec::new(),
             loads: AtomicUsize::new(0),
+            representative: OnceLock::new(),
         })
     }
 
@@ -118,6 +120,7 @@ impl SeriesSteps {
             cache: Mutex::new(VecDeque::new()),
             held,
             loads: AtomicUsize::new(0),
+            representative: OnceLock::new(),
         })
     }
 
@@ -178,11 +181,14 @@ impl SeriesSteps {
     /// The volume that stands for the whole series where one is needed (the data range of
     /// the exports, the histogram of the initialization, the locks' checks, the geometry of
     /// the scripts): the first step, with the series' range and histogram.
-    pub fn representative(&self) -> Result<Volume, VolumeError> {
+    pub fn representative(&self) -> Result<&Volume, VolumeError> {
+        if let Some(v) = self.representative.get() {
+            return Ok(v);
+        }
         let mut v = (*self.step(0)?).clone();
         v.range = self.stats.range;
         v.non_finite = self.stats.non_finite;
         v.histogram = self.stats.histogram.clone();
-        Ok(v)
+        Ok(self.representative.get_or_init(|| v))
     }
 }

@@ -404,8 +404,47 @@ pub fn optimize_series(
     job: &ValidJob,
     on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
 ) -> Result<Optimized, PipelineError> {
-    let volume = series.representative()?;
-    run(&volume, Some(series), Some(model), job, on_event)
+    run(series.representative()?, Some(series), Some(model), job, on_event)
+}
+
+/// What a run optimizes a TF for: one volume, or the steps of a time series.
+#[derive(Clone, Copy, Debug)]
+pub enum Scene<'a> {
+    /// One volume.
+    Volume(&'a Volume),
+    /// A time series (one TF for all its steps, [`optimize_series`]).
+    Series(&'a SeriesSteps),
+}
+
+impl Scene<'_> {
+    /// The volume, or the one that stands for the series (`SeriesSteps::representative`):
+    /// what the checks of a job against the data read ([`ValidJob::check_volume`]).
+    pub fn volume(&self) -> Result<&Volume, PipelineError> {
+        match self {
+            Scene::Volume(v) => Ok(v),
+            Scene::Series(s) => Ok(s.representative()?),
+        }
+    }
+}
+
+/// [`optimize`] or [`optimize_series`] on `scene`; with no model, a job that needs none
+/// ([`optimize_without_model`]).
+pub fn optimize_scene(
+    scene: Scene,
+    model: Option<&Model>,
+    job: &ValidJob,
+    on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
+) -> Result<Optimized, PipelineError> {
+    if model.is_none() && job.needs_model() {
+        return Err(PipelineError::Job(
+            "only a run of 0 steps from a TF with opacity needs no CLIP model".into(),
+        ));
+    }
+    let series = match scene {
+        Scene::Volume(_) => None,
+        Scene::Series(s) => Some(s),
+    };
+    run(scene.volume()?, series, model, job, on_event)
 }
 
 /// [`optimize`] for a job that needs no model ([`ValidJob::needs_model`] is false: 0 steps
@@ -419,12 +458,7 @@ pub fn optimize_without_model(
     job: &ValidJob,
     on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
 ) -> Result<Optimized, PipelineError> {
-    if job.needs_model() {
-        return Err(PipelineError::Job(
-            "only a run of 0 steps from a TF with opacity needs no CLIP model".into(),
-        ));
-    }
-    run(volume, None, None, job, on_event)
+    optimize_scene(Scene::Volume(volume), None, job, on_event)
 }
 
 /// [`optimize`], with no model only where the job needs none ([`optimize_without_model`]).
