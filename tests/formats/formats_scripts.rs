@@ -3,12 +3,14 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::Arc;
 
 use t2tf::camera::ParaViewCamera;
 use t2tf::formats::{freeform_opacity, paraview_script, visit_script, write_all, ExportTf};
 use t2tf::tf::ControlPoints;
 use t2tf::volume::{
-    ByteOrder, Geometry, ScalarType, SourceFormat, TypedBuffer, Volume, VolumeSource,
+    ByteOrder, Geometry, ScalarType, Series, SeriesStep, SourceFormat, TypedBuffer, Volume,
+    VolumeSource,
 };
 
 /// An 8×6×5 volume with an origin and uneven spacing, said to come from a raw file in
@@ -409,6 +411,436 @@ fn visit_reads_raw_values_exactly() {
             assert_eq!(geometry.buffer.scalar_type(), ScalarType::U16);
             // A second run reuses the copy (it is newer than the raw file).
             assert_eq!(visit_opens(&script, d.path()), db);
+        }
+    }
+}
+
+/// `volume(format)` as the last used step of a time series of `total` files under `dir` (they
+/// need not exist): `NAME_%04d.EXT`, at times 200, 400, ... when `collection` (a `.pvd` or
+/// `.series` file in `dir`) lists them, else at their index; `keep` are the steps used.
+fn series_volume(
+    format: SourceFormat,
+    dir: &Path,
+    collection: Option<&str>,
+    keep: &[usize],
+    total: usize,
+) -> Volume {
+    let name = |i: usize| match &format {
+        SourceFormat::Raw { scalar_type, .. } => {
+            format!("gs_{i:04}_8x6x5_{}.raw", scalar_type.scivis_name())
+        }
+        SourceFormat::Vti { .. } => format!("gs_{i:04}.vti"),
+        SourceFormat::LegacyVtk { .. } => format!("gs_{i:04}.vtk"),
+    };
+    let time = |i: usize| match collection {
+        Some(_) => 200.0 * (i + 1) as f64,
+        None => i as f64,
+    };
+    let steps: Vec<SeriesStep> = keep
+        .iter()
+        .map(|&i| SeriesStep {
+            time: time(i),
+            path: dir.join(name(i)),
+        })
+        .collect();
+    let mut v = volume(format);
+    v.source.as_mut().unwrap().path = steps.last().unwrap().path.clone();
+    v.series = Some(Arc::new(Series {
+        collection: collection.map(|c| dir.join(c)),
+        steps,
+        total_steps: total,
+    }));
+    v
+}
+
+/// `path` as the scripts quote it (absolute; the test paths do not exist, so not canonical).
+fn quoted(path: &Path) -> String {
+    serde_json::to_string(std::path::absolute(path).unwrap().to_str().unwrap()).unwrap()
+}
+
+/// Both scripts for `v`, with the test's TF and view.
+fn scripts(v: &Volume) -> (String, String) {
+    let tf = ExportTf::from_control_points("gs", &cp(), v, None);
+    let view = ParaViewCamera::front(&v.geometry, 2.0);
+    (
+        paraview_script(&tf, v, &view, [0.0; 3], "gs_paraview.py").unwrap(),
+        visit_script(&tf, v, &view, [0.0; 3], "gs_visit.py").unwrap(),
+    )
+}
+
+fn has_all(text: &str, needles: &[&str], what: &str) {
+    for needle in needles {
+        assert!(text.contains(needle), "{what} lacks {needle}\n{text}");
+    }
+}
+
+#[test]
+fn series_scripts_open_the_series_with_its_times() {
+    let dir = Path::new("data/series");
+    let vti = || SourceFormat::Vti { array: "v".into() };
+    let files = |v: &Volume| -> Vec<String> {
+        v.series
+            .as_ref()
+            .unwrap()
+            .steps
+            .iter()
+            .map(|s| quoted(&s.path))
+            .collect()
+    };
+
+    // A whole .pvd: ParaView opens the collection, every step; VisIt a .visit list.
+    let pvd = series_volume(vti(), dir, Some("gs.pvd"), &[0, 1, 2, 3], 4);
+    let (pv, vi) = scripts(&pvd);
+    has_all(
+        &pv,
+        &[
+            "opens a time series in ParaView",
+            "The series: 4 time steps, times 200.0 to 800.0. ParaView opens its collection",
+            &format!("COLLECTION = {}", quoted(&dir.join("gs.pvd"))),
+            "STEP_TIMES = [200.0, 400.0, 600.0, 800.0]",
+            "TOTAL_STEPS = 4",
+            "ARRAY = \"v\"",
+            "reader = pvs.OpenDataFile(find_file(COLLECTION))",
+            "steps = pvs.ExtractTimeSteps(Input=reader)",
+            "scene.UpdateAnimationUsingDataTimeSteps()",
+            "scene.PlayMode = \"Snap To TimeSteps\"",
+            "lut.AutomaticRescaleRangeMode = \"Never\"",
+            "disp.ScalarOpacityUnitDistance = UNIT_DISTANCE",
+            "--screenshot OUT.png saves one picture per\n# step, OUT_0000.png, OUT_0001.png",
+            "--time T",
+            "--step I",
+            "--print-tf",
+        ],
+        "pvd script",
+    );
+    for f in files(&pvd) {
+        assert!(pv.contains(&format!("    {f},\n")), "{f}");
+        assert!(vi.contains(&format!("    {f},\n")), "{f}");
+    }
+    has_all(
+        &vi,
+        &[
+            "a VisIt Volume plot of a time series",
+            "STEP_TIMES = [200.0, 400.0, 600.0, 800.0]",
+            "VARIABLE = \"v\"",
+            "BOV_HEADER = None",
+            "lines = [\"!NBLOCKS 1\"]",
+            "OpenDatabase(visit_list())",
+            "SetTimeSliderState(step)",
+            "atts.useColorVarMin = 1",
+        ],
+        "pvd VisIt script",
+    );
+    assert!(!vi.contains("COLLECTION") && !vi.contains("OpenDatabase(database())"));
+
+    // Steps 0 and 3 of the .pvd: the collection still, the animation restricted to them.
+    let some = series_volume(vti(), dir, Some("gs.pvd"), &[0, 3], 4);
+    let (pv, vi) = scripts(&some);
+    has_all(
+        &pv,
+        &[
+            "The series: 2 of 4 time steps, times 200.0 to 800.0. ParaView opens its collection\n\
+             # COLLECTION (all its steps) and ExtractTimeSteps keeps the steps t2tf used",
+            "STEP_TIMES = [200.0, 800.0]",
+            "TOTAL_STEPS = 4",
+            "steps.TimeStepIndices = indices",
+            "keeper.SuppressedTimeSources = suppressed + [reader]",
+        ],
+        "selection script",
+    );
+    has_all(
+        &vi,
+        &["STEP_TIMES = [200.0, 800.0]"],
+        "selection VisIt script",
+    );
+    for (i, f) in files(&pvd).iter().enumerate() {
+        let used = i == 0 || i == 3;
+        assert_eq!(pv.contains(f.as_str()), used, "{f}");
+        assert_eq!(vi.contains(f.as_str()), used, "{f}");
+    }
+
+    // A list of .vti files (times = index), legacy files, and raw files named by a .series:
+    // each opened as its list, with the format's reader.
+    let list = series_volume(vti(), dir, None, &[0, 1, 2], 3);
+    let (pv, _) = scripts(&list);
+    has_all(
+        &pv,
+        &[
+            "ParaView opens the list of files\n# STEP_FILES with one reader.",
+            "COLLECTION = None",
+            "STEP_TIMES = [0.0, 1.0, 2.0]",
+            "def open_files(paths):\n    reader = pvs.XMLImageDataReader(FileName=paths)\n    \
+             reader.PointArrayStatus = [ARRAY]\n    return reader",
+        ],
+        "list script",
+    );
+    let legacy = series_volume(
+        SourceFormat::LegacyVtk {
+            array: "scalars".into(),
+        },
+        dir,
+        None,
+        &[1, 2],
+        3,
+    );
+    let (pv, _) = scripts(&legacy);
+    has_all(
+        &pv,
+        &[
+            "The series: 2 of 3 time steps, times 1.0 to 2.0.",
+            "reader = pvs.LegacyVTKReader(FileNames=paths)",
+            "STEP_TIMES = [1.0, 2.0]",
+        ],
+        "legacy list script",
+    );
+    let raw_series = series_volume(raw(ScalarType::U16), dir, Some("gs.raw.series"), &[0, 1], 2);
+    let (pv, vi) = scripts(&raw_series);
+    has_all(
+        &pv,
+        &[
+            "COLLECTION = None",
+            "reader = pvs.ImageReader(FileNames=paths)",
+            "reader.DataScalarType = \"unsigned short\"",
+            "reader.DataExtent = [0, 7, 0, 5, 0, 4]",
+            "        reader.ReadAsImageStack = 0",
+            "STEP_TIMES = [200.0, 400.0]",
+        ],
+        "raw series script",
+    );
+    has_all(
+        &vi,
+        &[
+            "Each raw step reaches VisIt as a .bov header",
+            "BOV_HEADER = None",
+            r#"type=\"UInt16\""#,
+            "VTI_BYTES = 480",
+        ],
+        "raw series VisIt script",
+    );
+    let bov = series_volume(raw(ScalarType::U8), dir, None, &[0, 1], 2);
+    let (_, vi) = scripts(&bov);
+    assert!(
+        vi.contains(r#"BOV_HEADER = "TIME: %(time)s\nDATA_FILE: %(file)s\nDATA_SIZE: 8 6 5\nDATA_FORMAT: BYTE\n"#),
+        "{vi}"
+    );
+    // VisIt has no exact type for 64-bit integers: no script, as for one volume.
+    let i64s = series_volume(raw(ScalarType::I64), dir, None, &[0, 1], 2);
+    let tf = ExportTf::from_control_points("gs", &cp(), &i64s, None);
+    let view = ParaViewCamera::front(&i64s.geometry, 2.0);
+    assert!(visit_script(&tf, &i64s, &view, [0.0; 3], "x.py").is_err());
+
+    // A volume that is no series keeps the one-volume scripts.
+    let mut one = pvd.clone();
+    one.series = None;
+    let (pv, vi) = scripts(&one);
+    has_all(
+        &pv,
+        &[
+            "opens a volume in ParaView",
+            "VOLUME = ",
+            "def open_volume(path):\n    reader = pvs.XMLImageDataReader(FileName=[path])",
+            "view = show(open_volume(find_volume()), args.size)",
+        ],
+        "one-volume script",
+    );
+    has_all(
+        &vi,
+        &["VOLUME = ", "OpenDatabase(database())"],
+        "one-volume VisIt script",
+    );
+    for (text, what) in [(&pv, "ParaView"), (&vi, "VisIt")] {
+        for series_only in [
+            "STEP_",
+            "COLLECTION",
+            "ExtractTimeSteps",
+            "AnimationScene",
+            "!NBLOCKS",
+        ] {
+            assert!(!text.contains(series_only), "{what}: {series_only}");
+        }
+    }
+}
+
+#[test]
+#[cfg_attr(not(t2tf_python), ignore = "needs python3")]
+fn series_scripts_are_valid_python() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = Path::new("data/series");
+    for (i, v) in [
+        series_volume(
+            SourceFormat::Vti { array: "v".into() },
+            dir,
+            Some("gs.pvd"),
+            &[0, 2],
+            3,
+        ),
+        series_volume(raw(ScalarType::U8), dir, None, &[0, 1, 2], 3),
+        series_volume(raw(ScalarType::U16), dir, None, &[0], 1),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let (pv, vi) = scripts(v);
+        for (text, name) in [(pv, "paraview"), (vi, "visit")] {
+            let path = d.path().join(format!("s{i}_{name}.py"));
+            std::fs::write(&path, text).unwrap();
+            compiles(&path);
+        }
+    }
+}
+
+/// Stand-ins for VisIt's CLI functions that record what a series script does with them: the
+/// databases it opens, the time slider states it sets (SetTimeSliderState, a function of
+/// VisIt's Python CLI) and the file each SaveWindow writes. Arguments after the script are
+/// the script's own.
+const VISIT_SERIES_STUBS: &str = r#"
+import json, sys
+class Stub:
+    def __init__(self, *a, **k): pass
+    def __getattr__(self, name): return Stub()
+    def __call__(self, *a, **k): return Stub()
+class SaveAtts:
+    PNG = "png"
+    NoConstraint = "none"
+log = {"opened": [], "states": [], "saved": []}
+window = {}
+def OpenDatabase(path): log["opened"].append(path)
+def SetTimeSliderState(state): log["states"].append(state)
+def SetSaveWindowAttributes(s): window["name"] = s.fileName
+def SaveWindow(): log["saved"].append(window["name"])
+names = {n: Stub for n in ["AddPlot", "VolumeAttributes", "ColorControlPointList",
+    "ColorControlPoint", "SetPlotOptions", "AnnotationAttributes", "SetAnnotationAttributes",
+    "DrawPlots", "GetView3D", "SetView3D"]}
+script = sys.argv[1]
+g = dict(names, OpenDatabase=OpenDatabase, SetTimeSliderState=SetTimeSliderState,
+    SaveWindowAttributes=SaveAtts, SetSaveWindowAttributes=SetSaveWindowAttributes,
+    SaveWindow=SaveWindow, __name__="__main__", __file__=script)
+sys.argv = [script] + sys.argv[2:]
+try:
+    exec(compile(open(script).read(), script, "exec"), g)
+except SystemExit as e:
+    if e.code not in (None, 0):
+        raise
+print(json.dumps(log))
+"#;
+
+/// Run a VisIt series script's own Python with `VISIT_SERIES_STUBS`; what it did.
+fn visit_series_run(script: &Path, args: &[&str]) -> serde_json::Value {
+    let stubs = script.with_file_name("visit_series_stubs.py");
+    std::fs::write(&stubs, VISIT_SERIES_STUBS).unwrap();
+    let out = Command::new("python3")
+        .arg(&stubs)
+        .arg(script)
+        .args(args)
+        .output()
+        .expect("run python3 (build.rs found it, or T2TF_REQUIRE_PYTHON requires it)");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+#[cfg_attr(not(t2tf_python), ignore = "needs python3")]
+fn visit_opens_a_series_as_a_visit_list_of_its_steps() {
+    let d = tempfile::tempdir().unwrap();
+    let (data, out) = (d.path().join("data"), d.path().join("out"));
+    std::fs::create_dir_all(&data).unwrap();
+    std::fs::create_dir_all(&out).unwrap();
+    // uint8 raw steps (a BOV header each, its TIME the step's time), uint16 raw steps (a .vti
+    // copy each: BOV would wrap them) and .vti steps (listed as they are).
+    for (t, ext) in [
+        (Some(ScalarType::U8), "raw"),
+        (Some(ScalarType::U16), "raw"),
+        (None, "vti"),
+    ] {
+        let format = match t {
+            Some(t) => raw(t),
+            None => SourceFormat::Vti { array: "v".into() },
+        };
+        let v = series_volume(format, &data, Some("gs.series"), &[0, 2, 3], 4);
+        let steps = v.series.as_ref().unwrap().steps.clone();
+        for (k, s) in steps.iter().enumerate() {
+            let bytes = t.map_or(1, |t| t.size()) * 8 * 6 * 5;
+            std::fs::write(&s.path, vec![k as u8 + 1; bytes]).unwrap();
+        }
+        let tf = ExportTf::from_control_points("gs", &cp(), &v, None);
+        let view = ParaViewCamera::front(&v.geometry, 2.0);
+        let script = out.join(format!("{ext}{}_visit.py", t.map_or(0, |t| t.size())));
+        let name = script.file_name().unwrap().to_str().unwrap().to_string();
+        std::fs::write(
+            &script,
+            visit_script(&tf, &v, &view, [0.0; 3], &name).unwrap(),
+        )
+        .unwrap();
+        let shot = out.join("shot.png");
+        let log = visit_series_run(&script, &["--screenshot", shot.to_str().unwrap()]);
+        // The .visit file beside the script: "!NBLOCKS 1", then one database per step.
+        let listing = script.with_extension("visit");
+        assert_eq!(
+            log["opened"],
+            serde_json::json!([listing.to_str().unwrap()])
+        );
+        let text = std::fs::read_to_string(&listing).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines[0], "!NBLOCKS 1");
+        assert_eq!(lines.len(), 1 + steps.len(), "{text}");
+        for (k, (line, step)) in lines[1..].iter().zip(&steps).enumerate() {
+            let db = Path::new(line);
+            assert!(db.is_absolute(), "{line}");
+            match t {
+                Some(ScalarType::U8) => {
+                    assert_eq!(db.parent(), Some(out.as_path()), "{line}");
+                    let header = std::fs::read_to_string(db).unwrap();
+                    assert!(
+                        header.starts_with(&format!(
+                            "TIME: {:?}\nDATA_FILE: {}\n",
+                            step.time,
+                            step.path.display()
+                        )),
+                        "{header}"
+                    );
+                    assert_eq!(values_visit_reads(db), vec![k as f64 + 1.0; 240]);
+                }
+                Some(_) => {
+                    assert_eq!(db.parent(), Some(out.as_path()), "{line}");
+                    assert!(line.ends_with(".t2tf.vti"), "{line}");
+                    let want = (k as f64 + 1.0) * 257.0;
+                    assert_eq!(values_visit_reads(db), vec![want; 240]);
+                }
+                None => assert_eq!(db, step.path, "{line}"),
+            }
+        }
+        // One picture per step, numbered; the slider set to each step in turn.
+        assert_eq!(log["states"], serde_json::json!([0, 0, 1, 2]));
+        let names: Vec<String> = (0..3)
+            .map(|i| {
+                out.join(format!("shot_{i:04}.png"))
+                    .to_str()
+                    .unwrap()
+                    .to_string()
+            })
+            .collect();
+        assert_eq!(log["saved"], serde_json::json!(names));
+        // --time picks the nearest step and saves the name given.
+        let log = visit_series_run(
+            &script,
+            &["--screenshot", shot.to_str().unwrap(), "--time", "750"],
+        );
+        assert_eq!(log["states"], serde_json::json!([2, 2]));
+        assert_eq!(log["saved"], serde_json::json!([shot.to_str().unwrap()]));
+        let log = visit_series_run(&script, &["--step", "1"]);
+        assert_eq!(log["states"], serde_json::json!([1]));
+        assert_eq!(log["saved"], serde_json::json!([]));
+        assert_eq!(
+            std::fs::read_dir(&data).unwrap().count(),
+            3,
+            "nothing written beside the data"
+        );
+        for e in std::fs::read_dir(&data).unwrap() {
+            std::fs::remove_file(e.unwrap().path()).unwrap();
         }
     }
 }

@@ -16,6 +16,7 @@ mod paraview_xml;
 mod points;
 mod preset;
 mod sampling;
+mod series_script;
 mod visit_ct;
 mod visit_script;
 

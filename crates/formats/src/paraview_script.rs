@@ -2,6 +2,7 @@
 //! the unit distance and the camera of our renders (docs/DESIGN.md "ParaView facts").
 
 use std::fmt::Write as _;
+use std::path::Path;
 
 use super::{ExportTf, FormatError};
 use t2tf_render::camera::ParaViewCamera;
@@ -36,19 +37,21 @@ pub(crate) fn source_path(volume: &Volume) -> Result<(String, &SourceFormat), Fo
             "the volume was not read from a file, so no script can reopen it".into(),
         )
     })?;
-    // Canonical where the file exists (no `..`, no symlinks: the script names the file the
-    // run read, from anywhere); else as given, made absolute. On Windows a drive-letter path
-    // (`C:\data\head.vti`), not the `\\?\` form ParaView's readers do not open.
-    let abs = t2tf_core::platform::canonicalize(&src.path)
-        .or_else(|_| std::path::absolute(&src.path))
-        .unwrap_or_else(|_| src.path.clone());
+    Ok((script_path(&src.path)?, &src.format))
+}
+
+/// `path` as a script names it: canonical where the file exists (no `..`, no symlinks: the
+/// script names the file the run read, from anywhere); else as given, made absolute. On
+/// Windows a drive-letter path (`C:\data\head.vti`), not the `\\?\` form ParaView's readers
+/// do not open. Scripts cannot name a non-UTF-8 path.
+pub(crate) fn script_path(path: &Path) -> Result<String, FormatError> {
+    let abs = t2tf_core::platform::canonicalize(path)
+        .or_else(|_| std::path::absolute(path))
+        .unwrap_or_else(|_| path.to_path_buf());
     let text = abs.to_str().ok_or_else(|| {
-        FormatError::file(
-            &src.path,
-            "path is not UTF-8; a Python script cannot name it",
-        )
+        FormatError::file(path, "path is not UTF-8; a Python script cannot name it")
     })?;
-    Ok((text.to_string(), &src.format))
+    Ok(text.to_string())
 }
 
 /// Text for a Python comment: a name with line breaks would end the comment early.
@@ -66,11 +69,17 @@ pub fn paraview_script(
     script_name: &str,
 ) -> Result<String, FormatError> {
     let (path, format) = source_path(volume)?;
+    if let Some(series) = &volume.series {
+        return super::series_script::paraview(tf, volume, series, view, background, script_name);
+    }
     let mut s = String::new();
     write_header(&mut s, tf, script_name);
-    write_constants(&mut s, tf, volume, view, background, &path, format);
+    let _ = writeln!(s, "VOLUME = {}", py_str(&path));
+    write_tf_constants(&mut s, tf, volume, view, background, format);
     write_find_volume(&mut s);
-    write_open_volume(&mut s, volume, format);
+    let _ = writeln!(s, "\ndef open_volume(path):");
+    write_open_reader(&mut s, volume, format, "[path]");
+    let _ = writeln!(s, "    return reader");
     write_show_and_main(&mut s);
     Ok(s)
 }
@@ -101,14 +110,14 @@ import paraview.simple as pvs
     );
 }
 
-/// The values the script uses, as Python constants at the top where a user can edit them.
-fn write_constants(
+/// The values the script uses after the data's path, as Python constants at the top where a
+/// user can edit them.
+pub(crate) fn write_tf_constants(
     w: &mut String,
     tf: &ExportTf,
     volume: &Volume,
     view: &ParaViewCamera,
     background: [f64; 3],
-    path: &str,
     format: &SourceFormat,
 ) {
     let u = tf
@@ -116,8 +125,7 @@ fn write_constants(
         .unwrap_or_else(|| t2tf_tf::default_unit_distance(&volume.geometry));
     let _ = writeln!(
         w,
-        r#"VOLUME = {path}
-TF_NAME = {name_lit}
+        r#"TF_NAME = {name_lit}
 ARRAY = {array}
 RGB_POINTS = {rgb}
 OPACITY_POINTS = {opacity}
@@ -129,7 +137,6 @@ CAMERA_VIEW_ANGLE = {angle:?}
 BACKGROUND = {bg}
 "#,
         name_lit = py_str(&tf.name),
-        path = py_str(path),
         array = py_str(match format {
             SourceFormat::Raw { .. } => "ImageFile",
             SourceFormat::Vti { array } | SourceFormat::LegacyVtk { array } => array,
@@ -171,9 +178,14 @@ def find_volume():
     );
 }
 
-/// `open_volume(path)`: the ParaView reader for the volume's file format.
-fn write_open_volume(w: &mut String, volume: &Volume, format: &SourceFormat) {
-    let _ = writeln!(w, "\ndef open_volume(path):");
+/// The body of a function that opens the files of the Python list `files` with the ParaView
+/// reader for the volume's file format (several files: a time series) as `reader`.
+pub(crate) fn write_open_reader(
+    w: &mut String,
+    volume: &Volume,
+    format: &SourceFormat,
+    files: &str,
+) {
     match format {
         SourceFormat::Raw {
             scalar_type,
@@ -187,7 +199,7 @@ fn write_open_volume(w: &mut String, volume: &Volume, format: &SourceFormat) {
             let ext = g.dims.map(|d| d.saturating_sub(1));
             let _ = writeln!(
                 w,
-                r#"    reader = pvs.ImageReader(FileNames=[path])
+                r#"    reader = pvs.ImageReader(FileNames={files})
     reader.DataScalarType = {ty}
     reader.DataByteOrder = {order}
     reader.FileDimensionality = 3
@@ -215,25 +227,19 @@ fn write_open_volume(w: &mut String, volume: &Volume, format: &SourceFormat) {
         SourceFormat::Vti { .. } => {
             let _ = writeln!(
                 w,
-                r#"    reader = pvs.XMLImageDataReader(FileName=[path])
+                r#"    reader = pvs.XMLImageDataReader(FileName={files})
     reader.PointArrayStatus = [ARRAY]"#
             );
         }
         SourceFormat::LegacyVtk { .. } => {
-            let _ = writeln!(w, r#"    reader = pvs.LegacyVTKReader(FileNames=[path])"#);
+            let _ = writeln!(w, "    reader = pvs.LegacyVTKReader(FileNames={files})");
         }
     }
-    let _ = writeln!(w, "    return reader");
 }
 
-/// `show()`, which sets the TF, unit distance, camera and background, and `main()`, which
-/// shows the volume and saves a screenshot when asked.
-fn write_show_and_main(w: &mut String) {
-    let _ = writeln!(
-        w,
-        r#"
-
-def show(reader, size=None):
+/// `show(reader, size)`, which shows the reader's output with the TF, unit distance, camera and
+/// background, and returns the view.
+pub(crate) const SHOW: &str = r#"def show(reader, size=None):
     pvs._DisableFirstRenderCameraReset()
     view = pvs.GetActiveViewOrCreate("RenderView")
     if size:
@@ -263,7 +269,15 @@ def show(reader, size=None):
     view.CameraParallelProjection = 0
     pvs.Render(view)
     return view
+"#;
 
+/// `show()` and `main()`, which shows the volume and saves a screenshot when asked.
+fn write_show_and_main(w: &mut String) {
+    let _ = writeln!(
+        w,
+        r#"
+
+{SHOW}
 
 def main(argv):
     parser = argparse.ArgumentParser(description="Show a volume with the t2tf transfer function " + TF_NAME)

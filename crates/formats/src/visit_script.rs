@@ -60,17 +60,23 @@ fn visit_raw(t: ScalarType) -> Option<VisitRaw> {
     }
 }
 
-/// A BOV header for the raw file (`%s` stands for its absolute path): DATA_SIZE in points, BRICK_SIZE
-/// the box's world size, NODAL (values sit on the points), as VisIt's BOV documentation
-/// describes the keywords.
-fn bov_header(g: &t2tf_volume::Geometry, fmt: &str, order: ByteOrder) -> String {
+/// A BOV header for the raw file (`file` stands for its absolute path, `time` for its time: Python
+/// `%` fields): DATA_SIZE in points, BRICK_SIZE the box's world size, NODAL (values sit on the
+/// points), as VisIt's BOV documentation describes the keywords.
+fn bov_header(
+    g: &t2tf_volume::Geometry,
+    fmt: &str,
+    order: ByteOrder,
+    time: &str,
+    file: &str,
+) -> String {
     let endian = match order {
         ByteOrder::Little => "LITTLE",
         ByteOrder::Big => "BIG",
     };
     let ext = g.extent();
     format!(
-        "TIME: 0\nDATA_FILE: %s\nDATA_SIZE: {} {} {}\nDATA_FORMAT: {fmt}\n\
+        "TIME: {time}\nDATA_FILE: {file}\nDATA_SIZE: {} {} {}\nDATA_FORMAT: {fmt}\n\
          VARIABLE: scalars\nDATA_ENDIAN: {endian}\nCENTERING: NODAL\n\
          BRICK_ORIGIN: {:?} {:?} {:?}\nBRICK_SIZE: {:?} {:?} {:?}\n",
         g.dims[0],
@@ -127,50 +133,10 @@ pub fn visit_script(
     script_name: &str,
 ) -> Result<String, FormatError> {
     let (path, format) = source_path(volume)?;
-    let g = &volume.geometry;
-    let [lo, hi] = tf.data_range();
-    let span = if hi > lo { hi - lo } else { 1.0 };
-    let colours: Vec<String> = tf
-        .rgb_points
-        .iter()
-        .map(|&(x, c)| {
-            let [r, g, b] = c.map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8);
-            format!("({:?}, ({r}, {g}, {b}, 255))", (x - lo) / span)
-        })
-        .collect();
-    let freeform: Vec<String> = freeform_opacity(tf).iter().map(|v| v.to_string()).collect();
-    let d: [f64; 3] = std::array::from_fn(|a| view.position[a] - view.focal_point[a]);
-    let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-12);
-    let normal = d.map(|v| v / dist);
-    let parallel_scale = dist * (0.5 * view.view_angle).to_radians().tan();
-    let radius = g.bounding_radius();
-    // A raw file reaches VisIt through a BOV header (no copy) or a `.vti` copy (exact types).
-    let (mut bov, mut vti, mut vti_bytes, mut vti_order) = (None, None, 0usize, "<");
-    let var = match format {
-        SourceFormat::Raw {
-            scalar_type,
-            byte_order,
-        } => {
-            match visit_raw(*scalar_type) {
-                Some(VisitRaw::Bov(fmt)) => bov = Some(bov_header(g, fmt, *byte_order)),
-                Some(VisitRaw::Vti) => {
-                    vti = Some(vti_head(g, scalar_type.vtk_xml_name(), *byte_order));
-                    vti_bytes = g.voxel_count() * scalar_type.size();
-                    if matches!(byte_order, ByteOrder::Big) {
-                        vti_order = ">";
-                    }
-                }
-                None => {
-                    return Err(FormatError::Message(format!(
-                        "VisIt's BOV and VTK readers have no exact {scalar_type} type; no VisIt \
-                         script written"
-                    )))
-                }
-            }
-            "scalars".to_string()
-        }
-        SourceFormat::Vti { array } | SourceFormat::LegacyVtk { array } => array.clone(),
-    };
+    if let Some(series) = &volume.series {
+        return super::series_script::visit(tf, volume, series, view, background, script_name);
+    }
+    let constants = visit_constants(tf, volume, view, background, format, "0", "%s")?;
     let mut s = String::new();
     let w = &mut s;
     let _ = writeln!(
@@ -179,11 +145,7 @@ pub fn visit_script(
 #
 #   visit -cli -nowin -s {script} [--screenshot OUT.png] [--size W H]
 #
-# Colours: the TF's colour points over [COLOR_MIN, COLOR_MAX] (useColorVarMin/Max).
-# Opacity: 256 freeform values (0..255) over the same range; they are per-sample opacities
-# for a unit distance of {u:?} world units. VisIt has no unit-distance setting, so its look
-# depends on its sample count; ParaView's script reproduces t2tf exactly.
-import os
+{about}import os
 import shutil
 import struct
 import sys
@@ -191,30 +153,9 @@ import tempfile
 
 VOLUME = {path}
 SCRIPT_NAME = {script_py}
-VARIABLE = {var}
-COLOR_MIN = {lo:?}
-COLOR_MAX = {hi:?}
-COLOR_POINTS = [{colours}]
-FREEFORM_OPACITY = ({freeform},)
-VIEW_NORMAL = {normal}
-VIEW_FOCUS = {focus}
-VIEW_UP = {up}
-VIEW_ANGLE = {angle:?}
-PARALLEL_SCALE = {ps:?}
-NEAR_FAR = ({near:?}, {far:?})
-BACKGROUND = {bg}
-BOV_HEADER = {bov}
-VTI_HEAD = {vti}
-VTI_BYTES = {vti_bytes}
-VTI_ORDER = {vti_order}
+{constants}
 
-
-def arg(name, count):
-    if name in sys.argv:
-        i = sys.argv.index(name)
-        return sys.argv[i + 1:i + 1 + count]
-    return None
-
+{VISIT_ARG}
 
 def write_vti(path):
     # The raw bytes as they are after VTI_HEAD, with their UInt64 byte count (VTK XML's raw
@@ -231,15 +172,7 @@ def write_vti(path):
     os.replace(part, path)
 
 
-def here():
-    # The folder of this script (the run's output folder): side files go there, not beside
-    # the volume, whose folder may be read-only. VisIt's -s may not set __file__; the script's
-    # path is then among the arguments.
-    path = globals().get("__file__")
-    if not path:
-        path = next((a for a in sys.argv if os.path.basename(a) == SCRIPT_NAME), None)
-    return os.path.dirname(os.path.abspath(path)) if path else os.getcwd()
-
+{VISIT_HERE}
 
 def database():
     stem = os.path.splitext(os.path.basename(VOLUME))[0]
@@ -270,7 +203,62 @@ def database():
 
 
 OpenDatabase(database())
-AddPlot("Volume", VARIABLE)
+{VISIT_PLOT}shot = arg("--screenshot", 1)
+if shot:
+    size = arg("--size", 2) or ["512", "512"]
+    s = SaveWindowAttributes()
+    s.fileName = shot[0]
+    s.family = 0
+    s.format = s.PNG
+    s.width, s.height = int(size[0]), int(size[1])
+    s.resConstraint = s.NoConstraint
+    SetSaveWindowAttributes(s)
+    SaveWindow()
+    sys.exit(0)"#,
+        name = one_line(&tf.name),
+        script = one_line(script_name),
+        about = visit_about(tf, volume),
+        script_py = py_str(script_name),
+        path = py_str(&path),
+    );
+    Ok(s)
+}
+
+/// The header's lines on colour and opacity.
+pub(crate) fn visit_about(tf: &ExportTf, volume: &Volume) -> String {
+    format!(
+        "# Colours: the TF's colour points over [COLOR_MIN, COLOR_MAX] (useColorVarMin/Max).
+# Opacity: 256 freeform values (0..255) over the same range; they are per-sample opacities
+# for a unit distance of {u:?} world units. VisIt has no unit-distance setting, so its look
+# depends on its sample count; ParaView's script reproduces t2tf exactly.
+",
+        u = tf
+            .unit_distance
+            .unwrap_or_else(|| t2tf_tf::default_unit_distance(&volume.geometry)),
+    )
+}
+
+/// `arg(name, count)`: the `count` command-line values after `name`, or None.
+pub(crate) const VISIT_ARG: &str = r#"def arg(name, count):
+    if name in sys.argv:
+        i = sys.argv.index(name)
+        return sys.argv[i + 1:i + 1 + count]
+    return None
+"#;
+
+/// `here()`: the folder side files go to.
+pub(crate) const VISIT_HERE: &str = r#"def here():
+    # The folder of this script (the run's output folder): side files go there, not beside
+    # the volume, whose folder may be read-only. VisIt's -s may not set __file__; the script's
+    # path is then among the arguments.
+    path = globals().get("__file__")
+    if not path:
+        path = next((a for a in sys.argv if os.path.basename(a) == SCRIPT_NAME), None)
+    return os.path.dirname(os.path.abspath(path)) if path else os.getcwd()
+"#;
+
+/// The Volume plot with the TF, the background and the view, on the open database.
+pub(crate) const VISIT_PLOT: &str = r#"AddPlot("Volume", VARIABLE)
 atts = VolumeAttributes()
 atts.opacityMode = atts.FreeformMode
 atts.freeformOpacity = FREEFORM_OPACITY
@@ -306,25 +294,82 @@ view.parallelScale = PARALLEL_SCALE
 view.nearPlane, view.farPlane = NEAR_FAR
 view.perspective = 1
 SetView3D(view)
-shot = arg("--screenshot", 1)
-if shot:
-    size = arg("--size", 2) or ["512", "512"]
-    s = SaveWindowAttributes()
-    s.fileName = shot[0]
-    s.family = 0
-    s.format = s.PNG
-    s.width, s.height = int(size[0]), int(size[1])
-    s.resConstraint = s.NoConstraint
-    SetSaveWindowAttributes(s)
-    SaveWindow()
-    sys.exit(0)"#,
-        name = one_line(&tf.name),
-        script = one_line(script_name),
-        script_py = py_str(script_name),
-        u = tf
-            .unit_distance
-            .unwrap_or_else(|| t2tf_tf::default_unit_distance(g)),
-        path = py_str(&path),
+"#;
+
+/// The constants from `VARIABLE` to `VTI_ORDER`, one per line: the TF, the view, and how a raw
+/// file reaches VisIt (`BOV_HEADER` with the Python `%` fields `time` and `file`, or
+/// `VTI_HEAD`); an error for a raw type VisIt would not read exactly.
+pub(crate) fn visit_constants(
+    tf: &ExportTf,
+    volume: &Volume,
+    view: &ParaViewCamera,
+    background: [f64; 3],
+    format: &SourceFormat,
+    time: &str,
+    file: &str,
+) -> Result<String, FormatError> {
+    let g = &volume.geometry;
+    let [lo, hi] = tf.data_range();
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    let colours: Vec<String> = tf
+        .rgb_points
+        .iter()
+        .map(|&(x, c)| {
+            let [r, g, b] = c.map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8);
+            format!("({:?}, ({r}, {g}, {b}, 255))", (x - lo) / span)
+        })
+        .collect();
+    let freeform: Vec<String> = freeform_opacity(tf).iter().map(|v| v.to_string()).collect();
+    let d: [f64; 3] = std::array::from_fn(|a| view.position[a] - view.focal_point[a]);
+    let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-12);
+    let normal = d.map(|v| v / dist);
+    let parallel_scale = dist * (0.5 * view.view_angle).to_radians().tan();
+    let radius = g.bounding_radius();
+    // A raw file reaches VisIt through a BOV header (no copy) or a `.vti` copy (exact types).
+    let (mut bov, mut vti, mut vti_bytes, mut vti_order) = (None, None, 0usize, "<");
+    let var = match format {
+        SourceFormat::Raw {
+            scalar_type,
+            byte_order,
+        } => {
+            match visit_raw(*scalar_type) {
+                Some(VisitRaw::Bov(fmt)) => bov = Some(bov_header(g, fmt, *byte_order, time, file)),
+                Some(VisitRaw::Vti) => {
+                    vti = Some(vti_head(g, scalar_type.vtk_xml_name(), *byte_order));
+                    vti_bytes = g.voxel_count() * scalar_type.size();
+                    if matches!(byte_order, ByteOrder::Big) {
+                        vti_order = ">";
+                    }
+                }
+                None => {
+                    return Err(FormatError::Message(format!(
+                        "VisIt's BOV and VTK readers have no exact {scalar_type} type; no VisIt \
+                         script written"
+                    )))
+                }
+            }
+            "scalars".to_string()
+        }
+        SourceFormat::Vti { array } | SourceFormat::LegacyVtk { array } => array.clone(),
+    };
+    Ok(format!(
+        r#"VARIABLE = {var}
+COLOR_MIN = {lo:?}
+COLOR_MAX = {hi:?}
+COLOR_POINTS = [{colours}]
+FREEFORM_OPACITY = ({freeform},)
+VIEW_NORMAL = {normal}
+VIEW_FOCUS = {focus}
+VIEW_UP = {up}
+VIEW_ANGLE = {angle:?}
+PARALLEL_SCALE = {ps:?}
+NEAR_FAR = ({near:?}, {far:?})
+BACKGROUND = {bg}
+BOV_HEADER = {bov}
+VTI_HEAD = {vti}
+VTI_BYTES = {vti_bytes}
+VTI_ORDER = {vti_order}
+"#,
         var = py_str(&var),
         colours = colours.join(", "),
         freeform = freeform.join(", "),
@@ -340,6 +385,5 @@ if shot:
         bov = bov.as_deref().map_or("None".to_string(), py_str),
         vti = vti.as_deref().map_or("None".to_string(), py_str),
         vti_order = py_str(vti_order),
-    );
-    Ok(s)
+    ))
 }
