@@ -70,7 +70,7 @@ pub struct Start<'a> {
 }
 
 /// The models a run drives: the renderer, CLIP's two towers and the TF parameterization.
-pub struct Models<'a, R, E, T, P> {
+pub struct Models<'a, R, E, T, P: ?Sized> {
     /// The volume renderer.
     pub renderer: &'a R,
     /// CLIP's image tower.
@@ -125,7 +125,7 @@ fn encode_all<T: TextEncoder>(
 /// Run Algorithm 1 for `job`. `progress` sees every step; raising `stop` ends the run after
 /// the current step with the TF of that step (`outcome.interrupted`). Zero negatives are
 /// the loop's error ([`OptimizeError::NoNegatives`]), raised before the loop's first render.
-pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization>(
+pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization + ?Sized>(
     job: &Job,
     models: &Models<R, E, T, P>,
     stop: &AtomicBool,
@@ -216,7 +216,7 @@ pub fn check_prompt(prompt: &str) -> Result<(), OptimizeError> {
 
 /// The text side of a run: the positive (prompt or reference image), the user's negatives
 /// and the pool (cached on disk when `job.cache` says where).
-fn embed_targets<R, E: ImageEncoder, T: TextEncoder, P>(
+fn embed_targets<R, E: ImageEncoder, T: TextEncoder, P: ?Sized>(
     job: &Job,
     models: &Models<R, E, T, P>,
 ) -> Result<Embedded, OptimizeError> {
@@ -267,7 +267,7 @@ fn embed_targets<R, E: ImageEncoder, T: TextEncoder, P>(
 
 /// The final TF's CLIP scores (positive first, then the user's negatives) and its preview,
 /// from the same `job.preview_views` orbit views.
-fn score_and_preview<R: Renderer, E: ImageEncoder, T, P: Parameterization>(
+fn score_and_preview<R: Renderer, E: ImageEncoder, T, P: Parameterization + ?Sized>(
     job: &Job,
     models: &Models<R, E, T, P>,
     outcome: &Outcome,

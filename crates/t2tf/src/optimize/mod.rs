@@ -174,7 +174,7 @@ impl Targets<'_> {
 }
 
 /// What a run optimizes and against what: the components and targets every step shares.
-pub struct Problem<'a, R, E, P> {
+pub struct Problem<'a, R, E, P: ?Sized> {
     /// The volume renderer.
     pub renderer: &'a R,
     /// CLIP's image tower.
@@ -189,7 +189,7 @@ pub struct Problem<'a, R, E, P> {
 
 /// Loss and gradient of one step at `params`, and the times of its phases (added to `times`).
 /// `StepLog::seconds` and `grad_norm` are filled in; `lr` is the plan's.
-pub fn step_gradient<R: Renderer, E: ImageEncoder, P: Parameterization>(
+pub fn step_gradient<R: Renderer, E: ImageEncoder, P: Parameterization + ?Sized>(
     problem: &Problem<R, E, P>,
     plan: &StepPlan,
     params: &[f64],
@@ -415,7 +415,7 @@ pub struct Outcome {
 /// step with its log and the total step count. `stop` is checked before each step: when it
 /// is raised (Ctrl-C), the loop returns the TF of the last completed step with
 /// `interrupted = true`. A non-finite gradient or parameter is an error (nothing is skipped).
-pub fn optimize<R: Renderer, E: ImageEncoder, P: Parameterization>(
+pub fn optimize<R: Renderer, E: ImageEncoder, P: Parameterization + ?Sized>(
     problem: &Problem<R, E, P>,
     mut params: Vec<f64>,
     stop: &AtomicBool,
@@ -514,7 +514,7 @@ const HIT_T: f32 = 0.999;
 /// a 45° view, and rays that miss it keep T = 1 whatever the TF, so over all rays ρ = 0.05
 /// would be unreachable for most volumes (measured: 0.68 at best for the 41³ nucleon at 3
 /// radii) and the search would saturate every density.
-pub fn initialize<R: Renderer, P: Parameterization>(
+pub fn initialize<R: Renderer, P: Parameterization + ?Sized>(
     renderer: &R,
     tf: &P,
     histogram: &[u64],
@@ -566,7 +566,7 @@ pub fn initialize<R: Renderer, P: Parameterization>(
 
 /// Start from the given control points instead of the paper's initialization: their
 /// parameters, and what [`initialize`] would report (mean T_N of V0 measured once).
-pub fn start_from<R: Renderer, P: Parameterization>(
+pub fn start_from<R: Renderer, P: Parameterization + ?Sized>(
     renderer: &R,
     tf: &P,
     cp: &ControlPoints,

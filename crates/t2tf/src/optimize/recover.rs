@@ -22,7 +22,7 @@ const MOMENTUM: f64 = 0.75;
 
 /// `steps` of momentum SGD with linear annealing from `lr0`, every view in every step. Returns
 /// the parameters and the loss of each step; a non-finite loss or gradient is an error.
-pub fn descend<R: Renderer, P: Parameterization>(
+pub fn descend<R: Renderer, P: Parameterization + ?Sized>(
     renderer: &R,
     tf: &P,
     views: &[View],

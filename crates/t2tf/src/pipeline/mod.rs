@@ -49,13 +49,10 @@ use crate::optimize::report::{
 };
 use crate::optimize::series::SeriesSteps;
 use crate::optimize::settings::{Settings, ValidSettings};
-use crate::optimize::start::StartTf;
 use crate::optimize::tf_plot::Curve;
-use crate::optimize::{
-    BoxError, OptimizeError, Outcome, Parameterization, PointGrad, Renderer, View,
-};
+use crate::optimize::{OptimizeError, Outcome, Parameterization, Renderer, View};
 use crate::render::{CpuBackend, RenderOptions};
-use crate::tf::{ControlPoints, LutGrad};
+use crate::tf::ControlPoints;
 use crate::volume::{ByteOrder, SourceFormat, Volume};
 
 /// Entries of the LUT the optimizer's renderer samples (one per histogram bin).
@@ -256,48 +253,6 @@ impl ValidJob {
     }
 }
 
-/// The parameterization a run optimizes: the paper's, or the paper's with a given start and
-/// locked ranges ([`StartTf`]).
-enum RunTf {
-    Paper(PaperTf),
-    Start(StartTf),
-}
-
-impl Parameterization for RunTf {
-    fn control_points(&self, params: &[f64]) -> Result<ControlPoints, BoxError> {
-        match self {
-            RunTf::Paper(t) => t.control_points(params),
-            RunTf::Start(t) => t.control_points(params),
-        }
-    }
-
-    fn lut_size(&self) -> usize {
-        match self {
-            RunTf::Paper(t) => t.lut_size(),
-            RunTf::Start(t) => t.lut_size(),
-        }
-    }
-
-    fn params_for(&self, cp: &ControlPoints) -> Result<Vec<f64>, BoxError> {
-        match self {
-            RunTf::Paper(t) => t.params_for(cp),
-            RunTf::Start(t) => t.params_for(cp),
-        }
-    }
-
-    fn backward(
-        &self,
-        params: &[f64],
-        lut: &LutGrad,
-        direct: &PointGrad,
-    ) -> Result<Vec<f64>, BoxError> {
-        match self {
-            RunTf::Paper(t) => t.backward(params, lut, direct),
-            RunTf::Start(t) => t.backward(params, lut, direct),
-        }
-    }
-}
-
 /// What a run reports while it works. The callback returns [`ControlFlow::Break`] to stop the
 /// run after the current step (the result is then the TF of that step).
 #[derive(Clone, Copy, Debug)]
@@ -404,7 +359,13 @@ pub fn optimize_series(
     job: &ValidJob,
     on_event: &mut dyn FnMut(Event) -> ControlFlow<()>,
 ) -> Result<Optimized, PipelineError> {
-    run(series.representative()?, Some(series), Some(model), job, on_event)
+    run(
+        series.representative()?,
+        Some(series),
+        Some(model),
+        job,
+        on_event,
+    )
 }
 
 /// What a run optimizes a TF for: one volume, or the steps of a time series.
@@ -517,24 +478,27 @@ fn run(
     };
     // A fresh run is the paper's; a refine or a run with locks starts from given points (the
     // paper's initialization when there is no init, made here so the locks can cut it).
-    let (tf, planned, paper_init) = if j.init.is_none() && j.locks.is_empty() {
-        (RunTf::Paper(paper), None, None)
-    } else {
-        // The paper's densities are needed without an init, and for a colour-only one.
-        let paper_init = if j.init.as_ref().is_none_or(InitTf::colours_only) {
-            Some(crate::optimize::initialize(&renderer, &paper, &volume.histogram, settings)?.1)
+    // The parameterization: the paper's, or the paper's with a given start and locked ranges
+    // (`StartTf`).
+    let (tf, planned, paper_init): (Box<dyn Parameterization>, _, _) =
+        if j.init.is_none() && j.locks.is_empty() {
+            (Box::new(paper), None, None)
         } else {
-            None
+            // The paper's densities are needed without an init, and for a colour-only one.
+            let paper_init = if j.init.as_ref().is_none_or(InitTf::colours_only) {
+                Some(crate::optimize::initialize(&renderer, &paper, &volume.histogram, settings)?.1)
+            } else {
+                None
+            };
+            let p = start::plan(
+                volume,
+                j.init.as_ref(),
+                paper_init.as_ref().map(|i| &i.control_points),
+                &j.locks,
+                settings.control_points,
+            )?;
+            (Box::new(p.tf.clone()), Some(p), paper_init)
         };
-        let p = start::plan(
-            volume,
-            j.init.as_ref(),
-            paper_init.as_ref().map(|i| &i.control_points),
-            &j.locks,
-            settings.control_points,
-        )?;
-        (RunTf::Start(p.tf.clone()), Some(p), paper_init)
-    };
     let lut_size = tf.lut_size();
     let unit_distance = planned
         .as_ref()
@@ -573,7 +537,7 @@ fn run(
                 renderer: &renderer,
                 image_encoder: &clip_model,
                 text_encoder: &clip_model,
-                tf: &tf,
+                tf: &*tf,
             };
             emit(Event::Phase(
                 "optimizing (caption embeddings are computed first if not cached)",
@@ -590,7 +554,7 @@ fn run(
                 PipelineError::Job("a run without a model starts from a given TF".into())
             })?;
             emit(Event::Phase("writing the start (0 steps: no model needed)"));
-            start_only(&renderer, &tf, &start.control_points, settings)?
+            start_only(&renderer, &*tf, &start.control_points, settings)?
         }
     };
     if let Some(CacheOutcome::NotStored(why)) = &finished.cache {
@@ -754,7 +718,7 @@ fn input_file(path: &Path, what: &str) -> Result<InputFile, PipelineError> {
 /// after no step), its mean transmittance from the initial view, and the preview.
 fn start_only(
     renderer: &VolumeRenderer,
-    tf: &RunTf,
+    tf: &dyn Parameterization,
     control_points: &ControlPoints,
     settings: &ValidSettings,
 ) -> Result<Finished, PipelineError> {
