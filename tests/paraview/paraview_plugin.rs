@@ -446,11 +446,162 @@ fn offline_the_documented_api_raises_and_says_what_to_do() {
     for needle in [
         "openai/clip-vit-base-patch32",
         "t2tf model fetch",
-        "set Model (an advanced property) to a local model folder",
+        "set the Model property (advanced) to a local model folder",
     ] {
         assert!(raised.contains(needle), "'{needle}' not in: {raised}");
     }
     assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
+}
+
+/// A run t2tf refuses shows t2tf's own message and then the property to change, from the kind
+/// and option t2tf reports: the binary's `--progress json` error line and the Python module's
+/// exception attributes, for real t2tf and for stand-ins that report exactly what the
+/// documented fields say. An older t2tf's message (no kind) is shown as it is.
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn failing_runs_name_the_property_to_change() {
+    require_paraview("failing_runs_name_the_property_to_change");
+    let dir = tempfile::tempdir().unwrap();
+    let module = python_module(dir.path());
+    let mut env = vec![];
+    if let Some(module) = &module {
+        env.push(("T2TF_TEST_MODULE", module.to_str().unwrap()));
+    }
+    let (out, res) = driver_with("hints", dir.path(), &env);
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    assert!(
+        all.contains("CASES DONE") && !all.contains("Traceback"),
+        "{all}"
+    );
+    let failed = res.expect("driver wrote no JSON")["failed"].clone();
+    let case = |name: &str| -> (String, serde_json::Value, serde_json::Value) {
+        let c = &failed[name];
+        let error = c["error"]
+            .as_str()
+            .unwrap_or_else(|| panic!("{name}: {failed}"));
+        (error.to_string(), c["kind"].clone(), c["option"].clone())
+    };
+    // The filter's error is what the output window shows, once.
+    for name in [
+        "binary_views",
+        "binary_model",
+        "reported",
+        "older",
+        "module_reported",
+    ] {
+        let (error, _, _) = case(name);
+        let line = format!("Text To Transfer Function: {error}");
+        assert_eq!(all.matches(&line).count(), 1, "'{line}' once in:\n{all}");
+    }
+    let hint = |name: &str, text: &str, advice: &str| {
+        let (error, _, _) = case(name);
+        assert!(
+            error.starts_with("t2tf: ") && error.contains(text),
+            "{name}: {error}"
+        );
+        assert!(
+            error.ends_with(&format!("; in ParaView, {advice}")),
+            "{name}: {error}"
+        );
+        for flag in ["--views", "--model", "--steps"] {
+            assert!(!error.contains(flag), "{name}: {flag} in {error}");
+        }
+    };
+    // The binary (run through the counting wrapper twice).
+    hint(
+        "binary_views",
+        "must be at most 64, got 100",
+        "change the Views property",
+    );
+    hint(
+        "binary_model",
+        "no-such-model",
+        "set the Model property (advanced) to a local model folder or a Hugging Face repository id",
+    );
+    assert_eq!(runs(dir.path()), 2, "{all}");
+    // A binary reporting kind invalid_option and option steps; an older one's text as it is.
+    hint(
+        "reported",
+        "invalid setting `steps`: must be at most 5, got 7",
+        "change the Steps property",
+    );
+    assert_eq!(
+        case("reported").1.as_str().zip(case("reported").2.as_str()),
+        Some(("invalid_option", "steps"))
+    );
+    let (older, kind, _) = case("older");
+    assert_eq!(
+        older,
+        "t2tf failed (exit status 1): t2tf: error: invalid value '7' for '--steps'"
+    );
+    assert!(kind.is_null(), "{failed}");
+    // In-process: the exception's kind and option; without them, the kind of its class.
+    hint(
+        "module_reported",
+        "must be at most 64, got 100",
+        "change the Views property",
+    );
+    hint(
+        "module_class",
+        "must be at most 64, got 100",
+        "check the filter's properties",
+    );
+    assert_eq!(case("module_class").1, "invalid_option");
+    // The built module, where there is one: the property when it names the option.
+    if module.is_some() {
+        for (name, text, advice) in [
+            (
+                "module_views",
+                "must be at most 64, got 100",
+                "change the Views property",
+            ),
+            (
+                "module_model",
+                "no-such-model",
+                "set the Model property (advanced)",
+            ),
+        ] {
+            let (error, kind, option) = case(name);
+            assert!(
+                error.contains(text) && error.contains("; in ParaView, "),
+                "{error}"
+            );
+            if !option.is_null() {
+                assert!(error.contains(advice), "{name} ({kind}, {option}): {error}");
+            }
+        }
+    } else {
+        eprintln!(
+            "failing_runs_name_the_property_to_change: no Python extension; in-process \
+                   runs of the real module not checked"
+        );
+    }
+}
+
+/// The plugin loaded twice, and imported in between: the entry file runs three times, the
+/// package once, so one filter runs t2tf once and registers one preset.
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn loading_the_plugin_twice_keeps_one_package() {
+    require_paraview("loading_the_plugin_twice_keeps_one_package");
+    let dir = tempfile::tempdir().unwrap();
+    let (out, res) = driver("twice", dir.path());
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    assert!(!all.contains("Traceback"), "{all}");
+    let res = res.expect("driver wrote no JSON");
+    assert_eq!(res["same_package"], true, "{res}");
+    assert_eq!(res["error"], serde_json::Value::Null, "{res}");
+    assert_eq!(res["has_result"], true, "{res}");
+    assert_eq!(res["representation"], "Volume", "{res}");
+    assert_eq!(
+        res["presets"],
+        serde_json::json!(["t2tf: a protein molecule"]),
+        "{res}"
+    );
+    assert_eq!(all.matches("using the t2tf binary").count(), 1, "{all}");
+    assert_eq!(runs(dir.path()), 1, "{all}");
 }
 
 #[test]
@@ -819,26 +970,16 @@ fn the_abort_button_stops_the_binarys_run_and_paraview_stays_usable() {
     assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
 }
 
-#[test]
-#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
-fn the_abort_button_stops_an_in_process_run() {
-    require_tools(
-        "the_abort_button_stops_an_in_process_run",
-        &["paraview", "xvfb-run"],
-    );
-    // The Python extension `cargo build --release -p t2tf-python` (or a wheel's build) leaves
-    // beside the binary; the Rust harness does not build it.
+/// The t2tf Python package as an install lays it out (the Python files and the extension) in
+/// `dir/module`, which is returned; None where the extension was not built: `cargo build
+/// --release -p t2tf-python` (or a wheel's build) leaves it beside the binary, and the Rust
+/// harness does not build it.
+fn python_module(dir: &Path) -> Option<PathBuf> {
     let built = Path::new(env!("CARGO_BIN_EXE_t2tf")).with_file_name("lib_t2tf.so");
     if !built.is_file() {
-        eprintln!(
-            "the_abort_button_stops_an_in_process_run: no {} (build the Python extension); not run",
-            built.display()
-        );
-        return;
+        return None;
     }
-    // The package as an install lays it out: the Python files and the extension.
-    let dir = tempfile::tempdir().unwrap();
-    let package = dir.path().join("module/t2tf");
+    let package = dir.join("module/t2tf");
     std::fs::create_dir_all(&package).unwrap();
     for entry in std::fs::read_dir(repo().join("python/t2tf")).unwrap() {
         let path = entry.unwrap().path();
@@ -847,7 +988,26 @@ fn the_abort_button_stops_an_in_process_run() {
         }
     }
     std::fs::copy(&built, package.join("_t2tf.abi3.so")).unwrap();
-    let res = gui_stop("abort", dir.path(), Some(&dir.path().join("module")));
+    Some(dir.join("module"))
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn the_abort_button_stops_an_in_process_run() {
+    require_tools(
+        "the_abort_button_stops_an_in_process_run",
+        &["paraview", "xvfb-run"],
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let Some(module) = python_module(dir.path()) else {
+        eprintln!(
+            "the_abort_button_stops_an_in_process_run: no Python extension beside {} \
+             (cargo build --release -p t2tf-python); not run",
+            env!("CARGO_BIN_EXE_t2tf")
+        );
+        return;
+    };
+    let res = gui_stop("abort", dir.path(), Some(&module));
     assert_aborted_and_usable(&res);
     assert_eq!(runs(dir.path()), 0, "the binary ran: {res}");
     assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
@@ -1653,10 +1813,13 @@ fn the_filter_recovers_and_reuses_only_what_matches() {
     assert_eq!(runs("tokenizer back"), 4, "{res}");
     assert_eq!(error("tokenizer back"), "");
     assert_eq!(runs("seed 4"), 5, "{res}");
-    // ParaView's words: the property, no flag, no repository path.
+    // t2tf's message, then the property to set; no flag, no repository path.
     let e = error("no tokenizer");
     assert!(
-        e.contains("missing tokenizer.json (or set Tokenizer)"),
+        e.contains("missing tokenizer.json")
+            && e.ends_with(
+                "; in ParaView, set the Tokenizer property (advanced) to a tokenizer.json file"
+            ),
         "{e}"
     );
     for flag in ["--tokenizer", "--model", "../shared"] {

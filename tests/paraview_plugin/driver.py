@@ -390,7 +390,99 @@ elif mode == "binary":
     pvs.Render(view)
     res["other_error"] = algo.error
     res["plugin_version"] = t2tf_plugin.__version__
-if mode not in ("errors", "offline", "panel", "presets", "estimate", "recover", "binary"):
+elif mode == "hints":
+    # A run that t2tf refuses is one message: t2tf's own words, then what to change in
+    # ParaView, from the kind and option t2tf reports (none added to an older t2tf's text).
+    work = os.path.dirname(out_json)
+    counting = os.environ["T2TF_BIN"]
+    src = raw_reader(volume)
+    failed = {}
+
+    def fail(case, **props):
+        print("CASE", case, flush=True)
+        f = tf_filter(src, steps=2)
+        for k, v in props.items():
+            setattr(f, k, v)
+        f.UpdatePipeline()
+        algo = f.GetClientSideObject()
+        failed[case] = {"error": algo.error, "kind": getattr(algo.failure, "kind", None),
+                        "option": getattr(algo.failure, "option", None)}
+        pvs.Delete(f)
+
+    def script(name, text):
+        path = os.path.join(work, name)
+        with open(path, "w") as fh:
+            fh.write("#!/bin/sh\n[ \"$1\" = --version ] && echo 't2tf %s' && exit 0\n%s\nexit 1\n"
+                     % (t2tf_plugin.__version__, text))
+        os.chmod(path, 0o755)
+        return path
+
+    # The binary: Views above t2tf's bound (the panel's domain stops at 16, Python does not),
+    # and a model folder that is not there.
+    fail("binary_views", Views=100)
+    fail("binary_model", Model=os.path.join(work, "no-such-model"))
+    # A t2tf that reports the kind and option of its error (the --progress json error line).
+    os.environ["T2TF_BIN"] = script("reporting-t2tf", "echo '%s' >&2" % json.dumps(
+        {"event": "error", "message": "invalid setting `steps`: must be at most 5, got 7",
+         "kind": "invalid_option", "option": "steps"}))
+    fail("reported", Steps=7)
+    # An older t2tf, whose error is a line of text: shown as it is.
+    os.environ["T2TF_BIN"] = script("older-t2tf",
+                                    "echo \"t2tf: error: invalid value '7' for '--steps'\" >&2")
+    fail("older", Steps=7)
+    # In-process: a stand-in t2tf module whose error has a kind and option, then one whose
+    # error has neither (the kind comes from its class).
+    del os.environ["T2TF_BIN"]
+    fake = os.path.join(work, "fake")
+    os.makedirs(os.path.join(fake, "t2tf"))
+    with open(os.path.join(fake, "t2tf", "__init__.py"), "w") as fh:
+        fh.write("import os\n__version__ = %r\nclass Error(Exception): pass\n"
+                 "class SettingsError(Error): pass\n"
+                 "def optimize(volume, prompt, **settings):\n"
+                 "    e = SettingsError('invalid setting `views`: must be at most 64, got 100')\n"
+                 "    if os.environ.get('T2TF_FAKE_KIND'):\n"
+                 "        e.kind, e.option = 'invalid_option', 'views'\n"
+                 "    raise e\n" % t2tf_plugin.__version__)
+    with open(os.path.join(fake, "t2tf", "vtk.py"), "w") as fh:
+        fh.write("def volume_from_vtk(image, array):\n    return None\n")
+
+    def use_module(folder):
+        for name in [n for n in sys.modules if n == "t2tf" or n.startswith("t2tf.")]:
+            del sys.modules[name]
+        sys.path.insert(0, folder)
+
+    use_module(fake)
+    os.environ["T2TF_FAKE_KIND"] = "1"
+    fail("module_reported", Views=100)
+    del os.environ["T2TF_FAKE_KIND"]
+    fail("module_class", Views=100)
+    # The real module, where the test built it.
+    if os.environ.get("T2TF_TEST_MODULE"):
+        sys.path.remove(fake)
+        use_module(os.environ["T2TF_TEST_MODULE"])
+        fail("module_views", Views=100)
+        fail("module_model", Model=os.path.join(work, "no-such-model"))
+    os.environ["T2TF_BIN"] = counting
+    print("CASES DONE", flush=True)
+    res["failed"] = failed
+elif mode == "twice":
+    # The plugin loaded again (and imported in between): one package, one filter definition,
+    # one binary check, one run per update.
+    pvs.LoadPlugin(plugin, ns=globals())
+    import t2tf_plugin as again  # noqa: E402
+    pvs.LoadPlugin(plugin, ns=globals())
+    res["same_package"] = again.text_to_transfer_function is t2tf_plugin.text_to_transfer_function
+    f = tf_filter(raw_reader(volume), steps=2)
+    pvs.Show(f, view)
+    pvs.Render(view)
+    res["error"] = f.GetClientSideObject().error
+    res["has_result"] = f.GetClientSideObject().result is not None
+    presets = servermanager.vtkSMTransferFunctionPresets.GetInstance()
+    res["presets"] = [presets.GetPresetName(i) for i in range(presets.GetNumberOfPresets())
+                      if presets.GetPresetName(i).startswith("t2tf: ")]
+    res["representation"] = text(pvs.GetDisplayProperties(f, view).Representation)
+if mode not in ("errors", "offline", "panel", "presets", "estimate", "recover", "binary", "hints",
+                "twice"):
     pvs.SaveScreenshot(shot, view, ImageResolution=[size, size])
 with open(out_json, "w") as fh:
     json.dump(res, fh)
