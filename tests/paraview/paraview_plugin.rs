@@ -1084,11 +1084,50 @@ fn the_panel_labels_negatives_and_a_failed_first_apply_shows_an_outline() {
     assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
 }
 
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn without_gui_symbols_a_run_works_and_each_lost_feature_is_said_once() {
+    require_tools(
+        "without_gui_symbols_a_run_works_and_each_lost_feature_is_said_once",
+        &["paraview", "xvfb-run"],
+    );
+    // The GUI with no C++ symbol to call (as on Windows): two runs work and show their TF;
+    // the features lost are each one line in the output window, not an error per run.
+    let dir = tempfile::tempdir().unwrap();
+    let (res, all) = paraview_gui_output("gui_degraded.py", dir.path());
+    for seed in [3, 4] {
+        assert_eq!(
+            res[format!("error_{seed}")],
+            serde_json::Value::Null,
+            "{res}"
+        );
+        assert_eq!(res[format!("representation_{seed}")], "Volume", "{res}");
+    }
+    let off = res["off"].as_object().unwrap();
+    for feature in ["events", "abort", "preset_groups"] {
+        assert!(off.contains_key(feature), "{feature} not off: {res}");
+    }
+    for said in [
+        "the GUI is not repainted while t2tf runs",
+        "the Abort button and closing the main window do not stop a run",
+        "presets join Choose Preset's groups through the saved setting only",
+    ] {
+        assert_eq!(all.matches(said).count(), 1, "'{said}' once in:\n{all}");
+    }
+    assert!(!all.contains("Traceback"), "{all}");
+    assert_eq!(runs(dir.path()), 2, "{res}");
+}
+
 /// Run `paraview --script=tests/paraview_plugin/SCRIPT` under xvfb with the plugin's
 /// environment (t2tf through [`counting_t2tf`], temporaries in `dir/tmp`, no welcome dialog)
 /// and return the JSON the script wrote.
 fn paraview_gui(script: &str, dir: &Path) -> serde_json::Value {
     paraview_gui_with(script, dir, &[], false)
+}
+
+/// [`paraview_gui`], and what ParaView printed (its output window).
+fn paraview_gui_output(script: &str, dir: &Path) -> (serde_json::Value, String) {
+    try_paraview_gui(script, dir, &[], false, 300).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// [`paraview_gui`] with more environment (set after, so overriding, the plugin's), and
@@ -1100,18 +1139,20 @@ fn paraview_gui_with(
     env: &[(&str, std::ffi::OsString)],
     launcher: bool,
 ) -> serde_json::Value {
-    try_paraview_gui(script, dir, env, launcher, 300).unwrap_or_else(|e| panic!("{e}"))
+    try_paraview_gui(script, dir, env, launcher, 300)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .0
 }
 
-/// [`paraview_gui_with`] stopped after `seconds`, its failures returned (the script's
-/// exception, no JSON, a failed or killed ParaView) with what it printed.
+/// [`paraview_gui_with`] stopped after `seconds`, with what ParaView printed; its failures
+/// returned (the script's exception, no JSON, a failed or killed ParaView) with that text.
 fn try_paraview_gui(
     script: &str,
     dir: &Path,
     env: &[(&str, std::ffi::OsString)],
     launcher: bool,
     seconds: u32,
-) -> Result<serde_json::Value, String> {
+) -> Result<(serde_json::Value, String), String> {
     let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
     let config = dir.join("config/ParaView");
     std::fs::create_dir_all(&config).unwrap();
@@ -1178,7 +1219,7 @@ fn try_paraview_gui(
     if !res["exception"].is_null() {
         return Err(format!("{res}\n{all}"));
     }
-    Ok(res)
+    Ok((res, all))
 }
 
 #[test]
@@ -1351,7 +1392,7 @@ fn client_server_gui_has_the_filter_and_runs_it_once_per_apply() {
         let log = server.log_text();
         drop(server);
         match got {
-            Ok(res) => break (res, log),
+            Ok((res, _)) => break (res, log),
             // A rank that loses its X server aborts, and the GUI waits on a modal warning
             // until the timeout: start both again, twice at most.
             Err(e) if attempt < 3 && log.contains("bad X server connection") => {
