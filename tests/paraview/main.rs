@@ -22,4 +22,6 @@ mod paraview_parity;
 #[cfg(unix)]
 mod paraview_plugin;
 #[cfg(unix)]
+mod paraview_series;
+#[cfg(unix)]
 mod paraview_tables;
