@@ -1,142 +1,278 @@
-//! The library's errors name what was wrong, never a command-line flag; here the binary adds
-//! the flag that fixes it where it knows one. Library messages name an option in backticks by
-//! its field's name (`dims`, the `ReadOptions` field; Python takes the same keyword), which
-//! [`say`] turns into the flag.
+//! The library's errors say what was wrong and name an option in backticks by its field
+//! (`dims`, the `ReadOptions` field; Python takes the same keyword); none names a flag or says
+//! what a front end offers. Each error gives a [`Hint`] (its kind and option), and here the
+//! command line words its advice from it: the option's flag from [`FLAGS`], the command that
+//! fetches a model, the budget's flag. Nothing here reads the message's text.
 
+use crate::error::{ErrorKind, Hint};
 use crate::optimize::OptimizeError;
 use crate::pipeline::PipelineError;
 
-/// The budget's flag, said after any error of the memory budget.
-const MEMORY_HINT: &str = "or set the budget with --max-memory, e.g. --max-memory 16G";
-
-/// Settings the command line has a flag of the same name for.
-const SETTING_FLAGS: [&str; 14] = [
-    "steps",
-    "negative",
-    "views",
-    "lr",
-    "momentum",
-    "prior-weight",
-    "prior-ab",
-    "prior-start",
-    "l1",
-    "l2",
-    "control-points",
-    "negatives-per-step",
-    "seed",
-    "render-size",
+/// The flag that sets each option a hint may name (`t2tf::error::OPTIONS`, tested), with its
+/// value's form where that helps; `None` for an option no command has a flag for.
+const FLAGS: [(&str, Option<&str>); 34] = [
+    ("dims", Some("--dims")),
+    ("dtype", Some("--dtype")),
+    ("byte_order", Some("--byte-order")),
+    ("array", Some("--array")),
+    ("model", Some("--model")),
+    ("revision", Some("--revision")),
+    ("tokenizer", Some("--tokenizer")),
+    ("budget", Some("--max-memory")),
+    ("threads", Some("--threads")),
+    ("level", Some("--level")),
+    ("step_size", Some("--step-size")),
+    ("render_size", Some("--render-size")),
+    ("prompt", Some("--prompt")),
+    ("negatives", Some("--negative")),
+    ("negatives_file", Some("--negatives-file")),
+    ("reference_image", Some("--reference-image")),
+    ("init", Some("--init")),
+    ("preset", Some("--preset NAME")),
+    ("locks", Some("--lock")),
+    ("steps", Some("--steps")),
+    ("views", Some("--views")),
+    ("lr", Some("--lr")),
+    ("momentum", Some("--momentum")),
+    ("prior_weight", Some("--prior-weight")),
+    ("prior_ab", Some("--prior-ab")),
+    ("l1", Some("--l1")),
+    ("l2", Some("--l2")),
+    ("control_points", Some("--control-points")),
+    ("rho", None),
+    ("pitch_limit", None),
+    ("distance", None),
+    ("max_preset_size", Some("--max-preset-size SIZE")),
+    ("rescale", Some("--rescale MIN,MAX")),
+    ("up", Some("--up")),
 ];
 
-/// Options the library names in backticks, and the flags that set them.
-const OPTION_FLAGS: [(&str, &str); 14] = [
-    ("`rescale`", "--rescale MIN,MAX"),
+/// The budget's flag, said after any error of the memory budget.
+const MEMORY_ADVICE: &str = "set the budget with --max-memory, e.g. --max-memory 16G";
+
+/// The flag of `option`, if the command line has one.
+fn flag(option: &str) -> Option<&'static str> {
+    FLAGS
+        .iter()
+        .find(|(o, _)| *o == option)
+        .and_then(|(_, f)| *f)
+}
+
+/// `message` with the command line's advice for `hint`. `fetching` is true for `t2tf model`,
+/// which takes no `--model` folder.
+fn advise(message: &str, hint: &Hint, fetching: bool) -> String {
+    let flag = hint.option.and_then(flag);
+    match &hint.kind {
+        ErrorKind::ModelUnavailable { repo, offline } => {
+            let or = if *offline { "" } else { "or " };
+            let local = if fetching {
+                ""
+            } else {
+                ", or pass --model DIR"
+            };
+            format!(
+                "{message}; {or}run `t2tf model fetch {repo}` on a machine with network and copy \
+                 the cache here{local}"
+            )
+        }
+        ErrorKind::Memory { .. } => match flag {
+            Some(f) if f != "--max-memory" => format!("{message} ({f}; or {MEMORY_ADVICE})"),
+            _ => format!("{message} (or {MEMORY_ADVICE})"),
+        },
+        _ => match flag {
+            Some(f) => format!("{message} ({f})"),
+            None => legacy(message, hint),
+        },
+    }
+}
+
+/// Errors that do not yet carry their option (a volume file's, and a job's from
+/// `pipeline::Job::validate`) are said as before: the backticked option names of
+/// [`LEGACY_FLAGS`] become flags, and a message from the memory budget gets the budget's flag.
+fn legacy(message: &str, hint: &Hint) -> String {
+    let untold = matches!(hint.kind, ErrorKind::Volume)
+        || (hint.kind == ErrorKind::InvalidOption && hint.option.is_none());
+    if !untold {
+        return message.to_string();
+    }
+    let mut m = message.to_string();
+    for (option, flag) in LEGACY_FLAGS {
+        m = m.replace(option, flag);
+    }
+    if m.contains(" is available for it") {
+        m = format!("{m} (or {MEMORY_ADVICE})");
+    }
+    m
+}
+
+/// The options volume files' and jobs' messages name, and their flags ([`legacy`]).
+const LEGACY_FLAGS: [(&str, &str); 7] = [
     ("`dims`", "--dims"),
     ("`dtype`", "--dtype"),
     ("`byte_order`", "--byte-order"),
     ("`array`", "--array"),
     ("`level`", "--level"),
-    ("`budget`", "--max-memory"),
-    ("`tokenizer`", "--tokenizer"),
-    ("`preset`", "--preset NAME"),
-    ("`model`", "--model"),
-    ("`max_preset_size`", "--max-preset-size SIZE"),
-    ("`threads`", "--threads"),
     ("`step_size`", "--step-size"),
     ("`render_size`", "--render-size"),
 ];
 
-/// The library's advice for a model the cache lacks, and what the command line says instead.
-const FETCH: (&str, &str) = (" with network access", "` on a machine with network");
-/// Said where a local model folder would do; `model fetch` takes none.
-const LOCAL_MODEL: &str = ", or use a local `model` folder";
-
-/// `message` (a whole error chain) as the command line says it: options as flags, and for a
-/// model the cache lacks the command that fetches it. `fetching` is true for `t2tf model`,
-/// which takes no `--model` folder.
-pub fn say(message: &str, fetching: bool) -> String {
-    let mut m = message.to_string();
-    if m.contains(LOCAL_MODEL) {
-        let local = match (fetching, test_model()) {
-            (true, _) => String::new(),
-            (false, None) => ", or pass --model DIR".to_string(),
-            (false, Some((model, tokenizer))) => format!(
-                ", or pass --model DIR (offline, the test model of the repository runs every \
-                 stage: --model {} --tokenizer {})",
-                model.display(),
-                tokenizer.display()
-            ),
-        };
-        m = m.replace(LOCAL_MODEL, &local);
-    }
-    // "fetch REPO with network access" → "run `t2tf model fetch REPO` on a machine with network"
-    while let Some(end) = m.find(FETCH.0) {
-        let Some(start) = m[..end].rfind("fetch ") else {
-            break;
-        };
-        let repo = m[start + "fetch ".len()..end].to_string();
-        m.replace_range(
-            start..end + FETCH.0.len(),
-            &format!("run `t2tf model fetch {repo}{}", FETCH.1),
-        );
-    }
-    for (option, flag) in OPTION_FLAGS {
-        m = m.replace(option, flag);
-    }
-    m
+/// A library error as the command line says it: the message with the command line's advice,
+/// and what `--progress json` reports (the library's message, its hint). Made where the
+/// error meets the command line ([`pipeline`], [`volume`], [`optimize`]), so the advice stays
+/// with the message wherever it is printed.
+#[derive(Debug)]
+pub struct Said {
+    /// The library's message (with its causes).
+    message: String,
+    /// Its kind and option.
+    hint: Hint,
+    /// The message with the advice.
+    line: String,
 }
 
-/// The repository's tiny test model and the shared CLIP tokenizer, as absolute paths, where
-/// the checkout this binary was built from still has them (a hint that works from any folder);
-/// `None` for a binary whose checkout is gone.
-fn test_model() -> Option<(std::path::PathBuf, std::path::PathBuf)> {
-    // Cargo gives the manifest's folder as an absolute path.
-    let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let model = repo.join("tests/fixtures/clip/quick_gelu");
-    let tokenizer = repo.parent()?.join("shared/data/clip/tokenizer.json");
-    (model.is_dir() && tokenizer.is_file()).then_some((model, tokenizer))
+impl std::fmt::Display for Said {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.line)
+    }
+}
+
+impl std::error::Error for Said {}
+
+impl Said {
+    fn error(e: &(dyn std::error::Error + 'static), hint: Hint) -> anyhow::Error {
+        let message = chain_text(e);
+        let line = own_words(e, &hint).unwrap_or_else(|| advise(&message, &hint, false));
+        anyhow::Error::new(Said {
+            message,
+            hint,
+            line,
+        })
+    }
+}
+
+/// The command line's own words for an error it says better than the library: a setting by
+/// its flag ("invalid setting --views: must be at least 1"), an empty `--prompt`. From the
+/// error's variant and fields, never its text.
+fn own_words(e: &(dyn std::error::Error + 'static), hint: &Hint) -> Option<String> {
+    let optimize = match e.downcast_ref::<PipelineError>() {
+        Some(PipelineError::Optimize(o)) => o,
+        _ => e.downcast_ref::<OptimizeError>()?,
+    };
+    match optimize {
+        OptimizeError::Setting { name, message } => {
+            flag(name).map(|f| format!("invalid setting {f}: {message}"))
+        }
+        OptimizeError::EmptyPrompt if hint.kind == ErrorKind::EmptyPrompt => {
+            Some("--prompt is empty: say what the renderings should show".to_string())
+        }
+        _ => None,
+    }
+}
+
+/// `e` and its causes on one line, as `anyhow` prints a chain (`{:#}`).
+fn chain_text(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut text = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        text = format!("{text}: {c}");
+        cause = c.source();
+    }
+    text
 }
 
 /// A pipeline error as the command line says it.
 pub fn pipeline(e: PipelineError) -> anyhow::Error {
-    match e {
-        PipelineError::Optimize(o) => optimize(o),
-        PipelineError::Memory(m) => anyhow::anyhow!("{m} ({MEMORY_HINT})"),
-        PipelineError::Volume(v) => volume(v),
-        // A job's settings by their flags (`step_size` → --step-size) where the error is made,
-        // not only when it is printed.
-        PipelineError::Job(j) => anyhow::anyhow!(say(&j, false)),
-        other => memory_hint(other.into()),
-    }
+    Said::error(&e, e.hint())
 }
 
 /// An optimizer error as the command line says it.
 pub fn optimize(e: OptimizeError) -> anyhow::Error {
-    match e {
-        OptimizeError::Setting { name, message } if SETTING_FLAGS.contains(&name) => {
-            anyhow::anyhow!("invalid setting --{name}: {message}")
-        }
-        OptimizeError::EmptyPrompt => {
-            anyhow::anyhow!("--prompt is empty: say what the renderings should show")
-        }
-        other => other.into(),
-    }
+    Said::error(&e, e.hint())
 }
 
 /// A volume error as the command line says it.
 pub fn volume(e: crate::volume::VolumeError) -> anyhow::Error {
-    memory_hint(e.into())
+    Said::error(&e, crate::hints::volume_hint(&e))
 }
 
-/// Any error whose message came from the memory budget gets the budget's flag.
-pub fn memory_hint(e: anyhow::Error) -> anyhow::Error {
-    let from_budget = e
-        .chain()
-        .any(|c| c.downcast_ref::<crate::memory::MemoryError>().is_some())
-        || e.to_string().contains(" is available for it");
-    if from_budget {
-        anyhow::anyhow!("{e:#} ({MEMORY_HINT})")
-    } else {
-        e
+/// The hint of one error of a chain, where it is one of the library's.
+fn library_hint(e: &(dyn std::error::Error + 'static)) -> Option<Hint> {
+    use crate::{camera, clip, formats, fs, hub, image, memory, render, volume};
+    macro_rules! first {
+        ($($t:ty => $f:expr),* $(,)?) => {
+            $(if let Some(e) = e.downcast_ref::<$t>() {
+                return Some($f(e));
+            })*
+        };
+    }
+    first!(
+        PipelineError => PipelineError::hint,
+        OptimizeError => OptimizeError::hint,
+        volume::VolumeError => crate::hints::volume_hint,
+        clip::ClipError => clip::ClipError::hint,
+        hub::HubError => hub::HubError::hint,
+        formats::FormatError => formats::FormatError::hint,
+        render::RenderError => render::RenderError::hint,
+        camera::CameraError => camera::CameraError::hint,
+        memory::MemoryError => memory::MemoryError::hint,
+        image::ImageError => image::ImageError::hint,
+        fs::FsError => fs::FsError::hint,
+    );
+    None
+}
+
+/// How a failed command ends: the line people read, and for programs (`--progress json`) the
+/// library's message without the command line's advice, its kind and option.
+#[derive(Debug)]
+pub struct Failure {
+    /// One line with the command line's advice (after `t2tf: error: `).
+    pub line: String,
+    /// The chain's messages as the library and the command said them, without advice.
+    pub message: String,
+    /// The kind and option of the first error in the chain that tells them.
+    pub hint: Hint,
+}
+
+/// `err` (an error chain, most general first) as the command line ends with it. `fetching` is
+/// true for `t2tf model`, which takes no `--model` folder.
+pub fn failure(err: &anyhow::Error, fetching: bool) -> Failure {
+    let (mut lines, mut messages) = (Vec::new(), Vec::new());
+    let mut hint: Option<Hint> = None;
+    let mut advised = false;
+    for cause in err.chain() {
+        let found = if let Some(said) = cause.downcast_ref::<Said>() {
+            lines.push(said.line.clone());
+            messages.push(said.message.clone());
+            advised = true;
+            Some(said.hint.clone())
+        } else {
+            let text = cause.to_string();
+            let hint = library_hint(cause);
+            match hint.as_ref().and_then(|h| own_words(cause, h)) {
+                Some(words) => {
+                    lines.push(words);
+                    advised = true;
+                }
+                None => lines.push(text.clone()),
+            }
+            messages.push(text);
+            hint
+        };
+        if let Some(h) = found {
+            if hint.as_ref().is_none_or(|known| !known.is_specific()) {
+                hint = Some(h);
+            }
+        }
+    }
+    let hint = hint.unwrap_or_else(Hint::other);
+    let mut line = lines.join(": ");
+    if !advised {
+        line = advise(&line, &hint, fetching);
+    }
+    Failure {
+        line,
+        message: messages.join(": "),
+        hint,
     }
 }
 
@@ -144,57 +280,102 @@ pub fn memory_hint(e: anyhow::Error) -> anyhow::Error {
 mod tests {
     use super::*;
 
+    fn said(e: anyhow::Error) -> String {
+        failure(&e, false).line
+    }
+
     #[test]
-    fn settings_get_their_flags() {
+    fn every_option_has_a_row() {
+        let rows: Vec<&str> = FLAGS.iter().map(|(o, _)| *o).collect();
+        assert_eq!(rows, crate::error::OPTIONS, "FLAGS follows OPTIONS");
+    }
+
+    #[test]
+    fn settings_get_their_flags_from_the_hint() {
         let e = optimize(OptimizeError::Setting {
             name: "views",
             message: "must be at least 1".into(),
         });
-        assert_eq!(e.to_string(), "invalid setting --views: must be at least 1");
+        assert_eq!(said(e), "invalid setting --views: must be at least 1");
         let e = optimize(OptimizeError::Setting {
             name: "rho",
             message: "must be in (0, 1)".into(),
         });
-        assert_eq!(e.to_string(), "invalid setting rho: must be in (0, 1)");
-        assert!(optimize(OptimizeError::EmptyPrompt)
-            .to_string()
-            .starts_with("--prompt is empty"));
+        assert_eq!(said(e), "invalid setting `rho`: must be in (0, 1)");
+        let e = failure(&optimize(OptimizeError::EmptyPrompt), false);
+        assert!(e.line.starts_with("--prompt is empty"), "{}", e.line);
+        assert_eq!(e.hint.kind, ErrorKind::EmptyPrompt);
+        // Programs get the library's words, and the kind to word their own from.
+        assert_eq!(
+            e.message,
+            "the prompt is empty: say what the renderings should show"
+        );
     }
 
     #[test]
-    fn options_become_flags() {
+    fn an_unavailable_model_says_how_to_fetch_it() {
+        let hint = Hint::new(ErrorKind::ModelUnavailable {
+            repo: "o/n".into(),
+            offline: true,
+        })
+        .about("model");
+        let m = advise("x is not cached", &hint, false);
         assert_eq!(
-            say("give `dims` and `dtype` to read raw data", false),
-            "give --dims and --dtype to read raw data"
+            m,
+            "x is not cached; run `t2tf model fetch o/n` on a machine with network and copy the \
+             cache here, or pass --model DIR"
         );
-        let offline =
-            "x not cached; fetch o/n with network access (copy), or use a local `model` folder";
-        let m = say(offline, false);
-        assert!(
-            m.contains("run `t2tf model fetch o/n` on a machine with network (copy)"),
-            "{m}"
-        );
-        // The test model by the checkout's own (absolute) folder, so the hint works from any
-        // folder. (Not `is_absolute`: under wine the folder is a Unix path without a drive.)
-        let (model, tokenizer) = test_model().expect("the tests run in the checkout");
-        let checkout = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        assert!(model.starts_with(checkout) && tokenizer.starts_with(checkout.parent().unwrap()));
-        let hint = format!(
-            "--model {} --tokenizer {}",
-            model.display(),
-            tokenizer.display()
-        );
-        assert!(m.contains("--model DIR") && m.contains(&hint), "{m}");
-        let m = say(offline, true);
+        let m = advise("x is not cached", &hint, true);
         assert!(
             m.contains("t2tf model fetch o/n") && !m.contains("--model"),
             "{m}"
         );
-        // Commands in backticks that are not options stay as they are.
-        assert_eq!(
-            say("run `t2tf convert --list`", false),
-            "run `t2tf convert --list`"
-        );
+    }
+
+    #[test]
+    fn no_advice_names_a_repository_path() {
+        // Every kind with every option: the advice is the command line's, never a path of
+        // the checkout this binary was built from (its test model, its fixtures).
+        let kinds = [
+            ErrorKind::InvalidOption,
+            ErrorKind::ModelUnavailable {
+                repo: "o/n".into(),
+                offline: true,
+            },
+            ErrorKind::ModelUnavailable {
+                repo: "o/n".into(),
+                offline: false,
+            },
+            ErrorKind::Memory {
+                needed: 2,
+                available: 1,
+            },
+            ErrorKind::EmptyPrompt,
+            ErrorKind::Volume,
+            ErrorKind::Io,
+            ErrorKind::Other,
+        ];
+        let checkout = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let options = crate::error::OPTIONS.iter().map(|o| Some(*o));
+        for option in options.chain([None]) {
+            for kind in &kinds {
+                let hint = Hint {
+                    kind: kind.clone(),
+                    option,
+                };
+                for fetching in [false, true] {
+                    let m = advise("m", &hint, fetching);
+                    for bad in [
+                        checkout.display().to_string(),
+                        "fixtures".to_string(),
+                        "quick_gelu".to_string(),
+                        "tokenizer.json".to_string(),
+                    ] {
+                        assert!(!m.contains(&bad), "{hint:?}: {m}");
+                    }
+                }
+            }
+        }
     }
 
     #[test]
@@ -202,10 +383,45 @@ mod tests {
         let m = crate::memory::Budget::bytes(1)
             .check("x", Some(2), 1, "ask for less")
             .unwrap_err();
-        let e = pipeline(PipelineError::Memory(m)).to_string();
+        let f = failure(&pipeline(PipelineError::Memory(m)), false);
         assert!(
-            e.contains("ask for less") && e.contains("--max-memory"),
-            "{e}"
+            f.line
+                .contains("ask for less (or set the budget with --max-memory"),
+            "{}",
+            f.line
         );
+        assert_eq!(f.hint.kind.name(), "memory");
+        assert!(!f.message.contains("--max-memory"), "{}", f.message);
+        // Found in a chain too, under the command's own context.
+        let m = crate::memory::Budget::bytes(1)
+            .check("x", Some(2), 1, "render at a coarser `level`")
+            .unwrap_err()
+            .about("level");
+        let e = anyhow::Error::new(m).context("render");
+        assert!(said(e).ends_with(
+            "`level` (--level; or set the budget with --max-memory, e.g. --max-memory 16G)"
+        ),);
+    }
+
+    #[test]
+    fn a_chain_is_said_most_general_first_with_its_advice_once() {
+        let e = optimize(OptimizeError::Setting {
+            name: "steps",
+            message: "must be at most 1000000, got 2000000".into(),
+        })
+        .context("vol.raw");
+        let f = failure(&e, false);
+        assert_eq!(
+            f.line,
+            "vol.raw: invalid setting --steps: must be at most 1000000, got 2000000"
+        );
+        assert_eq!(
+            f.message,
+            "vol.raw: invalid setting `steps`: must be at most 1000000, got 2000000"
+        );
+        assert_eq!(f.hint, Hint::invalid("steps"));
+        // Commands in backticks that are not options stay as they are.
+        let e = anyhow::anyhow!("run `t2tf convert --list`");
+        assert_eq!(said(e), "run `t2tf convert --list`");
     }
 }

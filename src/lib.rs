@@ -27,8 +27,8 @@ pub use volume_args::{SeriesArgs, VolumeArgs};
 use commands::{clip_score, convert, info, model};
 #[allow(unused_imports)]
 use t2tf::{
-    background, camera, clip, formats, fs, hub, image, memory, optimize, pipeline, render, units,
-    volume,
+    background, camera, clip, error, formats, fs, hints, hub, image, memory, optimize, pipeline,
+    render, units, volume,
 };
 
 use clap::{Parser, Subcommand};
@@ -87,13 +87,21 @@ where
         }
     };
     let fetching = matches!(cli.command, Command::Model(_));
+    let json =
+        matches!(&cli.command, Command::Optimize(a) if a.progress == progress::ProgressMode::Json);
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         // `t2tf … | head -1`: the reader has what it wanted (out.rs).
         Err(err) if out::reader_left(&err) => std::process::ExitCode::SUCCESS,
         Err(err) => {
-            // One line: the chain of causes joined, most general first, with the flags.
-            errln!("t2tf: error: {}", flags::say(&format!("{err:#}"), fetching));
+            // One line: the chain of causes joined, most general first, with the advice the
+            // command line words from the error's kind and option.
+            let failure = flags::failure(&err, fetching);
+            errln!("t2tf: error: {}", failure.line);
+            if json {
+                // Last, for programs: the library's message, its kind and option.
+                progress::error(&failure.message, &failure.hint);
+            }
             std::process::ExitCode::FAILURE
         }
     }

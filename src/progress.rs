@@ -186,6 +186,25 @@ impl Progress {
     }
 }
 
+/// A failed command's last line for `--progress json` readers: `{"event": "error", "message",
+/// "kind", "option"}`, the library's message without the command line's advice, the kind of
+/// problem in snake case (`t2tf::error::ErrorKind::name`) and the option it is about by its
+/// library field name (`dims`), or null.
+pub fn error(message: &str, hint: &crate::error::Hint) {
+    errln!("{}", error_event(message, hint));
+}
+
+/// The error line, its keys in the order documented (a `json!` object sorts them).
+fn error_event(message: &str, hint: &crate::error::Hint) -> String {
+    let json = |v: serde_json::Value| v.to_string();
+    format!(
+        r#"{{"event":"error","message":{},"kind":{},"option":{}}}"#,
+        json(message.into()),
+        json(hint.kind.name().into()),
+        json(hint.option.into())
+    )
+}
+
 /// JSON has no NaN: a non-finite number is written as null.
 fn finite(v: f64) -> Option<f64> {
     v.is_finite().then_some(v)
@@ -208,6 +227,20 @@ mod tests {
         }
         assert_eq!(ProgressMode::Json.resolve(), ProgressMode::Json);
         assert_eq!(finite(f64::NAN), None);
+    }
+
+    #[test]
+    fn the_error_event_has_kind_and_option() {
+        let hint = crate::error::Hint::invalid("dims");
+        assert_eq!(
+            error_event("a.bin: give `dims`", &hint),
+            r#"{"event":"error","message":"a.bin: give `dims`","kind":"invalid_option","option":"dims"}"#
+        );
+        let other: serde_json::Value =
+            serde_json::from_str(&error_event("\"x\"\n", &crate::error::Hint::other())).unwrap();
+        assert_eq!(other["message"], "\"x\"\n");
+        assert_eq!(other["kind"], "other");
+        assert_eq!(other["option"], serde_json::Value::Null);
     }
 
     #[test]

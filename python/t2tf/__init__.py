@@ -12,7 +12,8 @@ The same library as the `t2tf` command, with NumPy arrays in and out::
 
 Arrays are indexed [z, y, x] (x fastest, as VTK and raw files store values). Runs release
 the GIL; `optimize`'s `progress` callback sees each step and stops the run by returning
-False. Errors are `t2tf.Error` subclasses with one-line messages.
+False. Errors are `t2tf.Error` subclasses with one-line messages, their `kind` and
+`option` attributes saying what kind of problem and which keyword it concerns.
 """
 from ._t2tf import (
     DEFAULT_MODEL,

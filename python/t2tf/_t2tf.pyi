@@ -16,7 +16,17 @@ DEFAULT_MODEL: str
 __version__: str
 
 class Error(Exception):
-    """Base class of every t2tf error."""
+    """Base class of every t2tf error.
+
+    `kind` says what kind of problem it is, for a caller to word its own advice: one of
+    "invalid_option", "model_unavailable", "memory", "empty_prompt", "volume", "io", "other".
+    `option` is the library's name of the option it is about, or None: the keyword ("dims",
+    "model", "views"), but "budget" for max_memory and "locks" for lock. The same values as
+    the `t2tf` command's final `{"event": "error", ...}` line with `--progress json`.
+    """
+
+    kind: str
+    option: Optional[str]
 
 class VolumeError(Error):
     """A volume that cannot be read or used."""

@@ -94,15 +94,13 @@ fn check_image_memory(budget: Budget, size: usize, orbit: Option<usize>) -> Resu
     let cols = (views as f64).sqrt().ceil() as usize;
     let cells = cols.checked_mul(views.div_ceil(cols.max(1)));
     let pixels = cells.and_then(|c| crate::memory::product(&[c, size, size]));
-    budget
-        .check(
-            format!("{views} view(s) of {size}×{size} pixels"),
-            pixels,
-            // each view's RGB and transmittance, the sheet's RGB, the 8-bit PNG row data
-            16 + 12 + 3,
-            "lower --size or --orbit",
-        )
-        .map_err(|e| crate::flags::memory_hint(e.into()))?;
+    budget.check(
+        format!("{views} view(s) of {size}×{size} pixels"),
+        pixels,
+        // each view's RGB and transmittance, the sheet's RGB, the 8-bit PNG row data
+        16 + 12 + 3,
+        "lower --size or --orbit",
+    )?;
     Ok(())
 }
 
@@ -255,9 +253,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let image = match orbit {
         Some(n) => {
             let cams = Camera::ring(&volume.geometry, n, pitch, distance, args.up)?;
-            backend
-                .orbit_sheet(&volume, &lut, &cams, &bg, &opts)
-                .map_err(|e| crate::flags::memory_hint(e.into()))?
+            backend.orbit_sheet(&volume, &lut, &cams, &bg, &opts)?
         }
         None => {
             let orbit = Orbit {
@@ -267,10 +263,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
                 up: args.up,
             };
             let cam = Camera::orbit(&volume.geometry, orbit)?;
-            backend
-                .render(&volume, &lut, &cam, &bg, &opts)
-                .map_err(|e| crate::flags::memory_hint(e.into()))?
-                .image
+            backend.render(&volume, &lut, &cam, &bg, &opts)?.image
         }
     };
     image.save_png(&args.out)?;

@@ -5,6 +5,7 @@
 
 mod cli_cache;
 mod cli_colour_only;
+mod cli_error_kinds;
 mod cli_help;
 mod cli_info;
 mod cli_messages;

@@ -12,6 +12,7 @@ use std::process::Command;
 
 use hub_server::{files_in, hex, Fault, HubServer, HubSpec};
 use sha2::{Digest, Sha256};
+use t2tf::error::ErrorKind;
 use t2tf::hub::{cached_repos, EventSink, Hub, HubError, HubEvent, HubSettings, RepoKind};
 
 const REPO: &str = "acme/tiny";
@@ -440,17 +441,16 @@ fn offline_answers_from_the_cache_or_says_what_to_do() {
     let e = get(&off, REPO, "main", WEIGHTS).unwrap_err();
     assert!(matches!(e, HubError::NotCached { .. }), "{e:?}");
     let folder = off.repo(REPO, "main").cache_folder().display().to_string();
-    assert_mentions(
-        &e.to_string(),
-        &[
-            WEIGHTS,
-            REPO,
-            &folder,
-            "HF_HUB_OFFLINE",
-            "fetch acme/tiny with network access",
-            "a local `model` folder",
-        ],
+    assert_mentions(&e.to_string(), &[WEIGHTS, REPO, &folder, "HF_HUB_OFFLINE"]);
+    // What to do instead (fetch elsewhere, a local model folder) is the front end's to say.
+    assert_eq!(
+        e.hint().kind,
+        ErrorKind::ModelUnavailable {
+            repo: REPO.into(),
+            offline: true
+        }
     );
+    assert_eq!(e.hint().option, Some("model"));
     let e = get(&off, "acme/never", "main", CONFIG).unwrap_err();
     assert!(matches!(e, HubError::NotCached { .. }), "{e:?}");
 }
@@ -494,7 +494,7 @@ fn a_cut_download_leaves_nothing_trusted_and_resumes_with_range() {
     hub_server.inject(WEIGHTS, Fault::CutAfter(1000), 3);
     let e = get(&hub, REPO, "main", WEIGHTS).unwrap_err();
     assert!(matches!(e, HubError::Network { .. }), "{e:?}");
-    assert_mentions(&e.to_string(), &[WEIGHTS, "/cdn/", "with network access"]);
+    assert_mentions(&e.to_string(), &[WEIGHTS, "/cdn/", "check the network"]);
 
     let folder = hub.repo(REPO, "main").cache_folder();
     let sha = sha256(&weights());
@@ -628,8 +628,14 @@ fn network_down_falls_back_to_the_cache_or_names_the_url() {
             REPO,
             &format!("{endpoint}/{REPO}/resolve/main/{CONFIG}"),
             "HF_HUB_OFFLINE",
-            "a local `model` folder",
         ],
+    );
+    assert_eq!(
+        e.hint().kind,
+        ErrorKind::ModelUnavailable {
+            repo: REPO.into(),
+            offline: false
+        }
     );
 
     let hub_server = HubServer::start(spec());

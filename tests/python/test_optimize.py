@@ -133,6 +133,35 @@ def test_errors_are_t2tf_exceptions(volume, kwargs, error, words):
         t2tf.optimize(volume, prompt, **settings)
 
 
+@pytest.mark.parametrize("kwargs, kind, option", [
+    (dict(prompt="  "), "empty_prompt", "prompt"),
+    (dict(prompt="x", views=0), "invalid_option", "views"),
+    (dict(prompt="x", prior_ab=-1.0), "invalid_option", "prior_ab"),
+    (dict(prompt="x", threads=0), "invalid_option", "threads"),
+    (dict(prompt="x", model="no-such-folder/"), "invalid_option", "model"),
+    (dict(prompt="x", max_memory="1K"), "memory", None),
+    # Raised by the module itself: its class's kind.
+    (dict(prompt=None), "invalid_option", None),
+])
+def test_errors_carry_their_kind_and_option(volume, kwargs, kind, option):
+    """Every t2tf exception says what kind of problem it is and which keyword it is about,
+    so a caller (the ParaView plugin) words its own advice without reading the message."""
+    settings = dict(QUICK)
+    settings.update(kwargs)
+    prompt = settings.pop("prompt")
+    with pytest.raises(t2tf.Error) as raised:
+        t2tf.optimize(volume, prompt, **settings)
+    assert (raised.value.kind, raised.value.option) == (kind, option), str(raised.value)
+    # Python's advice names keywords, never the command line's flags.
+    assert "--" not in str(raised.value), str(raised.value)
+
+
+def test_memory_advice_names_the_keyword(volume):
+    with pytest.raises(t2tf.BudgetError) as raised:
+        t2tf.optimize(volume, "x", max_memory="1K", **QUICK)
+    assert 'max_memory="16G"' in str(raised.value), str(raised.value)
+
+
 def test_unknown_keywords_are_type_errors(volume):
     with pytest.raises(TypeError, match="stpes"):
         t2tf.optimize(volume, "x", stpes=3)
@@ -304,21 +333,23 @@ def test_steps_0_from_a_tf_needs_no_model(tmp_path, volume, monkeypatch):
                       threads=2)
 
 
-def test_offline_without_the_model_names_the_keyword_and_the_test_model(tmp_path):
+def test_offline_without_the_model_names_the_keyword(tmp_path):
     """The README's example passes no `model=`: offline, the error says what to pass."""
     env = dict(os.environ, HF_HUB_OFFLINE="1", HF_HUB_CACHE=str(tmp_path / "hub"),
                XDG_CACHE_HOME=str(tmp_path / "cache"))
-    code = ("import numpy as np, t2tf\n"
+    code = ("import json, numpy as np, t2tf\n"
             "try:\n"
             "    t2tf.optimize(np.zeros((8, 8, 8), np.float32), 'a skull', steps=1)\n"
             "except t2tf.ModelError as e:\n"
-            "    print(e)\n")
+            "    print(json.dumps([str(e), e.kind, e.option]))\n")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          timeout=120)
     assert out.returncode == 0, out.stderr
-    said = out.stdout
+    said, kind, option = json.loads(out.stdout)
+    assert (kind, option) == ("model_unavailable", "model"), out.stdout
     assert "offline mode is on" in said, said
     assert "model=DIR" in said and "`model`" not in said, said
-    # As Python string literals (double-quoted, backslashes escaped).
-    assert f"model={json.dumps(str(MODEL.resolve()))}" in said, said
-    assert f"tokenizer={json.dumps(str(TOKENIZER.resolve()))}" in said, said
+    assert "t2tf model fetch openai/clip-vit-base-patch32" in said, said
+    # No path of the checkout the wheel was built from: installed users have none.
+    for path in (MODEL, TOKENIZER, REPO):
+        assert str(path.resolve()) not in said, said

@@ -132,3 +132,19 @@ def test_read_volume_takes_the_clis_reader_settings(tmp_path):
         t2tf.read_volume(tmp_path / "no-such_8x8x8_uint8.raw")
     with pytest.raises(t2tf.VolumeError, match="unknown scalar type"):
         t2tf.read_volume(raw, dims=(64, 64, 93), dtype="uint12")
+
+
+def test_volume_errors_carry_their_kind_and_option(tmp_path):
+    raw = tmp_path / "volume.raw"
+    raw.write_bytes(bytes(8))
+    with pytest.raises(t2tf.VolumeError) as raised:
+        t2tf.read_volume(raw, dims=(2, 2, 2), dtype="uint12")
+    assert (raised.value.kind, raised.value.option) == ("invalid_option", "dtype")
+    with pytest.raises(t2tf.VolumeError) as raised:
+        t2tf.read_volume(raw, dims=(2, 2, 2), dtype=np.uint8, byte_order="middle")
+    assert (raised.value.kind, raised.value.option) == ("invalid_option", "byte_order")
+    with pytest.raises(t2tf.VolumeError) as raised:
+        t2tf.Volume(np.zeros((4, 4)))
+    assert (raised.value.kind, raised.value.option) == ("volume", None)
+    # Every class has a kind, and an instance of the module's own making gets its class's.
+    assert t2tf.Error.kind == "other" and t2tf.BudgetError.kind == "memory"

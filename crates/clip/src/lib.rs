@@ -129,9 +129,37 @@ pub enum ClipError {
     /// A model, file or tensor is not where it was looked for (the message says where).
     #[error("{0}")]
     Missing(String),
+    /// The model request cannot be met as given (a `model` that is neither a folder nor a
+    /// repo id, a folder that lacks files, a repo not in the cache offline): `hint` tells a
+    /// front end which option to point to.
+    #[error("{message}")]
+    Request {
+        /// What is wrong, naming the option by its field (`model`, `tokenizer`).
+        message: String,
+        /// Its kind and option.
+        hint: t2tf_core::error::Hint,
+    },
+    /// The Hugging Face Hub or its cache could not give a file.
+    #[cfg(feature = "hub")]
+    #[error(transparent)]
+    Hub(#[from] hub::HubError),
     /// An input the model cannot take (image size, token ids, gradient shapes).
     #[error("CLIP input: {0}")]
     Input(String),
+}
+
+impl ClipError {
+    /// What a front end needs to word its advice.
+    pub fn hint(&self) -> t2tf_core::error::Hint {
+        use t2tf_core::error::{ErrorKind, Hint};
+        match self {
+            ClipError::Io { .. } => Hint::new(ErrorKind::Io),
+            ClipError::Request { hint, .. } => hint.clone(),
+            #[cfg(feature = "hub")]
+            ClipError::Hub(e) => e.hint(),
+            _ => Hint::other(),
+        }
+    }
 }
 
 /// A loaded CLIP model (`CLIPModel`).

@@ -23,6 +23,9 @@
 use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
+#[cfg(feature = "hub")]
+use t2tf_core::error::ErrorKind;
+use t2tf_core::error::Hint;
 
 use super::config::ClipConfig;
 use super::openclip::{self, OpenClipConfig};
@@ -171,11 +174,14 @@ pub fn resolve(req: &ModelRequest) -> Result<ModelFiles, ClipError> {
     if let Some(files) = resolve_local(req)? {
         return Ok(files);
     }
-    Err(ClipError::Missing(format!(
-        "{}: not a local model folder, and this build has no Hugging Face Hub client (feature \
-         `hub` of t2tf-clip)",
-        req.model
-    )))
+    Err(ClipError::Request {
+        message: format!(
+            "{}: not a local model folder, and this build has no Hugging Face Hub client \
+             (feature `hub` of t2tf-clip)",
+            req.model
+        ),
+        hint: Hint::invalid("model"),
+    })
 }
 
 /// Resolve a request; repo ids go through `hub`.
@@ -203,17 +209,23 @@ fn resolve_local(req: &ModelRequest) -> Result<Option<ModelFiles>, ClipError> {
         return resolve_files(&LocalDir(path), req.tokenizer.as_deref()).map(Some);
     }
     if path.exists() {
-        return Err(ClipError::Missing(format!(
-            "{}: is a file; a `model` is a directory holding {CONFIG}, {TOKENIZER} and the \
-             weights, or a Hugging Face repo id such as {DEFAULT_MODEL}",
-            req.model
-        )));
+        return Err(ClipError::Request {
+            message: format!(
+                "{}: is a file; a `model` is a directory holding {CONFIG}, {TOKENIZER} and the \
+                 weights, or a Hugging Face repo id such as {DEFAULT_MODEL}",
+                req.model
+            ),
+            hint: Hint::invalid("model"),
+        });
     }
     if !looks_like_repo_id(&req.model) {
-        return Err(ClipError::Missing(format!(
-            "{}: no such directory, and not a Hugging Face repo id (owner/name)",
-            req.model
-        )));
+        return Err(ClipError::Request {
+            message: format!(
+                "{}: no such directory, and not a Hugging Face repo id (owner/name)",
+                req.model
+            ),
+            hint: Hint::invalid("model"),
+        });
     }
     Ok(None)
 }
@@ -235,6 +247,8 @@ fn check_dir(dir: &Path, own_tokenizer: bool) -> Result<(), ClipError> {
     let transformers = has(CONFIG) && WEIGHT_FILES.iter().any(|w| has(w.0));
     let open_clip = has(openclip::CONFIG) && openclip::WEIGHT_FILES.iter().any(|w| has(w.0));
     let mut missing = Vec::new();
+    // The option that fixes it: a `tokenizer` where that alone is missing, else the `model`.
+    let mut option = "model";
     if !transformers && !open_clip {
         let (config, weights): (&str, Vec<&str>) = if has(openclip::CONFIG) && !has(CONFIG) {
             (
@@ -250,17 +264,23 @@ fn check_dir(dir: &Path, own_tokenizer: bool) -> Result<(), ClipError> {
         missing.push(format!("weights (one of {})", weights.join(", ")));
     }
     if !own_tokenizer && !has(TOKENIZER) {
+        if missing.is_empty() {
+            option = "tokenizer";
+        }
         missing.push(format!("{TOKENIZER} (or give a `tokenizer`)"));
     }
     if missing.is_empty() {
         Ok(())
     } else {
-        Err(ClipError::Missing(format!(
-            "model directory {} is incomplete: missing {} (a CLIP model folder holds what \
-             transformers' CLIPModel.save_pretrained or OpenCLIP's save_for_hf writes)",
-            dir.display(),
-            missing.join(", ")
-        )))
+        Err(ClipError::Request {
+            message: format!(
+                "model directory {} is incomplete: missing {} (a CLIP model folder holds what \
+                 transformers' CLIPModel.save_pretrained or OpenCLIP's save_for_hf writes)",
+                dir.display(),
+                missing.join(", ")
+            ),
+            hint: Hint::invalid(option),
+        })
     }
 }
 
@@ -305,38 +325,38 @@ struct RepoFiles<'a> {
 #[cfg(feature = "hub")]
 impl FileSource for RepoFiles<'_> {
     fn get(&self, name: &str) -> Result<Option<PathBuf>, ClipError> {
-        self.repo.get(name).map_err(hub_error)
+        Ok(self.repo.get(name)?)
     }
     fn probe(&self, name: &str) -> Result<Option<PathBuf>, ClipError> {
         match self.repo.get(name) {
             Err(HubError::NotCached { .. }) if self.offline => Ok(None),
-            r => r.map_err(hub_error),
+            r => Ok(r?),
         }
     }
     fn describe(&self) -> String {
         self.repo.describe()
     }
     fn no_weights(&self, tried: &str) -> ClipError {
-        let hint = if self.offline {
-            format!(
-                " in the Hugging Face cache {}, and offline mode is on (HF_HUB_OFFLINE): fetch {} \
-                 with network access, or use a local `model` folder",
-                self.repo.cache_folder().display(),
-                self.repo.id()
-            )
-        } else {
-            String::new()
-        };
-        ClipError::Missing(format!(
-            "{} has no weights: none of {tried}{hint}",
-            self.describe()
-        ))
+        if !self.offline {
+            return ClipError::Missing(format!(
+                "{} has no weights: none of {tried}",
+                self.describe()
+            ));
+        }
+        ClipError::Request {
+            message: format!(
+                "{} has no weights: none of {tried} in the Hugging Face cache {}, and offline \
+                 mode is on (HF_HUB_OFFLINE)",
+                self.describe(),
+                self.repo.cache_folder().display()
+            ),
+            hint: Hint::new(ErrorKind::ModelUnavailable {
+                repo: self.repo.id().to_string(),
+                offline: true,
+            })
+            .about("model"),
+        }
     }
-}
-
-#[cfg(feature = "hub")]
-fn hub_error(e: HubError) -> ClipError {
-    ClipError::Missing(e.to_string())
 }
 
 fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<ModelFiles, ClipError> {
@@ -349,12 +369,13 @@ fn resolve_files(src: &dyn FileSource, tokenizer: Option<&Path>) -> Result<Model
     };
     let tokenizer = match tokenizer {
         Some(t) => t.to_path_buf(),
-        None => src.get(TOKENIZER)?.ok_or_else(|| {
-            ClipError::Missing(format!(
+        None => src.get(TOKENIZER)?.ok_or_else(|| ClipError::Request {
+            message: format!(
                 "{} has no {TOKENIZER} (a CLIP model has a config, {TOKENIZER} and its \
                  weights); a `tokenizer` can point to a tokenizer.json",
                 src.describe()
-            ))
+            ),
+            hint: Hint::invalid("tokenizer"),
         })?,
     };
     Ok(ModelFiles {

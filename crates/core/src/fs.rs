@@ -98,6 +98,16 @@ pub enum FsError {
 }
 
 impl FsError {
+    /// What a front end needs to word its advice: the system's error, or another.
+    pub fn hint(&self) -> crate::error::Hint {
+        use crate::error::{ErrorKind, Hint};
+        match self {
+            FsError::Io { .. } | FsError::Move { .. } => Hint::new(ErrorKind::Io),
+            FsError::Stage(e) => e.hint(),
+            _ => Hint::other(),
+        }
+    }
+
     /// `map_err` adapter: the io error of `action` on `path`.
     fn io<'a>(path: &'a Path, action: &'static str) -> impl Fn(std::io::Error) -> FsError + 'a {
         move |error| FsError::Io {

@@ -57,6 +57,19 @@ pub enum ImageError {
     Write(#[from] crate::fs::FsError),
 }
 
+impl ImageError {
+    /// What a front end needs to word its advice.
+    pub fn hint(&self) -> crate::error::Hint {
+        use crate::error::{ErrorKind, Hint};
+        match self {
+            ImageError::Open { .. } => Hint::new(ErrorKind::Io),
+            ImageError::TooLarge(m) => m.hint(),
+            ImageError::Write(w) => w.hint(),
+            _ => Hint::other(),
+        }
+    }
+}
+
 /// An RGB image: `data[(y * width + x) * 3 + c]`, y = 0 is the top row.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {

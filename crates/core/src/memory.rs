@@ -24,8 +24,32 @@ pub struct MemoryError {
     pub asked: u64,
     /// Bytes available.
     pub available: u64,
-    /// What the user can do about it.
+    /// What the user can do about it (an option named by its field, in backticks).
     pub hint: String,
+    /// The option `hint` names, if any (`level`), for a front end's advice; the budget itself
+    /// goes without saying.
+    pub option: Option<&'static str>,
+}
+
+impl MemoryError {
+    /// The same error, its `hint` naming `option`.
+    pub fn about(self, option: &'static str) -> MemoryError {
+        MemoryError {
+            option: Some(option),
+            ..self
+        }
+    }
+
+    /// What a front end needs to word its advice: a larger budget (and `option`).
+    pub fn hint(&self) -> crate::error::Hint {
+        crate::error::Hint {
+            kind: crate::error::ErrorKind::Memory {
+                needed: self.asked,
+                available: self.available,
+            },
+            option: self.option,
+        }
+    }
 }
 
 /// How many bytes a reader or renderer may allocate: a value handed to whatever allocates by
@@ -81,6 +105,7 @@ impl Budget {
                 asked: asked.unwrap_or(u64::MAX),
                 available,
                 hint: hint.to_string(),
+                option: None,
             }),
         }
     }

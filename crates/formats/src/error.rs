@@ -3,6 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
+use t2tf_core::error::{ErrorKind, Hint};
+
 /// Why a TF file could not be read, written or converted.
 #[derive(Debug, thiserror::Error)]
 pub enum FormatError {
@@ -13,6 +15,17 @@ pub enum FormatError {
         path: PathBuf,
         /// What is wrong with it.
         message: String,
+    },
+    /// A problem with one file that an option settles (`preset`: which of its presets;
+    /// `rescale`), named in the message by its field.
+    #[error("{path}: {message}")]
+    FileOption {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, naming the option.
+        message: String,
+        /// The option (one of `t2tf_core::error::OPTIONS`).
+        option: &'static str,
     },
     /// A problem not tied to one file (e.g. a volume without a source for a script).
     #[error("{0}")]
@@ -48,6 +61,26 @@ pub enum FormatError {
 }
 
 impl FormatError {
+    /// What a front end needs to word its advice.
+    pub fn hint(&self) -> Hint {
+        match self {
+            FormatError::FileOption { option, .. } => Hint::invalid(option),
+            FormatError::Io { .. } => Hint::new(ErrorKind::Io),
+            FormatError::Output(e) => e.hint(),
+            FormatError::TooLarge { .. } => Hint::other().about("max_preset_size"),
+            FormatError::File { .. } | FormatError::Message(_) => Hint::other(),
+        }
+    }
+
+    /// A problem with `path` that `option` settles.
+    pub(crate) fn about(path: &Path, option: &'static str, message: impl Into<String>) -> Self {
+        FormatError::FileOption {
+            path: path.to_path_buf(),
+            message: message.into(),
+            option,
+        }
+    }
+
     pub(crate) fn file(path: &Path, message: impl Into<String>) -> Self {
         FormatError::File {
             path: path.to_path_buf(),

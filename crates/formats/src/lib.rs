@@ -162,8 +162,9 @@ pub(crate) fn only_preset(
     name: Option<&str>,
 ) -> Result<Preset, FormatError> {
     match name {
-        Some(n) if n != preset.tf.name => Err(FormatError::file(
+        Some(n) if n != preset.tf.name => Err(FormatError::about(
             path,
+            "preset",
             format!("has no preset \"{n}\"; it holds \"{}\"", preset.tf.name),
         )),
         _ => Ok(preset),
@@ -239,8 +240,9 @@ fn check_range(path: &Path, tf: &ExportTf) -> Result<(), FormatError> {
     if (hi - lo).is_finite() || tf.rgb_points.is_empty() && tf.opacity_points.is_empty() {
         return Ok(());
     }
-    Err(FormatError::file(
+    Err(FormatError::about(
         path,
+        "rescale",
         format!(
             "the transfer function spans {lo:e} to {hi:e}, wider than a double can measure; \
              rescale it first (`rescale`)"

@@ -208,8 +208,9 @@ fn choose<'a>(
     };
     match name {
         None if presets.len() == 1 => Ok(presets[0]),
-        None => Err(FormatError::file(
+        None => Err(FormatError::about(
             path,
+            "preset",
             format!(
                 "holds {} presets; pick one as `preset`: {}",
                 presets.len(),
@@ -224,12 +225,14 @@ fn choose<'a>(
             }
             match hits.as_slice() {
                 [i] => Ok(presets[*i]),
-                [] => Err(FormatError::file(
+                [] => Err(FormatError::about(
                     path,
+                    "preset",
                     format!("has no preset \"{n}\"; it holds {}", listing()),
                 )),
-                _ => Err(FormatError::file(
+                _ => Err(FormatError::about(
                     path,
+                    "preset",
                     format!("holds {} presets named \"{n}\"", hits.len()),
                 )),
             }

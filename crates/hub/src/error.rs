@@ -1,7 +1,11 @@
 //! What can go wrong talking to the Hub or its cache: one variant per thing the user can act on,
-//! each message one line that names the file or URL and says what to do.
+//! each message one line that names the file or URL and says what to do about the Hub; what a
+//! front end offers instead (a local model folder, fetching elsewhere) it says from
+//! [`HubError::hint`].
 
 use std::path::PathBuf;
+
+use t2tf_core::error::{ErrorKind, Hint};
 
 /// Errors of [`super::HubRepo::get`] and [`super::cached_repos`].
 #[derive(Debug, thiserror::Error)]
@@ -10,8 +14,7 @@ pub enum HubError {
     /// in the cache.
     #[error(
         "cannot download {file} of {repo} from {url} ({reason}); check the network and HF_ENDPOINT, \
-         or fetch {repo} with network access and copy the cache here \
-         (HF_HUB_OFFLINE=1 then needs no network), or use a local `model` folder"
+         or use a cache that holds {repo} offline (HF_HUB_OFFLINE=1)"
     )]
     Network {
         /// The repository id (`owner/name`).
@@ -116,8 +119,7 @@ pub enum HubError {
     /// Offline and the file is not in the cache.
     #[error(
         "{file} of {repo} at revision {revision} is not in the Hugging Face cache {} and offline \
-         mode is on (HF_HUB_OFFLINE); fetch {repo} with network access \
-         (and copy that cache here), or use a local `model` folder",
+         mode is on (HF_HUB_OFFLINE)",
         cache.display()
     )]
     NotCached {
@@ -196,6 +198,29 @@ pub enum HubError {
 }
 
 impl HubError {
+    /// What a front end needs to word its advice. A repository that cannot be had (offline and
+    /// not cached, or the Hub out of reach) is [`ErrorKind::ModelUnavailable`]: the Hub serves
+    /// t2tf its CLIP models, so the option that fixes it is the `model`.
+    pub fn hint(&self) -> Hint {
+        match self {
+            HubError::Network { repo, .. } => Hint::new(ErrorKind::ModelUnavailable {
+                repo: repo.clone(),
+                offline: false,
+            })
+            .about("model"),
+            HubError::NotCached { repo, .. } => Hint::new(ErrorKind::ModelUnavailable {
+                repo: repo.clone(),
+                offline: true,
+            })
+            .about("model"),
+            HubError::RepoNotFound { .. } => Hint::invalid("model"),
+            HubError::RevisionNotFound { .. } => Hint::invalid("revision"),
+            HubError::Io { .. } => Hint::new(ErrorKind::Io),
+            HubError::Write(e) => e.hint(),
+            _ => Hint::other(),
+        }
+    }
+
     /// An I/O error on `path`.
     pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> HubError {
         HubError::Io {

@@ -412,16 +412,19 @@ mod tests {
         let repo = hub.repo("o/n", "main");
         let e = repo.get("model.safetensors").unwrap_err().to_string();
         let folder = repo.cache_folder().display().to_string();
-        for needle in [
-            "model.safetensors",
-            "o/n",
-            "HF_HUB_OFFLINE",
-            "fetch o/n with network access",
-            "a local `model` folder",
-            &folder,
-        ] {
+        for needle in ["model.safetensors", "o/n", "HF_HUB_OFFLINE", &folder] {
             assert!(e.contains(needle), "{needle} not in: {e}");
         }
         assert!(!e.contains('\n'));
+        // What to do instead of the Hub is the front end's to say, from the hint.
+        let hint = repo.get("model.safetensors").unwrap_err().hint();
+        assert_eq!(
+            hint.kind,
+            t2tf_core::error::ErrorKind::ModelUnavailable {
+                repo: "o/n".into(),
+                offline: true
+            }
+        );
+        assert_eq!(hint.option, Some("model"));
     }
 }

@@ -1,10 +1,17 @@
 //! The library's errors as Python exceptions: `t2tf.Error` and one subclass per kind of
-//! problem, each with the library's one-line message.
+//! problem, each with the library's one-line message and, as attributes, what the library's
+//! `Hint` says of it: `kind` (`"invalid_option"`, `"model_unavailable"`, `"memory"`,
+//! `"empty_prompt"`, `"volume"`, `"io"`, `"other"`) and `option` (the library's name of the
+//! option concerned, or None), the values the command's `--progress json` error line gives.
+//! Python words its own advice from them, with keyword names (`model=DIR`, `max_memory`),
+//! never by editing the library's text.
 
 use pyo3::create_exception;
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
+use pyo3::PyTypeInfo;
 
+use t2tf::error::{ErrorKind, Hint};
 use t2tf::optimize::OptimizeError;
 use t2tf::pipeline::PipelineError;
 
@@ -52,7 +59,20 @@ create_exception!(
     "Something that does not fit the memory budget."
 );
 
-/// Add the exception classes to the module.
+/// Each class's `kind` where an instance does not set its own (errors this module raises
+/// itself).
+const CLASS_KINDS: [(&str, &str); 8] = [
+    ("Error", "other"),
+    ("VolumeError", "volume"),
+    ("ModelError", "other"),
+    ("SettingsError", "invalid_option"),
+    ("FormatError", "other"),
+    ("RenderError", "other"),
+    ("OutputError", "io"),
+    ("BudgetError", "memory"),
+];
+
+/// Add the exception classes to the module, each with its default `kind` and `option` None.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add("Error", py.get_type::<Error>())?;
@@ -63,6 +83,11 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("RenderError", py.get_type::<RenderError>())?;
     m.add("OutputError", py.get_type::<OutputError>())?;
     m.add("BudgetError", py.get_type::<BudgetError>())?;
+    for (class, kind) in CLASS_KINDS {
+        let class = m.getattr(class)?;
+        class.setattr("kind", kind)?;
+        class.setattr("option", py.None())?;
+    }
     Ok(())
 }
 
@@ -81,70 +106,111 @@ pub fn message(e: &(dyn std::error::Error + 'static)) -> String {
     text
 }
 
-/// A pipeline error as the Python exception of its kind.
-pub fn pipeline(e: PipelineError) -> PyErr {
-    match e {
-        PipelineError::Volume(v) => VolumeError::new_err(message(&v)),
-        PipelineError::Clip(c) => ModelError::new_err(model_hint(message(&c))),
-        PipelineError::Memory(m) => BudgetError::new_err(message(&m)),
-        PipelineError::Optimize(o) => optimize(o),
-        PipelineError::Job(j) => SettingsError::new_err(j),
-        PipelineError::Image(i) => SettingsError::new_err(message(&i)),
-        PipelineError::Camera(c) => RenderError::new_err(message(&c)),
-        PipelineError::Format(f) => format(f),
-        e @ (PipelineError::Output(_) | PipelineError::Fs(_)) => OutputError::new_err(message(&e)),
+/// An exception of class `T` for an error of the library: its message with Python's advice,
+/// and its kind and option as attributes.
+fn raise<T: PyTypeInfo>(e: &(dyn std::error::Error + 'static), hint: Hint) -> PyErr {
+    with_hint::<T>(advise(message(e), &hint), &hint)
+}
+
+/// An exception of class `T` saying `text`, with `hint`'s kind and option as attributes.
+fn with_hint<T: PyTypeInfo>(text: String, hint: &Hint) -> PyErr {
+    Python::attach(|py| {
+        let err = PyErr::new::<T, _>(text);
+        let value = err.value(py);
+        // Setting an attribute on a fresh exception cannot fail but for memory; the class's
+        // defaults then stand.
+        let _ = value.setattr("kind", hint.kind.name());
+        let _ = value.setattr("option", hint.option);
+        err
+    })
+}
+
+/// The keyword of each option whose keyword is not its library name.
+const KEYWORDS: [(&str, &str); 2] = [("budget", "max_memory"), ("locks", "lock")];
+
+/// The Python keyword for the option the library calls `option`.
+pub fn keyword(option: &'static str) -> &'static str {
+    KEYWORDS
+        .iter()
+        .find(|(o, _)| *o == option)
+        .map_or(option, |(_, k)| k)
+}
+
+/// `text` with Python's advice for `hint`: keywords, never flags; nothing where the message
+/// already names the keyword (options are named by the names Python takes).
+fn advise(text: String, hint: &Hint) -> String {
+    match &hint.kind {
+        ErrorKind::ModelUnavailable { repo, offline } => format!(
+            "{text}; {}fetch {repo} on a machine with network (`t2tf model fetch {repo}`) and \
+             copy the cache here, or pass model=DIR, a local model folder",
+            if *offline { "" } else { "or " }
+        ),
+        ErrorKind::Memory { .. } => {
+            format!(
+                "{text} (or pass a larger max_memory where the call takes one, e.g. \
+                     max_memory=\"16G\")"
+            )
+        }
+        _ => match hint.option {
+            Some(o) if keyword(o) != o => format!("{text} (keyword {})", keyword(o)),
+            _ => text,
+        },
     }
 }
 
-/// The library's advice for a model the cache lacks ("or use a local `model` folder"), as
-/// Python says it: the keyword, and where this wheel's checkout still has them, the
-/// repository's test model and tokenizer by absolute path (every stage runs offline with them;
-/// its TFs mean nothing).
-fn model_hint(text: String) -> String {
-    const LOCAL_MODEL: &str = "or use a local `model` folder";
-    if !text.contains(LOCAL_MODEL) {
-        return text;
+/// A pipeline error as the Python exception of its kind.
+pub fn pipeline(e: PipelineError) -> PyErr {
+    let hint = e.hint();
+    match e {
+        PipelineError::Volume(v) => volume(v),
+        PipelineError::Clip(c) => raise::<ModelError>(&c, hint),
+        PipelineError::Memory(m) => raise::<BudgetError>(&m, hint),
+        PipelineError::Optimize(o) => optimize(o),
+        PipelineError::Job(j) => with_hint::<SettingsError>(j, &hint),
+        PipelineError::Image(i) => raise::<SettingsError>(&i, hint),
+        PipelineError::Camera(c) => raise::<RenderError>(&c, hint),
+        PipelineError::Format(f) => format(f),
+        e @ (PipelineError::Output(_) | PipelineError::Fs(_)) => raise::<OutputError>(&e, hint),
+        #[allow(unreachable_patterns)]
+        e => raise::<Error>(&e, hint),
     }
-    // Cargo gives the manifest's folder (crates/python) as an absolute path.
-    let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let model = repo.join("tests/fixtures/clip/quick_gelu");
-    let tokenizer = repo.join("../shared/data/clip/tokenizer.json");
-    let hint = match (
-        t2tf::platform::canonicalize(&model),
-        t2tf::platform::canonicalize(&tokenizer),
-    ) {
-        (Ok(m), Ok(t)) if m.is_dir() && t.is_file() => format!(
-            "or pass model=DIR, a local model folder (offline, the repository's test model \
-             runs every stage: model={:?}, tokenizer={:?})",
-            m.display().to_string(),
-            t.display().to_string()
-        ),
-        _ => "or pass model=DIR, a local model folder".to_string(),
-    };
-    text.replace(LOCAL_MODEL, &hint)
+}
+
+/// A volume error as a `VolumeError`.
+pub fn volume(e: t2tf::volume::VolumeError) -> PyErr {
+    raise::<VolumeError>(&e, t2tf::hints::volume_hint(&e))
+}
+
+/// A `VolumeError` saying `text` about `option` (a keyword of `read_volume`).
+pub fn volume_option(text: impl Into<String>, option: &'static str) -> PyErr {
+    with_hint::<VolumeError>(text.into(), &Hint::invalid(option))
 }
 
 /// A TF file's error: one that could not be read is a `FormatError`, a failed write of an
 /// output (a full disk, a folder that refuses files) an `OutputError`.
 pub fn format(e: t2tf::formats::FormatError) -> PyErr {
+    let hint = e.hint();
     match e {
-        t2tf::formats::FormatError::Output(_) => OutputError::new_err(message(&e)),
-        e => FormatError::new_err(message(&e)),
+        t2tf::formats::FormatError::Output(_) => raise::<OutputError>(&e, hint),
+        e => raise::<FormatError>(&e, hint),
     }
 }
 
-/// An optimizer error: settings are named as the Python keywords spell them.
+/// An optimizer error: settings (named as the keywords spell them) and the prompt are a
+/// `SettingsError`.
 pub fn optimize(e: OptimizeError) -> PyErr {
+    let hint = e.hint();
     match e {
-        OptimizeError::Setting { name, message } => SettingsError::new_err(format!(
-            "invalid setting {}: {message}",
-            name.replace('-', "_")
-        )),
-        OptimizeError::EmptyPrompt => {
-            SettingsError::new_err("the prompt is empty: say what the renderings should show")
+        OptimizeError::Setting { .. } | OptimizeError::EmptyPrompt => {
+            raise::<SettingsError>(&e, hint)
         }
-        other => Error::new_err(message(&other)),
+        other => raise::<Error>(&other, hint),
     }
+}
+
+/// A render error (a camera, a view) as a `RenderError`.
+pub fn render(e: &(dyn std::error::Error + 'static), hint: Hint) -> PyErr {
+    raise::<RenderError>(e, hint)
 }
 
 /// A settings error with `text`.

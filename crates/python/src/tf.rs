@@ -14,7 +14,7 @@ use t2tf::formats::{
 use t2tf::memory::Budget;
 use t2tf::render::{CpuBackend, RenderOptions};
 
-use crate::errors::{self, RenderError};
+use crate::errors;
 
 /// A transfer function: colour and opacity points in data units, in the colour space its
 /// file gave (ParaView presets may interpolate in Lab, HSV, …).
@@ -224,14 +224,13 @@ pub fn render<'py>(
         distance,
         up,
     };
-    let camera =
-        Camera::orbit(&v.geometry, orbit).map_err(|e| RenderError::new_err(errors::message(&e)))?;
+    let camera = Camera::orbit(&v.geometry, orbit).map_err(|e| errors::render(&e, e.hint()))?;
     let image = py
         .detach(|| {
             let backend = CpuBackend::new(Budget::system());
             backend.render(v, &lut, &camera, &bg, &RenderOptions::final_quality())
         })
-        .map_err(|e| RenderError::new_err(errors::message(&e)))?
+        .map_err(|e| errors::render(&e, e.hint()))?
         .image;
     rgb8(py, &image)
 }

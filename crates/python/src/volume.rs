@@ -175,7 +175,7 @@ impl PyVolume {
             .detach(|| {
                 Volume::from_shared_within(Path::new(ARRAY_NAME), g, ty, order, shared, budget)
             })
-            .map_err(|e| VolumeError::new_err(errors::message(&e)))?;
+            .map_err(errors::volume)?;
         Ok(PyVolume {
             volume,
             array: Some(array.into_any().unbind()),
@@ -262,7 +262,7 @@ fn decoded<'py>(py: Python<'py>, path: &Path, opts: &ReadOptions) -> PyResult<Bo
     use numpy::{PyArray1, PyArrayMethods};
     let d = py
         .detach(|| t2tf::volume::decode(path, opts))
-        .map_err(|e| VolumeError::new_err(errors::message(&e)))?;
+        .map_err(errors::volume)?;
     let [nx, ny, nz] = d.geometry.dims;
     macro_rules! typed {
         ($t:ty) => {{
@@ -355,12 +355,15 @@ pub fn read_volume(
             };
             Some(
                 name.parse::<ScalarType>()
-                    .map_err(|e| VolumeError::new_err(e.to_string()))?,
+                    .map_err(|e| errors::volume_option(e.to_string(), "dtype"))?,
             )
         }
     };
     let byte_order = byte_order
-        .map(|b| b.parse::<ByteOrder>().map_err(VolumeError::new_err))
+        .map(|b| {
+            b.parse::<ByteOrder>()
+                .map_err(|e| errors::volume_option(e, "byte_order"))
+        })
         .transpose()?;
     let opts = ReadOptions {
         dims: dims.map(|(x, y, z)| [x, y, z]),
@@ -369,10 +372,11 @@ pub fn read_volume(
         byte_order,
         array,
         budget: Budget::system(),
+        norm_range: None,
     };
     let volume = py
         .detach(|| t2tf::volume::load(&path, &opts))
-        .map_err(|e| VolumeError::new_err(errors::message(&e)))?;
+        .map_err(errors::volume)?;
     Ok(PyVolume {
         volume,
         array: None,

@@ -4,6 +4,7 @@
 //! the CPU backend for the free functions).
 
 use crate::camera::Camera;
+use t2tf_core::error::{ErrorKind, Hint};
 use t2tf_core::image::Image;
 use t2tf_tf::{Lut, LutGrad};
 use t2tf_volume::Volume;
@@ -99,6 +100,35 @@ pub enum RenderError {
         /// Image height.
         h: usize,
     },
+}
+
+impl RenderError {
+    /// What a front end needs to word its advice.
+    pub fn hint(&self) -> Hint {
+        match self {
+            RenderError::Step(_) => Hint::invalid("step_size"),
+            RenderError::Level { .. } => Hint::invalid("level"),
+            RenderError::BrickBudget {
+                needed,
+                slots,
+                budget,
+            } => {
+                // Bricks of a level are alike in size: what `needed` of them take.
+                let per_brick = *budget as u128 / (*slots).max(1) as u128;
+                let needed = (per_brick * *needed as u128).min(u64::MAX as u128) as u64;
+                Hint::new(ErrorKind::Memory {
+                    needed,
+                    available: *budget,
+                })
+                .about("level")
+            }
+            RenderError::Source(v) => match v {
+                t2tf_volume::VolumeError::Io { .. } => Hint::new(ErrorKind::Io),
+                _ => Hint::new(ErrorKind::Volume),
+            },
+            _ => Hint::other(),
+        }
+    }
 }
 
 /// How to render. `Default` gives the documented defaults.

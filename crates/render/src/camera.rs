@@ -45,6 +45,16 @@ pub enum CameraError {
     },
 }
 
+impl CameraError {
+    /// What a front end needs to word its advice.
+    pub fn hint(&self) -> t2tf_core::error::Hint {
+        match self {
+            CameraError::UpAxis(_) => t2tf_core::error::Hint::invalid("up"),
+            CameraError::Param { .. } => t2tf_core::error::Hint::other(),
+        }
+    }
+}
+
 /// World axis that points up on screen; the orbit turns around it. The negative axes are for
 /// data stored upside down (e.g. a CT stacked from the top of the head down, like the shared
 /// `cthead`, shows the head upright with `-z`).

@@ -16,12 +16,13 @@
 
 #[cfg(feature = "bench")]
 pub mod bench;
+pub mod hints;
 pub mod optimize;
 pub mod pipeline;
 
 pub use t2tf_clip as clip;
 pub use t2tf_clip::hub;
-pub use t2tf_core::{fs, image, input, memory, platform, units};
+pub use t2tf_core::{error, fs, image, input, memory, platform, units};
 pub use t2tf_formats as formats;
 pub use t2tf_render as render;
 pub use t2tf_render::{background, camera};

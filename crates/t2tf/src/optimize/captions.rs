@@ -98,7 +98,7 @@ pub fn user_negatives(given: &[String]) -> Result<Vec<String>, OptimizeError> {
             let t = s.trim();
             if t.is_empty() {
                 Err(OptimizeError::Setting {
-                    name: "negative",
+                    name: "negatives",
                     message: "a negative prompt is empty".into(),
                 })
             } else {

@@ -1,6 +1,7 @@
 //! Errors of the optimizer: every one names what went wrong in one line.
 
 use crate::clip::Incomparable;
+use crate::error::{ErrorKind, Hint};
 
 /// Boxed error from a component the loop drives (renderer, image encoder, TF parameterization).
 pub type BoxError = Box<dyn std::error::Error + Send + Sync + 'static>;
@@ -9,9 +10,10 @@ pub type BoxError = Box<dyn std::error::Error + Send + Sync + 'static>;
 #[derive(Debug, thiserror::Error)]
 pub enum OptimizeError {
     /// A setting is out of its valid range (its name, what is wrong).
-    #[error("invalid setting {name}: {message}")]
+    #[error("invalid setting `{name}`: {message}")]
     Setting {
-        /// The setting, as the command line spells it without `--` (`views`, `prior-ab`).
+        /// The setting by its field's name (`views`, `prior_ab`; one of
+        /// `t2tf_core::error::OPTIONS`).
         name: &'static str,
         /// What is wrong with its value.
         message: String,
@@ -55,6 +57,40 @@ pub enum OptimizeError {
     /// The TF parameterization failed.
     #[error("transfer-function parameters: {0}")]
     Parameters(BoxError),
+}
+
+impl OptimizeError {
+    /// What a front end needs to word its advice. A component's boxed error (the renderer's,
+    /// CLIP's) gives its own.
+    pub fn hint(&self) -> Hint {
+        match self {
+            OptimizeError::Setting { name, .. } => Hint::invalid(name),
+            OptimizeError::EmptyPrompt => Hint::new(ErrorKind::EmptyPrompt).about("prompt"),
+            OptimizeError::NoNegatives => Hint::invalid("negatives"),
+            OptimizeError::Captions(c) => c.hint(),
+            OptimizeError::Renderer(e)
+            | OptimizeError::Encoder(e)
+            | OptimizeError::Parameters(e) => boxed_hint(e.as_ref()),
+            _ => Hint::other(),
+        }
+    }
+}
+
+/// The hint of a component's error, where it is one of the library's.
+fn boxed_hint(e: &(dyn std::error::Error + 'static)) -> Hint {
+    if let Some(e) = e.downcast_ref::<crate::render::RenderError>() {
+        e.hint()
+    } else if let Some(e) = e.downcast_ref::<crate::clip::ClipError>() {
+        e.hint()
+    } else if let Some(e) = e.downcast_ref::<crate::volume::VolumeError>() {
+        crate::hints::volume_hint(e)
+    } else if let Some(e) = e.downcast_ref::<crate::memory::MemoryError>() {
+        e.hint()
+    } else if let Some(e) = e.downcast_ref::<OptimizeError>() {
+        e.hint()
+    } else {
+        Hint::other()
+    }
 }
 
 impl From<InitError> for OptimizeError {
@@ -155,7 +191,20 @@ pub enum InitError {
     NoRayHits,
 }
 
-/// A caption file (`--negatives-file`) or a weights file hashed for the caption cache could not
+impl CaptionError {
+    /// What a front end needs to word its advice: the caption file is the `negatives_file`.
+    pub fn hint(&self) -> Hint {
+        match self {
+            CaptionError::Read { .. } => Hint::new(ErrorKind::Io).about("negatives_file"),
+            CaptionError::NotUtf8 { .. } | CaptionError::Empty { .. } => {
+                Hint::invalid("negatives_file")
+            }
+            CaptionError::Hash { .. } => Hint::new(ErrorKind::Io),
+        }
+    }
+}
+
+/// A caption file (`negatives_file`) or a weights file hashed for the caption cache could not
 /// be used. Each message names the file. (The io error is a field named `error`, not `source`,
 /// so a chain printer does not print it twice.)
 #[derive(Debug, thiserror::Error)]

@@ -181,13 +181,13 @@ impl Settings {
         }
         if !finite_nonneg(self.prior_weight) {
             return bad(
-                "prior-weight",
+                "prior_weight",
                 format!("must be finite and ≥ 0, got {}", self.prior_weight),
             );
         }
         for v in [self.prior_a, self.prior_b] {
             if !(v.is_finite() && v > 0.0) {
-                return bad("prior-ab", format!("must be finite and > 0, got {v}"));
+                return bad("prior_ab", format!("must be finite and > 0, got {v}"));
             }
         }
         if !finite_nonneg(self.l1) {
@@ -198,7 +198,7 @@ impl Settings {
         }
         if !(2..=limits::CONTROL_POINTS).contains(&self.control_points) {
             return bad(
-                "control-points",
+                "control_points",
                 format!(
                     "must be between 2 and {}, got {}",
                     limits::CONTROL_POINTS,
@@ -213,8 +213,8 @@ impl Settings {
             && (0.0..std::f64::consts::FRAC_PI_2).contains(&self.pitch_limit))
         {
             return bad(
-                "pitch",
-                format!("limit must be in [0, π/2), got {}", self.pitch_limit),
+                "pitch_limit",
+                format!("must be in [0, π/2), got {}", self.pitch_limit),
             );
         }
         let [d0, d1] = self.distance;
@@ -241,7 +241,7 @@ mod tests {
             ),
             ("steps", |s| s.steps = usize::MAX),
             ("views", |s| s.views = 100_000),
-            ("control-points", |s| s.control_points = 10_000_000),
+            ("control_points", |s| s.control_points = 10_000_000),
         ] {
             let mut s = Settings::default();
             change(&mut s);
@@ -277,18 +277,24 @@ mod tests {
 
     #[test]
     fn invalid_settings_name_the_setting() {
-        let check = |f: fn(&mut Settings), flag: &str| {
+        // By the field's name, in backticks, and in the hint a front end words from.
+        let check = |f: fn(&mut Settings), name: &'static str| {
             let mut s = Settings::default();
             f(&mut s);
-            let m = s.validate().unwrap_err().to_string();
-            assert!(m.contains(flag), "{m} should name {flag}");
+            let e = s.validate().unwrap_err();
+            let m = e.to_string();
+            assert!(m.contains(&format!("`{name}`")), "{m} should name {name}");
+            assert_eq!(e.hint(), crate::error::Hint::invalid(name), "{m}");
         };
         check(|s| s.views = 0, "views");
         check(|s| s.lr = f64::NAN, "lr");
         check(|s| s.momentum = 1.0, "momentum");
-        check(|s| s.prior_a = 0.0, "prior-ab");
+        check(|s| s.prior_a = 0.0, "prior_ab");
         check(|s| s.l1 = -1.0, "l1");
-        check(|s| s.control_points = 1, "control-points");
+        check(|s| s.control_points = 1, "control_points");
+        check(|s| s.rho = 1.0, "rho");
+        check(|s| s.pitch_limit = 2.0, "pitch_limit");
+        check(|s| s.distance = [2.0, 1.0], "distance");
         let s = Settings {
             steps: 0,
             ..Settings::default()

@@ -2,6 +2,7 @@
 //! at most the logical CPUs.
 
 use super::PipelineError;
+use crate::optimize::OptimizeError;
 
 /// A run's thread pool.
 pub struct Workers {
@@ -16,9 +17,11 @@ pub struct Workers {
 /// checks it too).
 pub fn check_threads(threads: Option<usize>) -> Result<(), PipelineError> {
     match threads {
-        Some(0) => Err(PipelineError::Job(
-            "`threads` must be at least 1".to_string(),
-        )),
+        Some(0) => Err(OptimizeError::Setting {
+            name: "threads",
+            message: "must be at least 1".to_string(),
+        }
+        .into()),
         _ => Ok(()),
     }
 }
@@ -49,9 +52,10 @@ mod tests {
     fn zero_is_refused_and_too_many_are_capped() {
         let e = workers(Some(0)).err().expect("0 threads accepted");
         assert!(
-            e.to_string().contains("`threads` must be at least 1"),
+            e.to_string().contains("`threads`: must be at least 1"),
             "{e}"
         );
+        assert_eq!(e.hint(), crate::error::Hint::invalid("threads"));
         assert_eq!(workers(Some(1)).unwrap().pool.current_num_threads(), 1);
         let cpus = std::thread::available_parallelism().unwrap().get();
         let w = workers(Some(cpus + 5)).unwrap();
