@@ -35,6 +35,10 @@ use t2tf::render::{self, Backend, CpuBackend, RenderOptions, Rendered, Shot};
 use t2tf::tf::{ControlPoints, Lut, LutGrad};
 use t2tf::volume::{ByteOrder, Geometry, ScalarType, TypedBuffer, Volume};
 
+#[path = "common/shared_volumes.rs"]
+mod shared_volumes;
+use shared_volumes::SHARED_VOLUMES;
+
 const SIZE: usize = 224;
 const VIEWS: usize = 3;
 
@@ -239,62 +243,8 @@ fn main() -> anyhow::Result<()> {
     println!("## Every shared volume, dense TF, default options\n");
     println!("| volume | level | forward (s) | fwd+bwd (s) | fwd+bwd CPU (s) | samples |");
     println!("|---|---|---|---|---|---|");
-    // One row per shared volume (file, dims, spacing, type): alike by design.
-    for (file, dims, spacing, scalar) in [
-        (
-            "aneurism_256x256x256_uint8.raw",
-            [256, 256, 256],
-            [1.0, 1.0, 1.0],
-            ScalarType::U8,
-        ),
-        (
-            "cthead_256x256x99_uint8.raw",
-            [256, 256, 99],
-            [1.0, 1.0, 2.0],
-            ScalarType::U8,
-        ),
-        (
-            "headsq_64x64x93_uint16.raw",
-            [64, 64, 93],
-            [3.2, 3.2, 1.5],
-            ScalarType::U16,
-        ),
-        (
-            "walnut_128x96x114_uint16.raw",
-            [128, 96, 114],
-            [1.0, 1.0, 1.0],
-            ScalarType::U16,
-        ),
-        (
-            "hydrogen_atom_128x128x128_uint8.raw",
-            [128, 128, 128],
-            [1.0, 1.0, 1.0],
-            ScalarType::U8,
-        ),
-        (
-            "neghip_64x64x64_uint8.raw",
-            [64, 64, 64],
-            [1.0, 1.0, 1.0],
-            ScalarType::U8,
-        ),
-        (
-            "nucleon_41x41x41_uint8.raw",
-            [41, 41, 41],
-            [1.0, 1.0, 1.0],
-            ScalarType::U8,
-        ),
-    ] {
-        let p = root.join(file);
-        let g = Geometry {
-            dims,
-            spacing,
-            origin: [0.0; 3],
-        };
-        let v = Volume::from_buffer(
-            &p,
-            g,
-            &TypedBuffer::new(scalar, ByteOrder::Little, std::fs::read(&p)?),
-        )?;
+    for shared in &SHARED_VOLUMES {
+        let (file, v) = (shared.file, shared.load()?);
         let mut rng = ChaCha8Rng::seed_from_u64(2024);
         let views = Scene {
             cameras: (0..VIEWS)
@@ -309,7 +259,7 @@ fn main() -> anyhow::Result<()> {
             run.samples() as f64 / 1e6
         );
         if let Some(dir) = &out {
-            let name = file.split('_').next().unwrap_or(file);
+            let name = shared.name();
             run.rendered[0]
                 .image
                 .save_png(&dir.join(format!("{name}_dense_0.png")))?;

@@ -24,25 +24,23 @@ use t2tf::camera::{Camera, Orbit, UpAxis};
 use t2tf::image::Image;
 use t2tf::render::{self, RenderOptions};
 use t2tf::tf::{default_unit_distance, opacity_to_sigma, ControlPoints, Lut};
-use t2tf::volume::{ByteOrder, Geometry, ScalarType, TypedBuffer, Volume};
+use t2tf::volume::{ByteOrder, ScalarType, TypedBuffer, Volume};
+
+#[path = "common/shared_volumes.rs"]
+mod shared_volumes;
+use shared_volumes::{SharedVolume, SHARED_VOLUMES};
 
 struct Case {
-    name: &'static str,
+    name: String,
     volume: Volume,
     /// Raw values (data units) for the percentiles.
     values: Vec<f64>,
 }
 
-fn load(
-    root: &Path,
-    name: &'static str,
-    file: &str,
-    dims: [usize; 3],
-    spacing: [f64; 3],
-) -> anyhow::Result<Case> {
-    let path = root.join(file);
-    let bytes = std::fs::read(&path)?;
-    let u16 = file.contains("uint16");
+/// A shared volume, named "aneurism (u8)", with its raw values.
+fn load(shared: &SharedVolume) -> anyhow::Result<Case> {
+    let bytes = std::fs::read(shared.path())?;
+    let u16 = shared.scalar == ScalarType::U16;
     let values: Vec<f64> = if u16 {
         bytes
             .chunks_exact(2)
@@ -51,21 +49,9 @@ fn load(
     } else {
         bytes.iter().map(|&b| b as f64).collect()
     };
-    let st = if u16 { ScalarType::U16 } else { ScalarType::U8 };
-    let geometry = Geometry {
-        dims,
-        spacing,
-        origin: [0.0; 3],
-    };
-    // As in bench_render.rs's table of shared volumes: a raw file of known dims and spacing.
-    let volume = Volume::from_buffer(
-        &path,
-        geometry,
-        &TypedBuffer::new(st, ByteOrder::Little, bytes),
-    )?;
     Ok(Case {
-        name,
-        volume,
+        name: format!("{} ({})", shared.name(), if u16 { "u16" } else { "u8" }),
+        volume: shared.volume(bytes)?,
         values,
     })
 }
@@ -92,7 +78,7 @@ fn wide(headsq: &Case) -> anyhow::Result<Case> {
         &TypedBuffer::new(ScalarType::U16, ByteOrder::Little, bytes),
     )?;
     Ok(Case {
-        name: "headsq-wide (u16)",
+        name: "headsq-wide (u16)".to_string(),
         volume,
         values,
     })
@@ -190,59 +176,10 @@ fn main() -> anyhow::Result<()> {
         .position(|a| a == "--size")
         .and_then(|i| args.get(i + 1))
         .map_or(Ok(256), |s| s.parse())?;
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/volumes");
-    let mut cases = vec![
-        // One case per shared volume (name, file, dims, spacing): alike by design.
-        load(
-            &root,
-            "aneurism (u8)",
-            "aneurism_256x256x256_uint8.raw",
-            [256; 3],
-            [1.0; 3],
-        )?,
-        load(
-            &root,
-            "cthead (u8)",
-            "cthead_256x256x99_uint8.raw",
-            [256, 256, 99],
-            [1.0, 1.0, 2.0],
-        )?,
-        load(
-            &root,
-            "headsq (u16)",
-            "headsq_64x64x93_uint16.raw",
-            [64, 64, 93],
-            [3.2, 3.2, 1.5],
-        )?,
-        load(
-            &root,
-            "walnut (u16)",
-            "walnut_128x96x114_uint16.raw",
-            [128, 96, 114],
-            [1.0; 3],
-        )?,
-        load(
-            &root,
-            "hydrogen_atom (u8)",
-            "hydrogen_atom_128x128x128_uint8.raw",
-            [128; 3],
-            [1.0; 3],
-        )?,
-        load(
-            &root,
-            "nucleon (u8)",
-            "nucleon_41x41x41_uint8.raw",
-            [41; 3],
-            [1.0; 3],
-        )?,
-        load(
-            &root,
-            "neghip (u8)",
-            "neghip_64x64x64_uint8.raw",
-            [64; 3],
-            [1.0; 3],
-        )?,
-    ];
+    let mut cases = SHARED_VOLUMES
+        .iter()
+        .map(load)
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let w = wide(&cases[2])?;
     cases.push(w);
 

@@ -780,8 +780,6 @@ mod tests {
                 r#"{"text_config": {"hidden_act": "relu"}}"#,
                 &["text_config.hidden_act", "relu", "quick_gelu"],
             ),
-            // One row per malformed config (input, words the error must contain): the rows
-            // are alike by design.
             (r#"{"text_config": 5}"#, &["text_config", "not an object"]),
             (
                 r#"{"vision_config_dict": {"layer_norm_eps": 0}}"#,

@@ -17,8 +17,6 @@ const UNIT_DISTANCE_ATTR: &str = "t2tfScalarOpacityUnitDistance";
 /// ParaView XML colour maps (`.xml`): one map per file, in any colour space.
 pub(crate) struct ParaViewXml;
 
-// Shaped like paraview_json.rs's and visit_ct.rs's impls: each format is one entry of the
-// `TfFormat` table, so name, extensions and read/write read alike by design.
 impl TfFormat for ParaViewXml {
     fn name(&self) -> &'static str {
         "ParaView XML colour map"

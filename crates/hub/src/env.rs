@@ -156,27 +156,33 @@ mod tests {
     #[cfg(unix)]
     #[test]
     fn defaults_follow_home_and_xdg() {
-        // One (environment, expected cache) case after another: alike by design.
         let s = settings(&[("HOME", "/h")]);
         assert_eq!(s.endpoint, DEFAULT_ENDPOINT);
-        assert_eq!(s.cache_dir, Path::new("/h/.cache/huggingface/hub"));
         assert!(!s.offline && s.progress);
-        let s = settings(&[("HOME", "/h"), ("XDG_CACHE_HOME", "/x")]);
-        assert_eq!(s.cache_dir, Path::new("/x/huggingface/hub"));
-        let s = settings(&[
-            ("HOME", "/h"),
-            ("XDG_CACHE_HOME", "/x"),
-            ("HF_HOME", "~/hf"),
-        ]);
-        assert_eq!(s.cache_dir, Path::new("/h/hf/hub"));
-        let s = settings(&[("HF_HOME", "/hf"), ("HUGGINGFACE_HUB_CACHE", "/old")]);
-        assert_eq!(s.cache_dir, Path::new("/old"));
-        let s = settings(&[
-            ("HF_HOME", "/hf"),
-            ("HUGGINGFACE_HUB_CACHE", "/old"),
-            ("HF_HUB_CACHE", "/new"),
-        ]);
-        assert_eq!(s.cache_dir, Path::new("/new"));
+        let home = ("HOME", "/h");
+        let cases: [(&[(&str, &str)], &str); 5] = [
+            (&[home], "/h/.cache/huggingface/hub"),
+            (&[home, ("XDG_CACHE_HOME", "/x")], "/x/huggingface/hub"),
+            (
+                &[home, ("XDG_CACHE_HOME", "/x"), ("HF_HOME", "~/hf")],
+                "/h/hf/hub",
+            ),
+            (
+                &[("HF_HOME", "/hf"), ("HUGGINGFACE_HUB_CACHE", "/old")],
+                "/old",
+            ),
+            (
+                &[
+                    ("HF_HOME", "/hf"),
+                    ("HUGGINGFACE_HUB_CACHE", "/old"),
+                    ("HF_HUB_CACHE", "/new"),
+                ],
+                "/new",
+            ),
+        ];
+        for (env, cache) in cases {
+            assert_eq!(settings(env).cache_dir, Path::new(cache), "{env:?}");
+        }
     }
 
     #[test]

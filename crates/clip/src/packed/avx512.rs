@@ -113,9 +113,9 @@ fn prefetch_all(prefetch: &[f32], crow: *mut f32, ldc: usize, t: &Tile) {
 /// AVX-512F present; for r < MR, `a + r·lda` readable for `kc` floats; `b` readable for
 /// `kc·NR` floats and 64-byte aligned; `t.nr == NR`; C as in `Tile::store_scalar`.
 #[target_feature(enable = "avx512f")]
-// Flat on purpose: a micro-kernel is the innermost call of the product; its pointers,
-// strides and counts stay in registers from `run_tile`, and the `# Safety` contract above is
-// stated per argument (a struct would be unpacked again on entry).
+// Flat arguments: a micro-kernel is the innermost call of the product; its pointers, strides
+// and counts stay in registers from `run_tile`, and the `# Safety` contract above is stated
+// per argument (a struct would be unpacked again on entry).
 #[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn tile_f32(
     kc: usize,
@@ -166,7 +166,7 @@ const NV_T: usize = NR_T / 16;
 /// readable for `kc·NR_T` floats and 64-byte aligned; `t.nr == NR_T`, `t.rows ≤ MR_T`; C as in
 /// `Tile::store_transposed`.
 #[target_feature(enable = "avx512f")]
-// Flat on purpose, as `tile_f32`.
+// Flat arguments, as `tile_f32`'s.
 #[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn tile_f32_t(
     kc: usize,
@@ -220,9 +220,7 @@ pub(super) unsafe fn tile_f32_t(
 /// AVX-512F and AVX512_BF16 present; for r < MR, `a + r·lda` readable for `kq` u32s; `b`
 /// readable for `kq·NR` u32s and 64-byte aligned; `t.nr == NR`; C as in `Tile::store_scalar`.
 #[target_feature(enable = "avx512f,avx512bf16")]
-// Flat on purpose: a micro-kernel is the innermost call of the product; its pointers,
-// strides and counts stay in registers from `run_tile`, and the `# Safety` contract above is
-// stated per argument (a struct would be unpacked again on entry).
+// Flat arguments, as `tile_f32`'s.
 #[allow(clippy::too_many_arguments)]
 // The same loop as `tile_f32` with bf16 pairs and `vdpbf16ps` in place of the f32 FMA; kept
 // apart because the hottest loop of CLIP should not go through a trait over the element type,

@@ -171,9 +171,9 @@ pub(crate) fn gemm_into_post(
 /// elements are read only where `accumulate` is set (then they must be initialized) or after
 /// this call wrote them.
 // `gemm`'s arguments (see there) with C as a raw pointer and length, which the safety contract
-// above is about, and `post`. Its parameter list repeats `gemm`'s on purpose: `gemm` is the safe
-// entry on a C slice (and the k = 0 case), this the one `gemm_new`/`gemm_new_post` share on
-// uninitialized C; folding them into one would put the raw pointer in the safe signature.
+// above is about, and `post`. `gemm` is the safe entry on a C slice (and the k = 0 case), this
+// the one `gemm_new`/`gemm_new_post` share on uninitialized C, so the raw pointer stays out of
+// the safe signature.
 #[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn gemm_raw(
     c: *mut f32,

@@ -259,8 +259,8 @@ impl Chunk {
 
 /// Samples n … n + CHUNK − 1 of `ray`, interpolated and classified in scalar code (what
 /// `simd` does with AVX2, operation for operation).
-// Same parameters as `simd::interpolate_classify` and its AVX2 twin on purpose: the march
-// calls whichever the CPU allows with the same arguments.
+// The parameters of `simd::interpolate_classify` and its AVX2 twin: the march calls whichever
+// the CPU allows with the same arguments.
 #[inline(always)]
 pub(super) fn interpolate_classify_scalar<T: Voxel, S: Slots>(
     p: &MarchParams,

@@ -135,8 +135,8 @@ mod avx2 {
     /// the scalar `trilinear`, plus `bricked::PAD` for the 4-byte gathers), its values and
     /// slot table fit 32-bit indices (`Grid::gathers_fit`), and the LUT has at least two
     /// entries.
-    // Same parameters as the dispatcher above and the scalar twin, on purpose (they are
-    // interchangeable).
+    // The dispatcher's and the scalar twin's parameters: the march calls whichever the CPU
+    // allows with the same arguments.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn interpolate_classify<T: Voxel, S: Slots>(
         p: &MarchParams,

@@ -95,7 +95,8 @@ fn lerp(a: F8, b: F8, w: F8) -> F8 {
 
 /// Interpolate and classify samples n … n + 7 of `ray` into `out`, bit for bit as
 /// `interpolate_classify_scalar`.
-// Same parameters as the scalar twin, on purpose (they are interchangeable).
+// The scalar twin's parameters: the march calls whichever the CPU allows with the same
+// arguments.
 #[inline(always)]
 pub(super) fn interpolate_classify<T: Voxel, S: Slots>(
     p: &MarchParams,
