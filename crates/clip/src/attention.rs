@@ -396,9 +396,9 @@ impl Attention {
                 .zip(dqh)
                 .for_each(|(a, b)| *a = b * scale);
         }
-        // The same scatter of per-head results into token rows as `backward`'s dqkv: here only
-        // k and v have a row per token (q exists for the pooled rows alone), so the row width
-        // and the source layout differ; kept apart rather than made generic over both.
+        // Per-head results scattered into token rows, as `backward`'s dqkv, but only k and v
+        // have a row per token here (q exists for the pooled rows alone): another row width
+        // and source layout.
         let mut dkv = vec![0.0f32; t * 2 * d];
         let owners = seg.owners();
         dkv.par_chunks_mut(2 * d)

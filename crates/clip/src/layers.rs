@@ -192,7 +192,7 @@ impl Linear {
             return (y, None);
         }
         let mut pre: Vec<f32> = Vec::with_capacity(rows * n);
-        let dst = SyncPtr(pre.as_mut_ptr());
+        let dst = packed::SendPtr(pre.as_mut_ptr());
         let post = |row: usize, col: usize, v: &mut [f32]| {
             // SAFETY: `gemm_new_post` passes every element of the rows × n result exactly once
             // (`packed::Post`), so these writes stay inside `pre`'s capacity and never overlap
@@ -432,22 +432,6 @@ const SQRT_2_OVER_PI: f32 = 0.797_884_6;
 /// activation of three ViT-B/32 views is 150 × 3072 values, enough exp/erf calls to matter
 /// next to the GEMMs.
 const CHUNK: usize = 8192;
-
-/// A `*mut f32` shared by the threads of one product, which write disjoint elements.
-// The same wrapper as packed/mod.rs's `SendPtr`; kept apart so that each `unsafe impl`'s
-// SAFETY argument covers exactly one use.
-#[derive(Clone, Copy)]
-struct SyncPtr(*mut f32);
-// SAFETY: only used in `Linear::forward_act`, where each element is written by one thread.
-unsafe impl Send for SyncPtr {}
-unsafe impl Sync for SyncPtr {}
-
-impl SyncPtr {
-    /// A method, so that closures capture the whole `SyncPtr` (not the bare pointer).
-    fn get(self) -> *mut f32 {
-        self.0
-    }
-}
 
 /// `x += y`, in parallel chunks (the residual connections).
 pub fn add_assign(x: &mut [f32], y: &[f32]) {

@@ -309,7 +309,7 @@ pub trait Backend: Send + Sync {
     /// ∂L/∂LUT of a shot rendered by `forward` (which returned `tape`), given ∂L/∂image
     /// (H·W·3, row-major from the top) and ∂L/∂T_N (H·W, or empty for zero) at the
     /// background's size.
-    // Alike `optimize::Renderer::backward` by design: `optimize::adapters` implements it with this.
+    // `optimize::adapters` implements `optimize::Renderer::backward` with this.
     fn backward(
         &self,
         prepared: &Self::Prepared,

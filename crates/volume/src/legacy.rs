@@ -14,8 +14,6 @@ use super::{ByteOrder, Decoded, Geometry, ScalarType, SourceFormat, TypedBuffer,
 
 /// Why a legacy `.vtk` file could not be read. Each message is one line; the reader adds the
 /// file's path.
-// Alike in shape to the other readers' error enums (raw, vti, vti_blocks, mod's GeometryError):
-// thiserror variants, each reader's own messages; kept apart so each names its format's terms.
 #[derive(Debug, thiserror::Error)]
 pub(crate) enum LegacyError {
     #[error("not a legacy VTK file: the first line is not '# vtk DataFile Version x.x'")]

@@ -7,8 +7,6 @@ use super::{UnknownScalarType, VolumeError};
 
 /// Why a raw file's name, flags or size do not give a readable array. Each message is one
 /// line; [`VolumeError::file`] adds the file's path.
-// Alike in shape to mod.rs's GeometryError (dims and counts in messages): this one speaks of
-// the file name and flags, that one of any decoded data; kept apart for their messages.
 #[derive(Debug, thiserror::Error)]
 pub(crate) enum RawError {
     /// A dimension in the name that does not fit in `usize`.

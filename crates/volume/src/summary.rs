@@ -215,7 +215,6 @@ mod tests {
         }
     }
 
-    // The inverse of `buffer::for_each_value` (encoding, not decoding): alike in shape only.
     /// `values` stored as `ty` in `order` (values are exact in every type used above).
     fn encode(values: &[f64], ty: ScalarType, order: ByteOrder) -> Vec<u8> {
         macro_rules! enc {

@@ -15,8 +15,6 @@ use super::ByteOrder;
 
 /// Why a binary array's bytes could not be decoded. Each message is one line; the reader adds
 /// the file and array names.
-// Alike in shape to VtiError (thiserror variants): these are the binary blocks' errors, which
-// vti.rs wraps with the array's name; kept apart so the block decoder stands alone.
 #[derive(Debug, thiserror::Error)]
 pub(super) enum BlockError {
     #[error("base64 data has {chars} characters, not a multiple of 4 (truncated?)")]

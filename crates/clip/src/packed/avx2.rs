@@ -16,8 +16,8 @@ pub(super) const NR: usize = 16;
 /// AVX2 and FMA present; `a` readable for `kc·MR` floats (`[kc][MR]`), `b` for `kc·NR` floats
 /// and 32-byte aligned; `t.nr == NR`; C as in `Tile::store_scalar`.
 #[target_feature(enable = "avx2,fma")]
-// The same micro-kernel shape as avx512.rs's `tile_f32` (signature, prefetch, MR × NR
-// accumulators): kept apart because registers, widths and target features differ per ISA.
+// Shaped as avx512.rs's `tile_f32` (signature, prefetch, MR × NR accumulators), with AVX2's
+// registers, widths and target features.
 pub(super) unsafe fn tile(
     kc: usize,
     a: *const f32,

@@ -250,19 +250,19 @@ impl Compute {
     }
 }
 
-/// A `*mut f32` that may cross threads: each thread writes a disjoint set of C's columns.
-// The same wrapper as layers.rs's `SyncPtr`; kept apart so that each `unsafe impl`'s SAFETY
-// argument covers exactly one use (disjoint column panels here, one element per thread there).
+/// A `*mut f32` that may cross threads, each of which writes a disjoint set of its elements.
 #[derive(Clone, Copy)]
-pub(super) struct SendPtr(*mut f32);
-// SAFETY: only used for C in `gemm_raw`, where threads own disjoint column panels.
+pub(crate) struct SendPtr(pub(crate) *mut f32);
+// SAFETY: used only where the threads write disjoint elements: C's column panels in
+// `gemm_raw`, `transposed_product` and `transposed_avx2`, each element by one thread in
+// `layers::Linear::forward_act`.
 unsafe impl Send for SendPtr {}
 unsafe impl Sync for SendPtr {}
 
 impl SendPtr {
     /// A method, so that closures capture the whole `SendPtr` (a field access would capture
     /// the bare pointer, which is not `Send`).
-    pub(super) fn get(self) -> *mut f32 {
+    pub(crate) fn get(self) -> *mut f32 {
         self.0
     }
 }

@@ -107,9 +107,9 @@ impl BoxFrame {
     }
 }
 
-/// What the per-sample visitor sees (only non-empty samples are visited).
-// Partly alike `sample::Classified` by design: that is the sampler's output, this the
-// compositor's, with the transmittance and colour the backward needs.
+/// What the per-sample visitor sees (only non-empty samples are visited): the compositor's
+/// view of a sample, with the transmittance and colour the backward needs beyond what the
+/// sampler gives (`sample::Classified`).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Sample {
     /// LUT entry below the sample and the weight of the entry above.
@@ -445,7 +445,7 @@ fn walk_blocks(g: &Grid, ray: &Ray, mut f: impl FnMut(Work) -> ControlFlow<()>) 
                 ray,
                 (u_in, u_out),
                 (lo, hi),
-                // Alike the super-block step above by design: the same tests one level finer.
+                // The super-block step's tests, one level finer.
                 |b, _, u_in, u_out| {
                     let (n0, n1) = (first_at(u_in), first_at(u_out));
                     if n0 >= n1 || bricks.empty[b] {
