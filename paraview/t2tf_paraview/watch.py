@@ -104,12 +104,15 @@ def _on_register(spxm, filters):
 
 
 def _forget_deleted(spxm, filters):
+    """Drop the records of the filters no longer registered (deleted ones)."""
     live = _filter_proxies(spxm)
     for gid in [g for g in filters if g not in live]:
         del filters[gid]
 
 
 def _on_update(smproxy, filters):
+    """After a filter's update: show a new result of its own (builtin), or run t2tf for it
+    here (remote)."""
     state = filters.get(smproxy.GetGlobalIDAsString())
     if state is None:
         return

@@ -539,12 +539,12 @@ fn failing_runs_name_the_property_to_change() {
     // In-process: the exception's kind and option; without them, the kind of its class.
     hint(
         "module_reported",
-        "must be at most 64, got 100",
+        "must be at most 8, got 100",
         "change the Views property",
     );
     hint(
         "module_class",
-        "must be at most 64, got 100",
+        "must be at most 8, got 100",
         "check the filter's properties",
     );
     assert_eq!(case("module_class").1, "invalid_option");

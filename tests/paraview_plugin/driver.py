@@ -439,7 +439,7 @@ elif mode == "hints":
         fh.write("import os\n__version__ = %r\nclass Error(Exception): pass\n"
                  "class SettingsError(Error): pass\n"
                  "def optimize(volume, prompt, **settings):\n"
-                 "    e = SettingsError('invalid setting `views`: must be at most 64, got 100')\n"
+                 "    e = SettingsError('invalid setting `views`: must be at most 8, got 100')\n"
                  "    if os.environ.get('T2TF_FAKE_KIND'):\n"
                  "        e.kind, e.option = 'invalid_option', 'views'\n"
                  "    raise e\n" % t2tf_plugin.__version__)
@@ -461,7 +461,8 @@ elif mode == "hints":
         sys.path.remove(fake)
         use_module(os.environ["T2TF_TEST_MODULE"])
         fail("module_views", Views=100)
-        fail("module_model", Model=os.path.join(work, "no-such-model"))
+        # Another folder, so that its message is not the binary's case's again.
+        fail("module_model", Model=os.path.join(work, "no-such-model-2"))
     os.environ["T2TF_BIN"] = counting
     print("CASES DONE", flush=True)
     res["failed"] = failed
