@@ -9,6 +9,8 @@ The same library as the `t2tf` command, with NumPy arrays in and out::
     result.save("neghip-tf")                    # the files `t2tf optimize` writes
     values, rgba = result.transfer_function.sample(256)
     picture = t2tf.render(volume, result.transfer_function, size=512)
+    series = t2tf.read_series("run.pvd")     # one TF for a whole time series
+    result = t2tf.optimize(series, "the vortex rings")
 
 Arrays are indexed [z, y, x] (x fastest, as VTK and raw files store values). Runs release
 the GIL; `optimize`'s `progress` callback sees each step and stops the run by returning
@@ -26,12 +28,14 @@ from ._t2tf import (
     RenderError,
     Result,
     SettingsError,
+    Series,
     TransferFunction,
     Volume,
     VolumeError,
     __version__,
     load_model,
     optimize,
+    read_series,
     read_volume,
     render,
 )
@@ -47,12 +51,14 @@ __all__ = [
     "RenderError",
     "Result",
     "SettingsError",
+    "Series",
     "TransferFunction",
     "Volume",
     "VolumeError",
     "__version__",
     "load_model",
     "optimize",
+    "read_series",
     "read_volume",
     "render",
 ]

@@ -91,6 +91,52 @@ class Volume:
     def to_numpy(self) -> np.ndarray:
         """The values in data units, read-only, indexed [z, y, x]."""
 
+class Series:
+    """A time series of volumes, to optimize one transfer function for all its steps
+    (`optimize(series, prompt)`): from `read_series` or `Series.from_arrays`. Its data range
+    is that of all its steps, so the TF means the same data values at every time."""
+
+    @staticmethod
+    def from_arrays(
+        arrays: Sequence[npt.ArrayLike],
+        times: Optional[Sequence[float]] = None,
+        *,
+        spacing: Optional[_Triple] = None,
+        origin: Optional[_Triple] = None,
+    ) -> "Series":
+        """3-D arrays indexed [z, y, x] of one shape at increasing `times` (None: 0, 1, 2,
+        ...), with `spacing` and `origin` (x, y, z) in world units, read in place where their
+        layout allows, as `Volume` reads one."""
+    @property
+    def times(self) -> List[float]:
+        """The time of each step used."""
+    @property
+    def files(self) -> Optional[List[Path]]:
+        """The file of each step used; None for a series of arrays."""
+    @property
+    def collection(self) -> Optional[Path]:
+        """The .pvd or .series file the series was read from, if any."""
+    @property
+    def range(self) -> Tuple[float, float]:
+        """(min, max) of the finite values over every step used: the TF's data range."""
+    @property
+    def step_ranges(self) -> List[Tuple[float, float]]:
+        """Each step's own (min, max)."""
+    def __len__(self) -> int: ...
+
+def read_series(
+    paths: Union[_Path, Sequence[_Path]],
+    *,
+    time_range: Optional[Tuple[float, float]] = None,
+    time_steps: Optional[Sequence[int]] = None,
+    array: Optional[str] = None,
+    spacing: Optional[_Triple] = None,
+) -> Series:
+    """Read a time series as `t2tf optimize` reads one: a ParaView .pvd or .series file, a
+    glob pattern ("run_*.vti") or a list of files (ordered as ParaView orders a file series;
+    a VTK XML file's TimeValue is its time, else its index). `time_range` (t0, t1) or
+    `time_steps` (indices) select the steps used."""
+
 def read_volume(
     path: _Path,
     *,
@@ -230,7 +276,7 @@ Progress = Callable[[Dict[str, Any]], Optional[bool]]
 
 @overload
 def optimize(  # type: ignore[overload-overlap]  # a str is also a Sequence[str]
-    volume: _VolumeLike,
+    volume: Union[_VolumeLike, "Series"],
     prompt: Optional[str] = None,
     *,
     negatives: Sequence[str] = (),
@@ -266,7 +312,7 @@ def optimize(  # type: ignore[overload-overlap]  # a str is also a Sequence[str]
 ) -> Result: ...
 @overload
 def optimize(
-    volume: _VolumeLike,
+    volume: Union[_VolumeLike, "Series"],
     prompt: Sequence[str],
     *,
     negatives: Sequence[str] = (),
@@ -308,8 +354,8 @@ def optimize(
     run).
 
     Parameters:
-        volume: a Volume, a volume file's path (read as read_volume reads it) or a 3-D
-            array indexed [z, y, x].
+        volume: a Volume, a volume file's path (read as read_volume reads it), a 3-D
+            array indexed [z, y, x], or a Series (one TF for all its steps).
         prompt: what the renderings should show, e.g. "a potted tree"; or a list of them.
         negatives: captions to suppress; empty: "a blank image".
         steps: SGD steps; 0: the result is the start (the initialization, or init).

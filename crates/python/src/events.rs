@@ -90,7 +90,7 @@ pub fn json_to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bound
 pub fn run_with_events(
     py: Python<'_>,
     pool: &rayon::ThreadPool,
-    volume: &t2tf::volume::Volume,
+    scene: pipeline::Scene<'_>,
     model: Option<&Model>,
     job: &ValidJob,
     progress: Option<Py<PyAny>>,
@@ -117,10 +117,7 @@ pub fn run_with_events(
                         ControlFlow::Continue(())
                     }
                 };
-                match model {
-                    Some(model) => pipeline::optimize(volume, model, job, &mut on_event),
-                    None => pipeline::optimize_without_model(volume, job, &mut on_event),
-                }
+                pipeline::optimize_scene(scene, model, job, &mut on_event)
             })
         });
         // The first exception (Ctrl-C, or one the callback raised): raised once the run

@@ -11,6 +11,7 @@ mod errors;
 mod events;
 mod result;
 mod run;
+mod series;
 mod tf;
 mod volume;
 
@@ -44,10 +45,12 @@ fn exit_status(code: ExitCode) -> u8 {
 fn _t2tf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     m.add_class::<volume::PyVolume>()?;
+    m.add_class::<series::PySeries>()?;
     m.add_class::<tf::PyTransferFunction>()?;
     m.add_class::<run::PyModel>()?;
     m.add_class::<result::OptimizeResult>()?;
     m.add_function(wrap_pyfunction!(volume::read_volume, m)?)?;
+    m.add_function(wrap_pyfunction!(series::read_series, m)?)?;
     m.add_function(wrap_pyfunction!(tf::render, m)?)?;
     m.add_function(wrap_pyfunction!(run::load_model, m)?)?;
     m.add_function(wrap_pyfunction!(run::optimize, m)?)?;

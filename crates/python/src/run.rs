@@ -212,8 +212,8 @@ pub fn default_name(target: &Target, out: Option<&Path>) -> PyResult<String> {
 /// run).
 ///
 /// Parameters:
-///     volume: a Volume, a volume file's path (read as read_volume reads it) or a 3-D
-///         array indexed [z, y, x].
+///     volume: a Volume, a volume file's path (read as read_volume reads it), a 3-D
+///         array indexed [z, y, x], or a Series (one TF for all its steps).
 ///     prompt: what the renderings should show, e.g. "a potted tree"; or a list of them.
 ///     negatives: captions to suppress; empty: "a blank image".
 ///     steps: SGD steps; 0: the result is the start (the initialization, or init).
@@ -343,7 +343,15 @@ pub fn optimize<'py>(
             .map_err(|_| errors::settings(format!("{name} must be 0 or more, got {v}")))
     };
     let (steps, views) = (count("steps", steps)?, count("views", views)?);
-    let volume = crate::volume::volume_arg(py, volume)?;
+    // A Series: one TF for all its steps; else a volume (a Volume, a file, an array).
+    let series = volume
+        .cast::<crate::series::PySeries>()
+        .ok()
+        .map(|s| s.clone().unbind());
+    let volume = match series {
+        Some(_) => None,
+        None => Some(crate::volume::volume_arg(py, volume)?),
+    };
     let init = init_tf(init, preset)?;
     let mut jobs = Vec::with_capacity(targets.len());
     for target in &targets {
@@ -361,9 +369,15 @@ pub fn optimize<'py>(
     }
     // At most the logical CPUs, as the CLI's `--threads` (more only adds switching).
     let pool = pipeline::workers(threads).map_err(errors::pipeline)?.pool;
-    let volume = &volume.get().volume;
+    let scene = match (&series, &volume) {
+        (Some(s), _) => pipeline::Scene::Series(&s.get().steps),
+        (None, Some(v)) => pipeline::Scene::Volume(&v.get().volume),
+        (None, None) => unreachable!("a series or a volume was made above"),
+    };
     if let Some(job) = jobs.first() {
-        job.check_volume(volume).map_err(errors::pipeline)?;
+        // A series' first step is read here (once), without the GIL.
+        let checked = py.detach(|| job.check_volume(scene.volume()?));
+        checked.map_err(errors::pipeline)?;
     }
     // A run of 0 steps from a TF with opacity is that TF: no model is resolved or loaded
     // (a loaded one given is used all the same).
@@ -390,7 +404,7 @@ pub fn optimize<'py>(
         let mut optimized = run_with_events(
             py,
             &pool,
-            volume,
+            scene,
             model.as_deref(),
             job,
             progress.as_ref().map(|p| p.clone_ref(py)),
@@ -436,6 +450,14 @@ impl Call<'_, '_> {
         let path = |p: &Path| Value::String(absolute(p));
         let volume = match self.volume.cast::<crate::volume::PyVolume>() {
             Ok(v) => v.get().path().map_or(Value::Null, |p| path(&p)),
+            Err(_) if self.volume.cast::<crate::series::PySeries>().is_ok() => {
+                let s = self.volume.cast::<crate::series::PySeries>()?;
+                let s = s.get().steps.series();
+                match &s.collection {
+                    Some(c) => path(c),
+                    None => Value::String("(a series)".into()),
+                }
+            }
             Err(_) => match self.volume.extract::<PathBuf>() {
                 Ok(p) => path(&p),
                 Err(_) => Value::String("(an array)".into()),

@@ -133,9 +133,33 @@ fn c_array<'py>(values: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyUntypedArra
         .map_err(Into::into)
 }
 
+/// `values` as a volume reads them in place (module docs): the C-contiguous array, its
+/// scalar type and byte order, and its memory shared with the volume (which keeps the array
+/// alive).
+pub(crate) fn shared_array<'py>(
+    values: &Bound<'py, PyAny>,
+) -> PyResult<(
+    Bound<'py, PyUntypedArray>,
+    ScalarType,
+    ByteOrder,
+    SharedBytes,
+)> {
+    let array = c_array(values)?;
+    let (ty, order) = volume_type(&array).expect("c_array gives a volume type");
+    // SAFETY: the array is C-contiguous (checked or made so by `c_array`), so its data
+    // pointer starts `nbytes` bytes of values; the owner reference keeps them alive.
+    let data = unsafe { (*array.as_array_ptr()).fields.data as *const u8 };
+    let bytes = ArrayBytes {
+        _owner: array.clone().into_any().unbind(),
+        ptr: data,
+        len: array.len() * ty.size(),
+    };
+    Ok((array, ty, order, std::sync::Arc::new(bytes)))
+}
+
 /// The grid of an array of `shape` [z, y, x]: dims are (x, y, z) in VTK's order. The library
 /// checks spacing and origin when it builds the volume.
-fn geometry(shape: &[usize], spacing: [f64; 3], origin: [f64; 3]) -> Geometry {
+pub(crate) fn geometry(shape: &[usize], spacing: [f64; 3], origin: [f64; 3]) -> Geometry {
     Geometry {
         dims: [shape[2], shape[1], shape[0]],
         spacing,
@@ -158,18 +182,8 @@ impl PyVolume {
     ) -> PyResult<PyVolume> {
         let spacing = spacing.map_or(Ok([1.0; 3]), |s| triple("spacing", s))?;
         let origin = origin.map_or(Ok([0.0; 3]), |o| triple("origin", o))?;
-        let array = c_array(values)?;
-        let (ty, order) = volume_type(&array).expect("c_array gives a volume type");
+        let (array, ty, order, shared) = shared_array(values)?;
         let g = geometry(array.shape(), spacing, origin);
-        // SAFETY: the array is C-contiguous (checked or made so above), so its data pointer
-        // starts `nbytes` bytes of values; the owner reference keeps them alive.
-        let data = unsafe { (*array.as_array_ptr()).fields.data as *const u8 };
-        let bytes = ArrayBytes {
-            _owner: array.clone().into_any().unbind(),
-            ptr: data,
-            len: array.len() * ty.size(),
-        };
-        let shared: SharedBytes = std::sync::Arc::new(bytes);
         let budget = Budget::system();
         let volume = py
             .detach(|| {

@@ -144,6 +144,12 @@ impl SeriesSteps {
         self.series.steps.is_empty()
     }
 
+    /// Whether the steps are held in memory ([`SeriesSteps::from_volumes`]), not read from
+    /// files.
+    pub fn in_memory(&self) -> bool {
+        !self.held.is_empty()
+    }
+
     /// Times a step was read from its file (cache misses).
     pub fn loads(&self) -> usize {
         self.loads.load(Ordering::Relaxed)
