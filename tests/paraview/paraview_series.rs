@@ -98,6 +98,7 @@ struct Run {
     tf: ExportTf,
     shots: Vec<Image>,
     state: serde_json::Value,
+    log: String,
 }
 
 /// Write the outputs for `v` as `name` into `out` and run its pvpython script with
@@ -153,6 +154,7 @@ fn run(v: &Volume, out: &Path, name: &str, extra: &[&str], pictures: Option<usiz
         tf: files.tf,
         shots,
         state: serde_json::from_str(state).unwrap(),
+        log: log.clone(),
     }
 }
 
@@ -247,14 +249,27 @@ fn a_series_script_shows_every_step_with_one_tf() {
     check(&whole, &pvd, "pvd", &times);
 
     // The .series file and the list of files: the same steps, the same pictures. ParaView
-    // takes the list's times from the files' TimeValue.
+    // takes the list's times from the files' TimeValue. A .series file named without the
+    // data's extension, which ParaView has no reader for, is opened as its list of files.
+    std::fs::copy(
+        data.join("gray_scott.vti.series"),
+        data.join("plain.series"),
+    )
+    .unwrap();
     for (name, path) in [
         ("series", data.join("gray_scott.vti.series")),
         ("list", data.join("gray_scott_*.vti")),
+        ("plain", data.join("plain.series")),
     ] {
         let v = last_step(&path, None);
         let r = run(&v, &out, name, &[], Some(4));
         check(&r, &v, name, &times);
+        assert_eq!(
+            r.log.contains("ParaView has no reader for"),
+            name == "plain",
+            "{name}: {}",
+            r.log
+        );
         for (i, (a, b)) in r.shots.iter().zip(&whole.shots).enumerate() {
             assert_same(a, b, &format!("{name} against pvd, step {i}"));
         }

@@ -217,18 +217,28 @@ def timestep_values(source):
     return as_list(source.TimestepValues)
 
 
+def open_list():
+    """STEP_FILES with one reader, and ParaView's time for each (by order)."""
+    reader = open_files([find_file(path) for path in STEP_FILES])
+    times = timestep_values(reader)
+    if len(times) != len(STEP_FILES):
+        # No time from the reader (one file): the steps' own times.
+        times = list(STEP_TIMES)
+    return reader, times
+
+
 def open_series():
     """The source to show, and ParaView's time for each step of STEP_TIMES."""
     if COLLECTION is None:
-        reader = open_files([find_file(path) for path in STEP_FILES])
-        times = timestep_values(reader)
-        if len(times) != len(STEP_FILES):
-            # No time from the reader (one file): the steps' own times.
-            times = list(STEP_TIMES)
-        return reader, times
-    reader = pvs.OpenDataFile(find_file(COLLECTION))
+        return open_list()
+    try:
+        reader = pvs.OpenDataFile(find_file(COLLECTION))
+    except RuntimeError:
+        reader = None
     if reader is None:
-        sys.exit("t2tf script: ParaView has no reader for " + COLLECTION)
+        # ParaView knows a .series file by its full extension (NAME.vti.series).
+        print("t2tf script: ParaView has no reader for %s; opening its files" % COLLECTION)
+        return open_list()
     # The array to read: PointArrayStatus for the XML readers (.series), PointArrays for .pvd.
     for arrays in ("PointArrayStatus", "PointArrays"):
         if arrays in reader.ListProperties():
