@@ -556,8 +556,8 @@ impl One<'_> {
 
 /// What a run optimizes for: one volume, or a time series.
 enum Input {
-    Volume(crate::volume::Volume),
-    Series(SeriesSteps),
+    Volume(Box<crate::volume::Volume>),
+    Series(Box<SeriesSteps>),
 }
 
 impl Input {
@@ -580,7 +580,7 @@ impl OptimizeArgs {
                 .volume_args
                 .load_within(&self.volume, budget)
                 .map_err(flags::volume)?;
-            return Ok(Input::Volume(v));
+            return Ok(Input::Volume(Box::new(v)));
         };
         let n = series.steps.len();
         errln!("reading the statistics of {n} time steps");
@@ -589,7 +589,7 @@ impl OptimizeArgs {
         let first = steps.representative().map_err(flags::volume)?;
         self.volume_args
             .warn_thin(&self.volume, first.geometry.dims);
-        Ok(Input::Series(steps))
+        Ok(Input::Series(Box::new(steps)))
     }
 }
 

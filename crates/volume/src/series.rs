@@ -250,7 +250,7 @@ fn rebin(h: &[u64], from: [f64; 2], to: [f64; 2], into: &mut [u64]) {
         let first = (((lo - to[0]) / tw).floor().max(0.0) as usize).min(n - 1);
         let last = (((hi - to[0]) / tw).ceil().max(1.0) as usize).min(n);
         let mut left = count;
-        for t in first..last {
+        for (t, bin) in into.iter_mut().enumerate().take(last).skip(first) {
             let (tlo, thi) = (to[0] + t as f64 * tw, to[0] + (t + 1) as f64 * tw);
             let share = ((hi.min(thi) - lo.max(tlo)) / (hi - lo)).clamp(0.0, 1.0);
             let k = if t + 1 == last {
@@ -258,7 +258,7 @@ fn rebin(h: &[u64], from: [f64; 2], to: [f64; 2], into: &mut [u64]) {
             } else {
                 ((count as f64 * share).round() as u64).min(left)
             };
-            into[t] += k;
+            *bin += k;
             left -= k;
         }
     }
@@ -441,7 +441,7 @@ fn from_files(mut files: Vec<PathBuf>, named: &Path) -> Result<Series, VolumeErr
             ),
         ));
     }
-    files.sort_by(|a, b| natural_key(a).cmp(&natural_key(b)));
+    files.sort_by_key(|f| natural_key(f));
     files.dedup();
     // ParaView takes an XML file's `TimeValue` field as its time; where every file has one,
     // so does t2tf (else the index, as ParaView does for files without one).

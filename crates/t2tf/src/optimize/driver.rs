@@ -183,8 +183,11 @@ pub fn run_job<R: Renderer, E: ImageEncoder, T: TextEncoder, P: Parameterization
 
     // Final scores and the preview from the same fixed orbit.
     let t0 = Instant::now();
-    let (scores, time_scores, preview) =
-        score_and_preview(job, models, &outcome, &positive, &user)?;
+    let Evaluated {
+        scores,
+        time_scores,
+        preview,
+    } = score_and_preview(job, models, &outcome, &positive, &user)?;
     times.other += t0.elapsed().as_secs_f64();
 
     Ok(Finished {
@@ -273,7 +276,7 @@ fn score_and_preview<R: Renderer, E: ImageEncoder, T, P: Parameterization + ?Siz
     outcome: &Outcome,
     positive: &[f32],
     user: &[Vec<f32>],
-) -> Result<(Vec<Score>, Vec<Vec<Score>>, Image), OptimizeError> {
+) -> Result<Evaluated, OptimizeError> {
     let (renderer, image_encoder, tf) = (models.renderer, models.image_encoder, models.tf);
     let lut = outcome.control_points.to_lut(tf.lut_size());
     let orbit = View::orbit(job.settings, job.preview_views.max(1));
@@ -342,11 +345,18 @@ fn score_and_preview<R: Renderer, E: ImageEncoder, T, P: Parameterization + ?Siz
     } else {
         named(mean)
     };
-    Ok((
-        overall,
-        if times == 1 { Vec::new() } else { per_time },
+    Ok(Evaluated {
+        scores: overall,
+        time_scores: if times == 1 { Vec::new() } else { per_time },
         preview,
-    ))
+    })
+}
+
+/// The final TF's scores and preview ([`score_and_preview`]).
+struct Evaluated {
+    scores: Vec<Score>,
+    time_scores: Vec<Vec<Score>>,
+    preview: Image,
 }
 
 /// Images side by side in rows of ⌈√n⌉ (see `Image::grid`).
