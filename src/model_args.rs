@@ -30,8 +30,9 @@ pub struct ModelArgs {
     /// f32; the calibration is kept per CPU in the cache folder, so every run on a machine
     /// picks alike, and report.json records the choice), f32 (bit-reproducible across
     /// machines and thread counts) or bf16 (weights and activations rounded to bf16, f32
-    /// accumulation). A bf16 run took 0.64× the f32 time on Zen 4, its TF rendering at 53.4 dB
-    /// PSNR against f32's on held-out views (BENCHMARKS.md).
+    /// accumulation). A default run with auto (bf16 there) took 0.58× the f32 time on Zen 4 and
+    /// ends on another TF than f32's: bf16 rounding changes the path of the descent
+    /// (BENCHMARKS.md, "Precision").
     #[arg(long, value_name = "auto|f32|bf16", default_value = "auto")]
     pub precision: String,
 }

@@ -65,7 +65,7 @@ fn precision_help_points_to_the_measurements() {
     let p = h.split("--precision").nth(1).unwrap();
     let p = p.split("\n  -").next().unwrap();
     assert!(!p.contains("not measured"), "{p}");
-    for needle in ["reproducible", "BENCHMARKS.md", "0.64×"] {
+    for needle in ["reproducible", "BENCHMARKS.md", "0.58×"] {
         assert!(p.contains(needle), "--precision help lacks {needle}: {p}");
     }
 }

@@ -2,8 +2,7 @@
 //! embedding with respect to the input pixels (what the optimizer back-propagates through).
 //!
 //! The model is written by hand: candle's CLIP gives no input gradient (its fused layer norm has
-//! no backward) and, rebuilt from differentiable candle ops, runs ViT-B/32 forward+backward
-//! several times slower (BENCHMARKS.md, "CLIP").
+//! no backward), and the hand-written kernels (`packed`) are what the optimizer's time goes to.
 //!
 //! Parts, each reproducing a `transformers` modeling_clip.py class:
 //! `config` (CLIPConfig), `weights` (safetensors or PyTorch checkpoints, one file or shards;

@@ -66,8 +66,8 @@ impl Kernel {
     /// one copy of each weight) runs close to the product with a second packed copy on this
     /// kernel, by `bench_memory --backward` (BENCHMARKS.md, "Memory of a default run"): the
     /// AVX2 kernel reads the panels in place, 1.15–1.17× the two-copy time on Zen 3 (ViT-B/32's
-    /// backward shapes); the AVX-512 one measured 1.35× on Zen 4, the scalar one copies the
-    /// panels per call. A table from the benchmarks rather than a calibration at load: the
+    /// backward shapes); with the AVX-512 one a default run on Zen 4 takes 1.11× the time of
+    /// two copies (BENCHMARKS.md, "Default run"); the scalar one copies the panels per call. A table from the benchmarks rather than a calibration at load: the
     /// two differ by ~15 %, less than a few milliseconds' timing on a shared machine tells
     /// apart reliably. Where it is fast, pipelines keep one copy by default.
     pub fn fast_one_copy(self) -> bool {

@@ -115,8 +115,8 @@ pub(crate) fn gemm_new_post(
 
 /// `gemm_new_post` into `c`, whose old contents are dropped and whose memory is reused: a
 /// caller that runs many products of one size (the caption pool's layers) touches no fresh
-/// pages after the first. A new buffer per product has its pages faulted in and zeroed each
-/// time: ≈ 15 % of the pool's wall time on Zen 3 (BENCHMARKS.md, "Caption pool first use").
+/// pages after the first, where a new buffer per product has its pages faulted in and zeroed
+/// each time.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn gemm_into_post(
     c: &mut Vec<f32>,
