@@ -4,7 +4,8 @@ The binary is T2TF_BIN, else the first `t2tf` on PATH, else one beside t2tf_plug
 one found is kept for the session (a t2tf put on PATH later does not take over), said once
 with its version, and refused when its version is not the plugin's. t2tf reads the input's
 own file when it has one (a .vti, or a raw file with its layout as flags), else the image
-written to a .vti. Progress comes as JSON lines on stderr; SIGINT makes t2tf finish the
+written to a .vti; a time series (All Time Steps) as one .vti per step and a NAME.vti.series
+file with their times. Progress comes as JSON lines on stderr; SIGINT makes t2tf finish the
 current step and write that step's TF.
 """
 import json
@@ -77,12 +78,14 @@ class Backend:
     def arguments(self, request, volume, folder, init):
         """The command line, and the file t2tf reads (written into `folder` when the input
         has no file of its own)."""
-        if volume.file:
+        if volume.series:
+            path, flags = inputs.write_series(volume.series, volume.array, folder), []
+        elif volume.file:
             path, flags = volume.file
         else:
             path, flags = os.path.join(folder, "input.vti"), []
             inputs.write_vti(volume.image_data(), volume.array, path)
-        if path.lower().endswith(".vti"):
+        if path.lower().endswith((".vti", ".vti.series")):
             flags = flags + ["--array", volume.array]
         args = [self.path, "optimize", path, "--out", os.path.join(folder, "tf"),
                 "--progress", "json"]

@@ -26,6 +26,29 @@ def module():
     return t2tf
 
 
+def _series(t2tf, series, array):
+    """The time steps [(time, image), ...] as a t2tf.Series (one TF for all of them), each
+    step's point array `array` read in place; geometry from the first step (the filter
+    checked that all steps share it)."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    arrays = []
+    for _, image in series:
+        data = image.GetPointData().GetArray(array)
+        if data is None:
+            raise ValueError("the image has no point array %r" % array)
+        if data.GetNumberOfComponents() != 1:
+            raise ValueError("point array %r has %d components; t2tf needs one"
+                             % (array, data.GetNumberOfComponents()))
+        nx, ny, nz = image.GetDimensions()
+        arrays.append(vtk_to_numpy(data).reshape(nz, ny, nx))
+    image = series[0][1]
+    extent, spacing = image.GetExtent(), image.GetSpacing()
+    origin = tuple(image.GetOrigin()[a] + extent[2 * a] * spacing[a] for a in range(3))
+    return t2tf.Series.from_arrays(arrays, times=[float(t) for t, _ in series],
+                                   spacing=tuple(spacing), origin=origin)
+
+
 class Backend:
     """Runs `t2tf_module` (the imported module), once its version is the plugin's."""
 
@@ -54,7 +77,10 @@ class Backend:
 
         out = os.path.join(folder, "tf")
         try:
-            data = t2tf.vtk.volume_from_vtk(volume.image_data(), volume.array)
+            if volume.series:
+                data = _series(t2tf, volume.series, volume.array)
+            else:
+                data = t2tf.vtk.volume_from_vtk(volume.image_data(), volume.array)
         except ValueError as e:  # the array is missing or has several components
             raise errors.from_t2tf(e, "volume", "array")
         try:

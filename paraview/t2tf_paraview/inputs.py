@@ -112,6 +112,21 @@ def write_vti(image, array, path):
         raise T2tfError("could not write the input to " + path, "io")
 
 
+def write_series(series, array, folder):
+    """The time steps [(time, image), ...] as one .vti per step and `input.vti.series` (the
+    file series JSON that t2tf and ParaView read, names relative to it) in `folder`; returns
+    the .series file's path."""
+    files = []
+    for i, (time, image) in enumerate(series):
+        name = "input_%04d.vti" % i
+        write_vti(image, array, os.path.join(folder, name))
+        files.append({"name": name, "time": float(time)})
+    path = os.path.join(folder, "input.vti.series")
+    with open(path, "w") as f:
+        json.dump({"file-series-version": "1.0", "files": files}, f, indent=1)
+    return path
+
+
 def image_digest(image, array):
     """A digest of what t2tf would read: geometry, array name and values."""
     from vtkmodules.util.numpy_support import vtk_to_numpy

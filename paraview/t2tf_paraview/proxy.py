@@ -11,10 +11,11 @@ from xml.sax.saxutils import escape
 
 from paraview.util.vtkAlgorithm import (VTKPythonAlgorithmBase, smdomain, smhint, smproperty,
                                         smproxy)
+from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
 from vtkmodules.vtkCommonCore import vtkStringArray
 from vtkmodules.vtkCommonDataModel import vtkDataObject, vtkImageData
 
-from . import display, inputs, run, timing
+from . import display, gui, inputs, run, timing
 from .api import DEFAULT_MODEL
 from .errors import TITLE, T2tfError, say
 
@@ -95,6 +96,11 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         self._camera = 0
         self._refine = 0
         self._locks = ""
+        self._all_steps = 0
+        # The digests of the time steps last read, with the input's pipeline time and steps
+        # they were read at: moving the animation re-executes the filter, which then finds
+        # its result without reading every step again.
+        self._series_memo = None
         self._cache = {}  # settings-and-input key -> result, the last CACHED_RESULTS runs
         self.stored = None  # the Result property, parsed: {"key": ..., "result": ...}
         self.result = None
@@ -175,6 +181,17 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         800,1200": the rest is optimized around them.""")
     def SetLockRanges(self, value):
         self._locks = value or ""
+        self.Modified()
+
+    @smproperty.intvector(name="AllTimeSteps", label="All Time Steps", default_values=0)
+    @smdomain.xml('<BooleanDomain name="bool" />')
+    @_doc("""One transfer function for every time step of the input's animation: each step
+        is read and t2tf optimizes for all of them over their common data range, so the
+        colour map holds as the animation plays. Does nothing when the input has no time
+        steps (then only the current step is used, as when off). Not in client-server
+        mode.""")
+    def SetAllTimeSteps(self, value):
+        self._all_steps = int(value)
         self.Modified()
 
     @smproperty.stringvector(name="Model", default_values=DEFAULT_MODEL,
@@ -275,7 +292,8 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
                 raise inputs.not_image(data.GetClassName() if data else "nothing")
             out = vtkImageData.GetData(outInfo)
             out.ShallowCopy(data)
-            result = self._result_for(data)
+            times = self._time_steps(inInfo[0].GetInformationObject(0))
+            result = self._result_for(data, times)
         except T2tfError as e:
             return self._fail(e)
         except Exception as e:  # a bug of ours: still one line, not a traceback
@@ -291,6 +309,60 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
             a.InsertNextValue(value)
             field.AddArray(a)
         return 1
+
+    def _time_steps(self, info):
+        """The input's time steps when All Time Steps is on and it has more than one, else
+        None (the current step alone, as with the property off)."""
+        if not self._all_steps or not info.Has(SDDP.TIME_STEPS()):
+            return None
+        times = [float(t) for t in info.Get(SDDP.TIME_STEPS())]
+        return times if len(times) > 1 else None
+
+    def _read_time_steps(self, times, current):
+        """[(time, image), ...]: the input at each time step, each a copy of what the input's
+        algorithm produced for that time, read one at a time with a progress line; the input
+        is updated back to the current time afterwards. All steps must share the first's
+        dimensions and spacing."""
+        conn = self.GetInputConnection(0, 0)
+        producer, port = conn.GetProducer(), conn.GetIndex()
+        info = producer.GetOutputInformation(port)
+        now = (info.Get(SDDP.UPDATE_TIME_STEP()) if info.Has(SDDP.UPDATE_TIME_STEP())
+               else current.GetInformation().Get(vtkDataObject.DATA_TIME_STEP())
+               if current.GetInformation().Has(vtkDataObject.DATA_TIME_STEP()) else None)
+        series = []
+        try:
+            for i, t in enumerate(times):
+                self.SetProgressText("%s: reading time step %d of %d" % (TITLE, i + 1,
+                                                                         len(times)))
+                self.UpdateProgress(float(i) / len(times))
+                gui.pump()
+                if self.GetAbortExecute():
+                    raise T2tfError("cancelled while reading the time steps")
+                producer.UpdateTimeStep(t)
+                data = producer.GetOutputDataObject(port)
+                if not isinstance(data, vtkImageData):
+                    raise inputs.not_image(data.GetClassName() if data else "nothing")
+                image = vtkImageData()
+                image.DeepCopy(data)
+                if series:
+                    first = series[0][1]
+                    if (image.GetDimensions() != first.GetDimensions()
+                            or image.GetSpacing() != first.GetSpacing()):
+                        raise T2tfError(
+                            "All Time Steps: time step %d (time %g) is %s points with spacing "
+                            "%s, but the first step is %s with spacing %s: every step must "
+                            "have the same dimensions and spacing"
+                            % (i + 1, t, "x".join(map(str, image.GetDimensions())),
+                               image.GetSpacing(), "x".join(map(str, first.GetDimensions())),
+                               first.GetSpacing()), "volume")
+                series.append((t, image))
+        finally:
+            # The pipeline is left at the current time, as the update that called us asked.
+            if now is not None:
+                producer.UpdateTimeStep(now)
+            else:
+                producer.Update(port)
+        return series
 
     def _fail(self, error):
         """One message, the input passed through, and the error kept (the Python API raises
@@ -315,10 +387,29 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         raise T2tfError("the input has no point array to optimize a transfer function for",
                         "volume", "array")
 
-    def _result_for(self, image):
+    def _input_stamp(self, times):
+        """What the time steps read depend on: the input pipeline's modification time and
+        the steps."""
+        producer = self.GetInputConnection(0, 0).GetProducer()
+        return [producer.GetExecutive().GetPipelineMTime(), list(times)]
+
+    def _result_for(self, image, times=None):
         """The stored result when it was made from this input and these settings (a loaded
-        state), else an earlier run's from memory, else a new run's."""
+        state), else an earlier run's from memory, else a new run's. `times`: the input's
+        time steps, to optimize one TF for all of them (All Time Steps), or None."""
         array = self._array(image)
+        series = None
+        if times:
+            stamp = self._input_stamp(times)
+            memo = self._series_memo
+            if memo and memo["stamp"] == stamp and memo["array"] == array:
+                digest = memo["digest"]
+            else:
+                series = self._read_time_steps(times, image)
+                digest = [[t, inputs.image_digest(step, array)] for t, step in series]
+                self._series_memo = {"stamp": stamp, "array": array, "digest": digest}
+        else:
+            digest = inputs.image_digest(image, array)
         proxy = inputs.proxy_of(self)
         source = proxy.Input if proxy is not None else None
         start = None
@@ -332,7 +423,7 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         key = inputs.key([
             self._prompt, self._negatives, self._steps, self._views, self._seed, self._model,
             self._tokenizer, self._reference, self._refine, self._locks, array,
-            inputs.image_digest(image, array), start, inputs.file_digest(self._reference),
+            digest, start, inputs.file_digest(self._reference),
             inputs.file_digest(self._tokenizer), inputs.folder_digest(self._model)])
         stored = self.stored
         if stored and stored.get("key") == key and stored.get("result"):
@@ -356,7 +447,11 @@ class TextToTransferFunction(VTKPythonAlgorithmBase):
         if self._refine:
             request.start = start or display.current_tf(array, source)
         upstream = inputs.upstream_file(proxy) if proxy is not None else None
-        result = run.run(request, run.Volume(array, image=image, file=upstream), self)
+        if times and series is None:
+            series = self._read_time_steps(times, image)
+        volume = (run.Volume(array, image=series[0][1], series=series) if series
+                  else run.Volume(array, image=image, file=upstream))
+        result = run.run(request, volume, self)
         # The preset a state's result registered, which this run's replaces.
         result["replaces"] = ((stored or {}).get("result") or {}).get("name")
         if result["interrupted"]:

@@ -126,6 +126,20 @@ def filter_request(proxy):
         proxy.ReferenceImage or None, parse_locks(proxy.LockRanges))
 
 
+def _time_step_count(source):
+    """How many time steps a source proxy reports (0 for none)."""
+    try:
+        values = source.TimestepValues
+    except AttributeError:
+        return 0
+    if values is None:
+        return 0
+    try:
+        return len(list(values))
+    except TypeError:  # one value comes as a number
+        return 1
+
+
 def run_filter(proxy):
     """The client's run for a filter whose algorithm lives on the server: t2tf on a proxy of
     the filter's input. Returns the result."""
@@ -133,6 +147,12 @@ def run_filter(proxy):
     info = source.GetDataInformation()
     if info.GetDataClassName() not in inputs.IMAGE_CLASSES:
         raise inputs.not_image(info.GetDataClassName())
+    if int(getattr(proxy, "AllTimeSteps", 0)) and _time_step_count(source) > 1:
+        # Each step would be one more resample and fetch from the server under the same
+        # Apply; not supported yet.
+        raise T2tfError("All Time Steps is not supported in client-server mode: turn it off "
+                        "to optimize for the current time step, or open the data in a builtin "
+                        "session", "invalid_option", "all_time_steps")
     request = filter_request(proxy)
     request.check()
     array = (list(proxy.Array) + ["", ""])[1] or inputs.active_array(source)

@@ -73,10 +73,13 @@ def parse_locks(text):
 class Volume:
     """What t2tf reads: the point array `array` of an image (vtkImageData), given or made by
     `fetch()` once the run has started (a remote proxy, fetched under the progress bar), and
-    `file`: (path, flags) of the same data as a file t2tf reads itself, or None."""
+    `file`: (path, flags) of the same data as a file t2tf reads itself, or None. `series`:
+    [(time, image), ...], the time steps to optimize one TF for (All Time Steps), or None;
+    `image` is then the first step's."""
 
-    def __init__(self, array, image=None, fetch=None, file=None):
+    def __init__(self, array, image=None, fetch=None, file=None, series=None):
         self.array, self.image, self.fetch, self.file = array, image, fetch, file
+        self.series = series
 
     def image_data(self):
         if self.image is None:

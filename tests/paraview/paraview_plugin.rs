@@ -42,6 +42,21 @@ fn driver_with(
     dir: &Path,
     env: &[(&str, &str)],
 ) -> (Output, Option<serde_json::Value>) {
+    let volume = repo().join(if mode == "vti" { HEADSQ } else { NEGHIP });
+    let env: Vec<(&str, &std::ffi::OsStr)> = env
+        .iter()
+        .map(|(k, v)| (*k, std::ffi::OsStr::new(*v)))
+        .collect();
+    driver_on(mode, &volume, dir, &env)
+}
+
+/// [`driver_with`] on `volume`.
+fn driver_on(
+    mode: &str,
+    volume: &Path,
+    dir: &Path,
+    env: &[(&str, &std::ffi::OsStr)],
+) -> (Output, Option<serde_json::Value>) {
     let _one = PVPYTHON.lock().unwrap_or_else(|e| e.into_inner());
     let json = dir.join(format!("{mode}.json"));
     let shot = dir.join(format!("{mode}.png"));
@@ -50,7 +65,7 @@ fn driver_with(
     let out = xvfb_pvpython(&repo().join("tests/paraview_plugin/driver.py"), |c| {
         c.arg(repo().join("paraview/t2tf_plugin.py"))
             .arg(mode)
-            .arg(repo().join(if mode == "vti" { HEADSQ } else { NEGHIP }))
+            .arg(volume)
             .arg(repo().join("tests/fixtures/clip/quick_gelu"))
             .arg(repo().join("../shared/data/clip/tokenizer.json"))
             .arg(&json)
@@ -625,6 +640,7 @@ fn the_panel_reads_in_order_with_a_tooltip_on_every_property() {
             "TimeEstimate",
             "Refine",
             "LockRanges",
+            "AllTimeSteps",
             "Model",
             "Tokenizer",
             "Seed",
@@ -1500,6 +1516,14 @@ fn pvserver_gets_a_bounded_proxy_and_the_tf_transfers() {
     // filter's (loaded on the server with remote=True, whose ranks pass the data through),
     // once for two updates with the same settings.
     assert_eq!(runs(dir.path()), 2, "{all}");
+    // All Time Steps is refused in client-server mode, in one line, running nothing.
+    assert!(
+        all.contains(
+            "Text To Transfer Function: All Time Steps is not supported in client-server mode"
+        ),
+        "{all}"
+    );
+    assert!(all.contains("ALL TIME STEPS DONE"), "{all}");
     assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
     let res: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).expect("driver JSON");
@@ -1935,6 +1959,161 @@ fn the_binary_is_pinned_said_once_and_of_the_plugins_version() {
         !dir.path().join("other.log").exists(),
         "the other version ran"
     );
+}
+
+/// A time-varying source (the Gray–Scott fixture, 3 steps of 24³, as a .pvd): with All
+/// Time Steps on, the filter reads each step (a progress line each), t2tf optimizes one TF for
+/// the series (the report's `time_series`: 3 steps, the range over all of them, which the
+/// colour map's points span), the pipeline is left at the animation's time, and the colour
+/// map stays as it is when the animation moves. Off: the current step only, as before. Steps
+/// of different spacings are refused, naming the first that differs. `module`: run the
+/// Python module in-process (T2TF_BIN empty), else the binary.
+fn all_time_steps(module: Option<&Path>) {
+    let dir = tempfile::tempdir().unwrap();
+    let series = dir.path().join("series");
+    let made = Command::new("pvpython")
+        .arg(repo().join("tests/fixtures/series/make_gray_scott.py"))
+        .arg(&series)
+        .args(["--size", "24", "--steps", "3"])
+        .env("PYTHONPATH", repo().join("paraview/compat"))
+        .output()
+        .unwrap();
+    assert!(made.status.success(), "{}", text(&made));
+    let mut env: Vec<(&str, std::ffi::OsString)> = Vec::new();
+    if let Some(module) = module {
+        env.push(("T2TF_BIN", "".into()));
+        env.push((
+            "PYTHONPATH",
+            std::env::join_paths([repo().join("paraview/compat"), module.to_path_buf()]).unwrap(),
+        ));
+    }
+    let env: Vec<(&str, &std::ffi::OsStr)> = env.iter().map(|(k, v)| (*k, v.as_os_str())).collect();
+    let (out, res) = driver_on("series", &series.join("gray_scott.pvd"), dir.path(), &env);
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    let res = res.expect("driver wrote no JSON");
+    assert_eq!(res["error"], serde_json::Value::Null, "{res}");
+    assert_eq!(
+        runs(dir.path()),
+        if module.is_some() { 0 } else { 2 },
+        "{all}"
+    );
+    if module.is_some() {
+        assert!(all.contains("in-process"), "{all}");
+    }
+    // A line per step read, then the run's steps.
+    let progress: Vec<&str> = res["progress"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_str().unwrap())
+        .collect();
+    for i in 1..=3 {
+        let line = format!("Text To Transfer Function: reading time step {i} of 3");
+        assert!(progress.contains(&line.as_str()), "{line} in {progress:?}");
+    }
+    let read = progress
+        .iter()
+        .position(|t| t.contains("reading time step 3"))
+        .unwrap();
+    let step = progress
+        .iter()
+        .position(|t| t.contains("step 1/3"))
+        .unwrap();
+    assert!(read < step, "{progress:?}");
+    // One TF for the 3 steps, over the range of all of them.
+    let ts = &res["report_time_series"];
+    assert_eq!(ts["total_steps"], 3, "{ts}");
+    assert_eq!(ts["steps"].as_array().unwrap().len(), 3, "{ts}");
+    let times: Vec<f64> = ts["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["time"].as_f64().unwrap())
+        .collect();
+    assert_close(&times, &floats(&res["times"]), "step times");
+    let range = floats(&res["all_range"]);
+    let first = floats(&res["ranges"][0]);
+    assert!(
+        range[0] < first[0] || range[1] > first[1],
+        "the fixture's first step has the range of all: {res}"
+    );
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * b.abs().max(1e-3);
+    let ts_range = floats(&ts["range"]);
+    assert!(
+        close(ts_range[0], range[0]) && close(ts_range[1], range[1]),
+        "{ts_range:?} vs {range:?}"
+    );
+    let rgb = floats(&res["rgb"]);
+    assert!(
+        close(rgb[0], range[0]) && close(rgb[rgb.len() - 4], range[1]),
+        "{rgb:?} vs {range:?}"
+    );
+    let points = floats(&res["points"]);
+    assert!(
+        close(points[0], range[0]) && close(points[points.len() - 4], range[1]),
+        "{points:?}"
+    );
+    check_display(&res, res["color_array"].as_str().unwrap());
+    // The pipeline is back at the animation's time (the first step).
+    let output = floats(&res["output_range"]);
+    assert!(
+        close(output[0], first[0]) && close(output[1], first[1]),
+        "{output:?} vs {first:?}"
+    );
+    // Moving the animation neither rescales the colour map nor runs t2tf again.
+    assert_eq!(res["rgb_after_time_change"], res["rgb_before"], "{res}");
+    assert_eq!(res["rescale_after_time_change"], "Never");
+    // ... nor reads the steps again, and the output follows the animation.
+    assert_eq!(res["reads_after_time_change"], 0, "{res}");
+    let last = floats(&res["ranges"][2]);
+    let moved = floats(&res["output_range_after_time_change"]);
+    assert!(
+        close(moved[0], last[0]) && close(moved[1], last[1]),
+        "{moved:?} vs {last:?}"
+    );
+    assert_eq!(res["runs_before_off"], 1, "{res}");
+    // Off: the current step only, as before.
+    assert_eq!(res["off_error"], serde_json::Value::Null, "{res}");
+    assert_eq!(
+        res["off_report"]["time_series"],
+        serde_json::Value::Null,
+        "{res}"
+    );
+    let off = floats(&res["off_rgb"]);
+    assert!(
+        close(off[0], first[0]) && close(off[off.len() - 4], first[1]),
+        "{off:?} vs {first:?}"
+    );
+    let mismatch = res["mismatch_error"].as_str().unwrap_or("");
+    assert!(
+        mismatch.contains("All Time Steps: time step 3 (time 2)") && mismatch.contains("spacing"),
+        "{res}"
+    );
+    assert_eq!(plugin_temporaries(dir.path()), Vec::<String>::new());
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn all_time_steps_optimizes_one_tf_for_the_animation_with_the_binary() {
+    require_paraview("all_time_steps_optimizes_one_tf_for_the_animation_with_the_binary");
+    all_time_steps(None);
+}
+
+#[test]
+#[cfg_attr(not(t2tf_pvpython), ignore = "needs pvpython and xvfb-run")]
+fn all_time_steps_optimizes_one_tf_for_the_animation_in_process() {
+    require_paraview("all_time_steps_optimizes_one_tf_for_the_animation_in_process");
+    let dir = tempfile::tempdir().unwrap();
+    let Some(module) = python_module(dir.path()) else {
+        eprintln!(
+            "all_time_steps_optimizes_one_tf_for_the_animation_in_process: no Python \
+             extension beside {} (cargo build --release -p t2tf-python); not run",
+            env!("CARGO_BIN_EXE_t2tf")
+        );
+        return;
+    };
+    all_time_steps(Some(&module));
 }
 
 /// The Model and Tokenizer of a run that worked are the defaults of the filter in the next

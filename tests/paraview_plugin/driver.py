@@ -466,6 +466,84 @@ elif mode == "hints":
     os.environ["T2TF_BIN"] = counting
     print("CASES DONE", flush=True)
     res["failed"] = failed
+elif mode.startswith("series"):
+    # A time-varying source (argv's volume is a .pvd): the filter with All Time Steps on
+    # optimizes one TF for every step (range: all steps'), reading each step with a progress
+    # line; the colour map holds when the animation moves. Then, off: the current step only.
+    reader = pvs.OpenDataFile(volume)
+    scene = pvs.GetAnimationScene()
+    scene.UpdateAnimationUsingDataTimeSteps()
+    times = list(reader.TimestepValues)
+    ranges = {name: [] for name in reader.PointData.keys()}
+    for t in times:
+        reader.UpdatePipeline(t)
+        for name in ranges:
+            ranges[name].append(list(reader.PointData[name].GetRange()))
+    res["times"] = times
+    # The first step's range differs from all steps' (the gray-scott fixture).
+    scene.AnimationTime = times[0]
+    f = tf_filter(reader, prompt="a cloud", steps=3)
+    f.AllTimeSteps = 1
+    algo = f.GetClientSideObject()
+    texts = []
+    algo.AddObserver("ProgressEvent", lambda obj, _e: texts.append(obj.GetProgressText() or ""))
+    pvs.Show(f, view)
+    pvs.Render(view)
+    res["error"] = algo.error
+    res["progress"] = [t for i, t in enumerate(texts) if i == 0 or texts[i - 1] != t]
+    array = algo.result["array"]
+    res["ranges"] = ranges[array]
+    res["all_range"] = [min(r[0] for r in ranges[array]), max(r[1] for r in ranges[array])]
+    record(f, array)
+    res["report_time_series"] = json.loads(res["field"]["t2tf_report"]).get("time_series")
+    # The pipeline is back at the animation's time: the output is the current step's data.
+    res["output_range"] = list(f.PointData[array].GetRange())
+    lut = pvs.GetColorTransferFunction(array)
+    res["rgb_before"] = list(lut.RGBPoints)
+    seen = len(texts)
+    scene.AnimationTime = times[2]
+    pvs.Render(view)
+    res["reads_after_time_change"] = len([t for t in texts[seen:] if "reading time step" in t])
+    res["output_range_after_time_change"] = list(f.PointData[array].GetRange())
+    res["rgb_after_time_change"] = list(lut.RGBPoints)
+    res["rescale_after_time_change"] = text(lut.AutomaticRescaleRangeMode)
+    res["runs_before_off"] = len([t for t in texts if "step 1/" in t])
+    scene.AnimationTime = times[0]
+    off = tf_filter(reader, prompt="a cloud", steps=3)
+    pvs.Show(off, view)
+    pvs.Render(view)
+    res["off_error"] = off.GetClientSideObject().error
+    res["off_report"] = json.loads(off.GetClientSideObject().result["report"])
+    res["off_rgb"] = list(off.GetClientSideObject().result["rgb"])
+    # Steps of different spacings: refused, naming the first step that differs. A .pvd:
+    # ParaView's .series reader gives every step the first file's extent and spacing.
+    from vtkmodules.vtkCommonDataModel import vtkImageData
+    from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    import numpy
+    work = os.path.dirname(out_json)
+    entries = []
+    for i, spacing in enumerate((1.0, 1.0, 2.0)):
+        name = "odd_%d.vti" % i
+        image = vtkImageData()
+        image.SetDimensions(8, 8, 8)
+        image.SetSpacing(spacing, spacing, spacing)
+        values = numpy_to_vtk(numpy.arange(512, dtype=numpy.float32) * (i + 1), deep=1)
+        values.SetName("v")
+        image.GetPointData().SetScalars(values)
+        writer = vtkXMLImageDataWriter()
+        writer.SetFileName(os.path.join(work, name))
+        writer.SetInputData(image)
+        writer.Write()
+        entries.append('<DataSet timestep="%d" part="0" file="%s"/>' % (i, name))
+    with open(os.path.join(work, "odd.pvd"), "w") as fh:
+        fh.write('<VTKFile type="Collection" version="0.1"><Collection>%s</Collection>'
+                 '</VTKFile>' % "".join(entries))
+    odd = tf_filter(pvs.OpenDataFile(os.path.join(work, "odd.pvd")), steps=2)
+    odd.AllTimeSteps = 1
+    pvs.Show(odd, view)
+    pvs.Render(view)
+    res["mismatch_error"] = odd.GetClientSideObject().error
 elif mode == "twice":
     # The plugin loaded again (and imported in between): one package, one filter definition,
     # one binary check, one run per update.
@@ -482,7 +560,7 @@ elif mode == "twice":
     res["presets"] = [presets.GetPresetName(i) for i in range(presets.GetNumberOfPresets())
                       if presets.GetPresetName(i).startswith("t2tf: ")]
     res["representation"] = text(pvs.GetDisplayProperties(f, view).Representation)
-if mode not in ("errors", "offline", "panel", "presets", "estimate", "recover", "binary", "hints",
+if not mode.startswith("series") and mode not in ("errors", "offline", "panel", "presets", "estimate", "recover", "binary", "hints",
                 "twice"):
     pvs.SaveScreenshot(shot, view, ImageResolution=[size, size])
 with open(out_json, "w") as fh:

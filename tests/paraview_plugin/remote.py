@@ -96,6 +96,34 @@ res["server_filter_preset"] = json.loads(presets.GetPresetAsString(
     next(i for i in range(presets.GetNumberOfPresets())
          if presets.GetPresetName(i) == "t2tf: a protein molecule")))
 print("SERVER FILTER DONE", flush=True)
+# All Time Steps on a time-varying source (a 3-step .pvd written here, read by the server):
+# refused in client-server mode, in one line, without running t2tf.
+from vtkmodules.vtkCommonDataModel import vtkImageData  # noqa: E402
+from vtkmodules.vtkIOXML import vtkXMLImageDataWriter  # noqa: E402
+from vtkmodules.util.numpy_support import numpy_to_vtk  # noqa: E402
+import numpy  # noqa: E402
+work = os.path.dirname(os.path.abspath(out_json))
+entries = []
+for i in range(3):
+    image = vtkImageData()
+    image.SetDimensions(8, 8, 8)
+    values = numpy_to_vtk(numpy.arange(512, dtype=numpy.float32) * (i + 1), deep=1)
+    values.SetName("v")
+    image.GetPointData().SetScalars(values)
+    writer = vtkXMLImageDataWriter()
+    writer.SetFileName(os.path.join(work, "step_%d.vti" % i))
+    writer.SetInputData(image)
+    writer.Write()
+    entries.append('<DataSet timestep="%d" part="0" file="step_%d.vti"/>' % (i, i))
+with open(os.path.join(work, "steps.pvd"), "w") as fh:
+    fh.write('<VTKFile type="Collection" version="0.1"><Collection>%s</Collection></VTKFile>'
+             % "".join(entries))
+timed = TextToTransferFunction(Input=pvs.OpenDataFile(os.path.join(work, "steps.pvd")),
+                               Prompt="a cloud", Steps=2, Views=1, Model=model,
+                               Tokenizer=tokenizer, AllTimeSteps=1)
+pvs.Show(timed, view)
+pvs.Render(view)
+print("ALL TIME STEPS DONE", flush=True)
 with open(out_json, "w") as fh:
     json.dump(res, fh)
 pvs.Disconnect()
