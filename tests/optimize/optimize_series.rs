@@ -273,6 +273,7 @@ fn a_series_in_memory_renders_as_the_same_series_from_files() {
     assert_eq!(held.len(), 3);
     assert_eq!(held.stats().range, from_files.stats().range);
     assert_eq!(held.stats().step_ranges, from_files.stats().step_ranges);
+    assert_eq!(held.stats().histogram, from_files.stats().histogram);
     for t in 0..3 {
         let (a, b) = (held.step(t).unwrap(), from_files.step(t).unwrap());
         assert_eq!(a.norm_range, b.norm_range);

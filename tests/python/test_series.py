@@ -87,6 +87,8 @@ def test_optimize_a_series(tmp_path):
     result.save(out)
     saved = json.loads((out / "report.json").read_text())
     assert len(saved["time_series"]["steps"]) == 3
-    # A series in memory optimizes too.
+    # The same series in memory: the same TF, bit for bit (its statistics are the files').
     held = t2tf.optimize(t2tf.Series.from_arrays(arrays), "a molecule in red", **QUICK)
     assert held.report["time_series"]["steps"][2]["path"].endswith("(time step 2)")
+    np.testing.assert_array_equal(held.transfer_function.sample(256)[1],
+                                  result.transfer_function.sample(256)[1])

@@ -108,6 +108,15 @@ fn statistics_cover_every_step_and_steps_share_their_normalization() {
     let last = stats.histogram.iter().rposition(|&c| c > 0).unwrap();
     assert!(last >= HISTOGRAM_BINS - 2, "{last}");
 
+    // The histogram is the sum of what the steps' loads count over the series' range.
+    let mut loaded = vec![0u64; HISTOGRAM_BINS];
+    for i in 0..3 {
+        let step = series.load_step(i, stats.norm_range, &opts).unwrap();
+        for (h, k) in loaded.iter_mut().zip(&step.histogram) {
+            *h += k;
+        }
+    }
+    assert_eq!(stats.histogram, loaded);
     // A step normalized over the series' range: v / 69 for every value.
     let step = series.load_step(1, stats.norm_range, &opts).unwrap();
     assert_eq!(step.norm_range, [0.0, 69.0]);

@@ -5,7 +5,7 @@
 //!
 //! A series is opened as a list of steps (time, file); nothing is read until asked. Its
 //! statistics ([`Series::scan`]) are streamed one step at a time through [`summarize`]: the
-//! range over all steps, and the histogram over that range, so memory does not grow with
+//! range over all steps, then the histogram over that range, so memory does not grow with
 //! the series. A step is then loaded ([`Series::load_step`]) normalized over the series'
 //! range, so that one transfer function means the same at every time.
 
@@ -15,6 +15,7 @@ use std::sync::Arc;
 use quick_xml::events::Event;
 use quick_xml::Reader;
 
+use super::summary::histogram_over;
 use super::{load, norm_range, summarize, ReadOptions, Volume, VolumeError, HISTOGRAM_BINS};
 
 /// Collections larger than this are refused before they are read: a `.pvd` or `.series`
@@ -62,8 +63,7 @@ pub struct SeriesStats {
     pub step_ranges: Vec<[f64; 2]>,
     /// NaN/Inf values over all steps.
     pub non_finite: usize,
-    /// Counts over [`HISTOGRAM_BINS`] equal bins of `norm_range`, all steps together (each
-    /// step's own histogram spread over these bins by overlap).
+    /// Counts over [`HISTOGRAM_BINS`] equal bins of `norm_range`, all steps together.
     pub histogram: Vec<u64>,
 }
 
@@ -169,14 +169,17 @@ impl Series {
     }
 
     /// The series' statistics, one step at a time (each step's file opened as `t2tf info`
-    /// opens it, no volume built). `on_step(i)` is called as step `i` is read. The steps
-    /// must share their grid: a series whose dims differ is refused, naming the step.
+    /// opens it, no volume built): a pass over every step for the range, then one for the
+    /// histogram over it (the counts the steps' loads make, bit for bit). `on_step(i)` is
+    /// called as step `i` is read. The steps must share their grid: a series whose dims
+    /// differ is refused, naming the step.
     pub fn scan(
         &self,
         opts: &ReadOptions,
         on_step: &mut dyn FnMut(usize),
     ) -> Result<SeriesStats, VolumeError> {
-        let mut summaries = Vec::with_capacity(self.steps.len());
+        let mut step_ranges = Vec::with_capacity(self.steps.len());
+        let mut non_finite = 0;
         let mut first_dims = None;
         for (i, step) in self.steps.iter().enumerate() {
             on_step(i);
@@ -195,24 +198,29 @@ impl Series {
                 }
                 Some(_) => {}
             }
-            // Keep only what the totals need: a long series' histograms are not all held.
-            summaries.push((s.range, s.norm_range, s.non_finite, s.histogram));
+            step_ranges.push(s.range);
+            non_finite += s.non_finite;
         }
-        let range = summaries
+        let range = step_ranges
             .iter()
             .fold([f64::INFINITY, f64::NEG_INFINITY], |r, s| {
-                [r[0].min(s.0[0]), r[1].max(s.0[1])]
+                [r[0].min(s[0]), r[1].max(s[1])]
             });
         let norm = norm_range(range[0], range[1]);
         let mut histogram = vec![0u64; HISTOGRAM_BINS];
-        for (_, own, _, h) in &summaries {
-            rebin(h, *own, norm, &mut histogram);
+        for step in &self.steps {
+            for (h, k) in histogram
+                .iter_mut()
+                .zip(histogram_over(&step.path, opts, norm)?)
+            {
+                *h += k;
+            }
         }
         Ok(SeriesStats {
             range,
             norm_range: norm,
-            step_ranges: summaries.iter().map(|s| s.0).collect(),
-            non_finite: summaries.iter().map(|s| s.2).sum(),
+            step_ranges,
+            non_finite,
             histogram,
         })
     }
@@ -233,34 +241,6 @@ impl Series {
         let mut volume = load(&step.path, &opts)?;
         volume.series = Some(self.clone());
         Ok(volume)
-    }
-}
-
-/// Add the counts of `h` (bins over `from`) to `into` (bins over `to`), each bin's count
-/// shared among the bins it overlaps in proportion to the overlap. Exact where the ranges
-/// are the same; within one bin's width otherwise.
-fn rebin(h: &[u64], from: [f64; 2], to: [f64; 2], into: &mut [u64]) {
-    let n = into.len();
-    let (fw, tw) = (
-        (from[1] - from[0]) / h.len() as f64,
-        (to[1] - to[0]) / n as f64,
-    );
-    for (b, &count) in h.iter().enumerate().filter(|(_, &c)| c > 0) {
-        let (lo, hi) = (from[0] + b as f64 * fw, from[0] + (b + 1) as f64 * fw);
-        let first = (((lo - to[0]) / tw).floor().max(0.0) as usize).min(n - 1);
-        let last = (((hi - to[0]) / tw).ceil().max(1.0) as usize).min(n);
-        let mut left = count;
-        for (t, bin) in into.iter_mut().enumerate().take(last).skip(first) {
-            let (tlo, thi) = (to[0] + t as f64 * tw, to[0] + (t + 1) as f64 * tw);
-            let share = ((hi.min(thi) - lo.max(tlo)) / (hi - lo)).clamp(0.0, 1.0);
-            let k = if t + 1 == last {
-                left
-            } else {
-                ((count as f64 * share).round() as u64).min(left)
-            };
-            *bin += k;
-            left -= k;
-        }
     }
 }
 
@@ -567,19 +547,6 @@ fn expand_glob(pattern: &Path) -> Result<Vec<PathBuf>, VolumeError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn rebinning_keeps_every_count_and_is_exact_on_the_same_range() {
-        let h: Vec<u64> = (0..256).map(|i| (i * 7 % 13) as u64).collect();
-        let mut same = vec![0u64; 256];
-        rebin(&h, [2.0, 10.0], [2.0, 10.0], &mut same);
-        assert_eq!(same, h);
-        let mut wide = vec![0u64; 256];
-        rebin(&h, [2.0, 10.0], [0.0, 20.0], &mut wide);
-        assert_eq!(wide.iter().sum::<u64>(), h.iter().sum::<u64>());
-        // Nothing lands outside [2, 10] of [0, 20] (bins 25.6 .. 128), give or take a bin.
-        assert!(wide[..25].iter().all(|&c| c == 0) && wide[129..].iter().all(|&c| c == 0));
-    }
 
     #[test]
     fn files_sort_as_a_file_series() {

@@ -63,6 +63,17 @@ pub(super) fn code_stats(ty: ScalarType, counts: &[u64]) -> Stats {
     acc.stats(histogram)
 }
 
+/// The histogram of 8/16-bit code counts over `norm_range` (`code_stats` bins over the
+/// codes' own range).
+pub(super) fn code_histogram(ty: ScalarType, counts: &[u64], norm_range: [f64; 2]) -> Vec<u64> {
+    let scale = half_scale(norm_range);
+    let mut histogram = vec![0u64; HISTOGRAM_BINS];
+    for (c, &k) in counts.iter().enumerate().filter(|(_, &k)| k > 0) {
+        histogram[normalize_value(code_value(ty, c), norm_range, scale).1] += k;
+    }
+    histogram
+}
+
 /// The finite range and the count of other values.
 pub(super) struct MinMax {
     lo: f64,

@@ -27,7 +27,7 @@ use t2tf_core::memory::Budget;
 
 use super::pyramid::{self, BrickGridBuilder, Level, LevelSource, Narrow, Reducer, Samples};
 use super::source::Source;
-use super::stats::{code_stats, code_value, small_codes, Stats};
+use super::stats::{code_histogram, code_stats, code_value, small_codes, Stats};
 use super::{
     buffer::for_each_value, half_scale, normalize_value, ByteOrder, Geometry, ScalarType,
     VolumeError,
@@ -504,17 +504,6 @@ fn check_within(source: &Source, range: [f64; 2], fixed: [f64; 2]) -> Result<(),
             range[0], range[1], fixed[0], fixed[1]
         ),
     ))
-}
-
-/// The histogram of 8/16-bit code counts over `norm_range` (`code_stats` bins over the
-/// codes' own range).
-fn code_histogram(ty: ScalarType, counts: &[u64], norm_range: [f64; 2]) -> Vec<u64> {
-    let scale = super::half_scale(norm_range);
-    let mut histogram = vec![0u64; super::HISTOGRAM_BINS];
-    for (c, &k) in counts.iter().enumerate().filter(|(_, &k)| k > 0) {
-        histogram[super::normalize_value(code_value(ty, c), norm_range, scale).1] += k;
-    }
-    histogram
 }
 
 /// Which levels a stream keeps: the coarse ones that fit half of `budget` bytes (counted as

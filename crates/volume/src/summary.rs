@@ -88,6 +88,28 @@ pub fn summarize(path: &Path, opts: &ReadOptions) -> Result<Summary, VolumeError
     })
 }
 
+/// The histogram of the file at `path` over `norm_range` instead of its own range (a step
+/// of a series, binned over the series' range): the counts a load with
+/// `ReadOptions::norm_range` makes, bit for bit, without making the volume.
+pub(crate) fn histogram_over(
+    path: &Path,
+    opts: &ReadOptions,
+    norm_range: [f64; 2],
+) -> Result<Vec<u64>, VolumeError> {
+    let (geometry, _, _, source) = super::read::open(path, opts)?;
+    check_geometry(path, &geometry, source.len())?;
+    if super::stats::small_codes(source.ty()).is_some() {
+        if let Some((_, Some(counts))) = source.stats()? {
+            return Ok(super::stats::code_histogram(
+                source.ty(),
+                &counts,
+                norm_range,
+            ));
+        }
+    }
+    histogram(&source, norm_range)
+}
+
 /// Counts of the finite values in `HISTOGRAM_BINS` equal bins over `norm_range`.
 fn histogram(source: &Source, norm_range: [f64; 2]) -> Result<Vec<u64>, VolumeError> {
     let (ty, order) = (source.ty(), source.order());
