@@ -22,3 +22,4 @@ mod optimize_refine;
 mod optimize_render_size;
 mod optimize_reproduce;
 mod optimize_series;
+mod optimize_series_recover;
