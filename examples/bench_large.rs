@@ -17,6 +17,9 @@
 //! is read from memory both times; a larger one from disk both times. Peak memory is the
 //! process's high-water mark (`VmHWM`, Linux), which includes the writer's block.
 
+#[path = "common/peak_memory.rs"]
+mod peak_memory;
+
 use std::io::{Read, Write};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -67,7 +70,7 @@ fn main() -> anyhow::Result<()> {
         "| {n}³ uint16 ({:.1} GiB) | {read_s:.2} | {info_s:.2} | {:.2} | {} |",
         bytes / (1u64 << 30) as f64,
         info_s / read_s,
-        peak_memory().unwrap_or_else(|| "n/a".into())
+        peak_memory::peak_kib().map_or_else(|| "n/a".into(), |k| format!("{k} kB"))
     );
     if args.iter().any(|a| a == "--optimize") {
         optimize(&path, &dir, n, bytes)?;
@@ -160,11 +163,4 @@ fn optimize(
     );
     std::fs::remove_dir_all(&out).ok();
     Ok(())
-}
-
-/// The process's peak resident memory (Linux `VmHWM`).
-fn peak_memory() -> Option<String> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    Some(line.trim_start_matches("VmHWM:").trim().to_string())
 }

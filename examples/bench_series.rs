@@ -8,7 +8,7 @@
 //! folder (16 MiB a step) or in `--data DIR`, where files already there are reused.
 //!
 //! Each run is a child process of this one (the program re-executed with `--child`), so that
-//! each has its own peak RSS (`VmHWM` of /proc/self/status at its end). A first child embeds
+//! each has its own peak RSS (`common/peak_memory.rs`: Linux's `VmHWM`, n/a elsewhere). A first child embeds
 //! the caption pool into the shared caption cache, so neither measured run holds the text
 //! tower for the pool. The time per optimizer step is the wall time from the end of the first
 //! step to the end of the last, divided by S − 1 (the runs' start, the series' statistics and
@@ -31,6 +31,8 @@ use t2tf::optimize::series::SeriesSteps;
 use t2tf::pipeline::{self, Event, Job, Model, ModelOptions, Target};
 use t2tf::volume::{ReadOptions, Series};
 
+#[path = "common/peak_memory.rs"]
+mod peak_memory;
 #[path = "common/random_model.rs"]
 mod random_model;
 use random_model::write_model;
@@ -38,16 +40,6 @@ use random_model::write_model;
 const PROMPT: &str = "a CT angiography of blood vessels";
 const SIDE: usize = 256;
 const RESULT: &str = "bench_series result:";
-
-/// Peak resident set of this process in KiB (`VmHWM`).
-fn peak_rss_kib() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .unwrap_or_default()
-        .lines()
-        .find_map(|l| l.strip_prefix("VmHWM:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
-        .unwrap_or(0)
-}
 
 fn step_path(dir: &Path, s: usize) -> PathBuf {
     dir.join(format!("aneurism_t{s:04}_{SIDE}x{SIDE}x{SIDE}_uint8.raw"))
@@ -152,7 +144,7 @@ fn child(args: &[String]) -> Result<()> {
     };
     println!(
         "{RESULT} {per_step} {run} {} {loop_loads} {run_loads}",
-        peak_rss_kib()
+        peak_memory::peak_kib().unwrap_or(0)
     );
     Ok(())
 }
@@ -253,8 +245,11 @@ fn main() -> Result<()> {
         "| input | s per optimizer step | ratio | peak RSS | loads in the loop (run) | run (s) |"
     );
     println!("|---|---|---|---|---|---|");
-    // Decimal megabytes, as the bound (1.0 GB) is written.
-    let mb = |kib: u64| format!("{:.0} MB", kib as f64 * 1024.0 / 1e6);
+    // Decimal megabytes; 0 is a system that does not say (`peak_memory`).
+    let mb = |kib: u64| match kib {
+        0 => "n/a".to_string(),
+        k => format!("{:.0} MB", k as f64 * 1024.0 / 1e6),
+    };
     println!(
         "| one {SIDE}³ uint8 volume | {:.3} | 1 | {} | — | {:.1} |",
         one.per_step,

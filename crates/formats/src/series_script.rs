@@ -22,7 +22,9 @@ use super::paraview_script::{
     one_line, py_list, py_str, script_path, source_path, write_open_reader, write_tf_constants,
     SHOW,
 };
-use super::visit_script::{visit_about, visit_constants, VISIT_ARG, VISIT_HERE, VISIT_PLOT};
+use super::visit_script::{
+    visit_about, visit_constants, VISIT_ARG, VISIT_HERE, VISIT_PLOT, VISIT_WRITE_VTI,
+};
 use super::{ExportTf, FormatError};
 use t2tf_render::camera::ParaViewCamera;
 use t2tf_volume::{Series, SourceFormat, Volume};
@@ -366,20 +368,7 @@ SCRIPT_NAME = {script_py}"#,
 
 {PICK_AND_FIND}
 
-def write_vti(volume, path):
-    # The raw bytes as they are after VTI_HEAD, with their UInt64 byte count (VTK XML's raw
-    # appended encoding), so VisIt's VTK reader gets every value exactly.
-    size = os.path.getsize(volume)
-    if size != VTI_BYTES:
-        sys.exit("%s: %d bytes, expected %d" % (volume, size, VTI_BYTES))
-    part = path + ".part"
-    with open(volume, "rb") as src, open(part, "wb") as dst:
-        dst.write(VTI_HEAD.encode("utf-8"))
-        dst.write(struct.pack(VTI_ORDER + "Q", size))
-        shutil.copyfileobj(src, dst, 1 << 24)
-        dst.write(b"\n  </AppendedData>\n</VTKFile>\n")
-    os.replace(part, path)
-
+{VISIT_WRITE_VTI}
 
 {VISIT_HERE}
 

@@ -157,20 +157,7 @@ SCRIPT_NAME = {script_py}
 
 {VISIT_ARG}
 
-def write_vti(path):
-    # The raw bytes as they are after VTI_HEAD, with their UInt64 byte count (VTK XML's raw
-    # appended encoding), so VisIt's VTK reader gets every value exactly.
-    size = os.path.getsize(VOLUME)
-    if size != VTI_BYTES:
-        sys.exit("%s: %d bytes, expected %d" % (VOLUME, size, VTI_BYTES))
-    part = path + ".part"
-    with open(VOLUME, "rb") as src, open(part, "wb") as dst:
-        dst.write(VTI_HEAD.encode("utf-8"))
-        dst.write(struct.pack(VTI_ORDER + "Q", size))
-        shutil.copyfileobj(src, dst, 1 << 24)
-        dst.write(b"\n  </AppendedData>\n</VTKFile>\n")
-    os.replace(part, path)
-
+{VISIT_WRITE_VTI}
 
 {VISIT_HERE}
 
@@ -183,7 +170,7 @@ def database():
             if os.path.exists(vti) and os.path.getmtime(vti) >= os.path.getmtime(VOLUME):
                 return vti
             try:
-                write_vti(vti)
+                write_vti(VOLUME, vti)
                 return vti
             except OSError:
                 continue
@@ -237,6 +224,22 @@ pub(crate) fn visit_about(tf: &ExportTf, volume: &Volume) -> String {
             .unwrap_or_else(|| t2tf_tf::default_unit_distance(&volume.geometry)),
     )
 }
+
+/// `write_vti(volume, path)`: an exact `.vti` copy of a raw file for VisIt.
+pub(crate) const VISIT_WRITE_VTI: &str = r#"def write_vti(volume, path):
+    # The raw bytes as they are after VTI_HEAD, with their UInt64 byte count (VTK XML's raw
+    # appended encoding), so VisIt's VTK reader gets every value exactly.
+    size = os.path.getsize(volume)
+    if size != VTI_BYTES:
+        sys.exit("%s: %d bytes, expected %d" % (volume, size, VTI_BYTES))
+    part = path + ".part"
+    with open(volume, "rb") as src, open(part, "wb") as dst:
+        dst.write(VTI_HEAD.encode("utf-8"))
+        dst.write(struct.pack(VTI_ORDER + "Q", size))
+        shutil.copyfileobj(src, dst, 1 << 24)
+        dst.write(b"\n  </AppendedData>\n</VTKFile>\n")
+    os.replace(part, path)
+"#;
 
 /// `arg(name, count)`: the `count` command-line values after `name`, or None.
 pub(crate) const VISIT_ARG: &str = r#"def arg(name, count):
